@@ -1,0 +1,67 @@
+"""Input errors shared by every layer: a bad value is reported with the field that holds it.
+
+The CLI turns an :class:`InputError` into a one-line message on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+__all__ = ["InputError", "require_finite", "require_positive", "require_nonnegative",
+           "require_vector"]
+
+
+class InputError(ValueError):
+    """A value given by the user is not acceptable.
+
+    Parameters
+    ----------
+    field : str
+        Dotted name of the offending field (``"limits.translation.jerk"``, ``"--tf"``).
+    message : str
+        What is wrong with it, in words a user understands.
+    """
+
+    def __init__(self, field: str, message: str):
+        self.field = field
+        self.message = message
+        super().__init__(f"{field}: {message}")
+
+
+def require_finite(value, field: str) -> float:
+    """Return ``value`` as a float; raise :class:`InputError` if it is not a finite number."""
+    if isinstance(value, bool):
+        raise InputError(field, f"must be a number, not {value!r}")
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise InputError(field, f"must be a number, not {value!r}") from None
+    if not math.isfinite(x):
+        raise InputError(field, f"must be finite, not {value!r}")
+    return x
+
+
+def require_positive(value, field: str) -> float:
+    """Return ``value`` as a float; it must be finite and > 0."""
+    x = require_finite(value, field)
+    if x <= 0.0:
+        raise InputError(field, f"must be positive, not {value!r}")
+    return x
+
+
+def require_nonnegative(value, field: str) -> float:
+    """Return ``value`` as a float; it must be finite and >= 0."""
+    x = require_finite(value, field)
+    if x < 0.0:
+        raise InputError(field, f"must be non-negative, not {value!r}")
+    return x
+
+
+def require_vector(value, length: int, field: str) -> list[float]:
+    """Return ``value`` as a list of ``length`` finite floats."""
+    if isinstance(value, str | bytes) or not isinstance(value, Sequence):
+        raise InputError(field, f"must be a list of {length} numbers, not {value!r}")
+    if len(value) != length:
+        raise InputError(field, f"must have {length} elements, not {len(value)}")
+    return [require_finite(v, f"{field}[{i}]") for i, v in enumerate(value)]
