@@ -1,0 +1,230 @@
+"""Robot description: Table 1, assemblies, URDF and pinocchio model, validation."""
+
+import math
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from models.modules import MODULE_TYPES, TABLE1, TABLE1_ERRATA
+from models.robot import load_robot, matrix_to_rpy, robot_from_dict, rot_x, rpy_to_matrix
+from models.spatial import theta_to_pinocchio, transform_theta
+from mrm.errors import InputError
+
+ROBOTS = ["mrm3", "mrm6"]
+
+
+def test_table1_is_kept_as_printed():
+    assert TABLE1["I"]["a"][0] == 1.8 and TABLE1["II"]["b"][0] == 1.64
+    assert MODULE_TYPES["I"].link_a.printed == TABLE1["I"]["a"]
+    # Module weights (Table 1: 2.6 kg and 4.9 kg) are within 0.4 kg of the two links' masses
+    # (connectors and electronics are not in the link parameters).
+    assert MODULE_TYPES["I"].mass == pytest.approx(2.3)
+    assert MODULE_TYPES["II"].mass == pytest.approx(4.64)
+
+
+def test_only_listed_table1_entries_disagree_with_m_r_squared():
+    """θ₅..θ₇ must equal (m rᵢ)²/m to the printed precision, except the documented erratum."""
+    found = set()
+    for tname, links in TABLE1.items():
+        for lname, t in links.items():
+            for i in range(3):
+                derived = t[1 + i] ** 2 / t[0]
+                printed = t[4 + i]
+                if not math.isclose(printed, derived, rel_tol=0.05, abs_tol=2e-6):
+                    found.add((tname, lname, 4 + i))
+    assert found == set(TABLE1_ERRATA)
+    for (tname, lname, i), (printed, derived) in TABLE1_ERRATA.items():
+        assert TABLE1[tname][lname][i] == printed
+        link = getattr(MODULE_TYPES[tname], f"link_{lname}")
+        assert link.theta()[i] == pytest.approx(derived)
+
+
+@pytest.mark.parametrize("tname", sorted(MODULE_TYPES))
+def test_table1_links_are_physical_bodies(tname):
+    for link in (MODULE_TYPES[tname].link_a, MODULE_TYPES[tname].link_b):
+        link.check_physical(tname)
+        # Products of inertia printed as m rᵢrⱼ − Iᵢⱼ are reproduced by the derived body.
+        t, p = link.theta(), link.printed
+        np.testing.assert_allclose(t[[0, 1, 2, 3, 7, 8, 9, 10, 11, 12]],
+                                   np.array(p)[[0, 1, 2, 3, 7, 8, 9, 10, 11, 12]], atol=1e-12)
+
+
+def test_encoder_resolution_matches_paper():
+    # 0.1571 rad ↔ 20,000 counts (paper §5.1; exactly 20,000 counts is 0.15708 rad).
+    for t in MODULE_TYPES.values():
+        assert t.counts_per_rev == 800_000
+        assert 0.1571 * t.counts_per_rev / (2 * math.pi) == pytest.approx(20_000, rel=2e-4)
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_urdf_masses_are_table1_masses(name):
+    robot = load_robot(name)
+    root = ET.fromstring(robot.urdf())
+    masses = {link.get("name"): float(link.find("inertial/mass").get("value"))
+              for link in root.iter("link") if link.find("inertial") is not None}
+    for k, mod in enumerate(robot.modules):
+        assert masses[f"link{k + 1}a"] == TABLE1[mod.type.name]["a"][0]
+        assert masses[f"link{k + 1}b"] == TABLE1[mod.type.name]["b"][0]
+    joints = [j for j in root.iter("joint") if j.get("type") == "revolute"]
+    assert [j.get("name") for j in joints] == robot.joint_names
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_pinocchio_bodies_carry_link_a_and_next_link_b(name):
+    """Pinocchio merges the fixed mount into the moving body: body k = Link a of module k plus
+    Link b of module k+1 (in {A_k}); Link b of module 1 sits on the base and moves nothing."""
+    robot = load_robot(name)
+    model = robot.pinocchio_model()
+    assert model.nq == robot.n
+    for k in range(robot.n):
+        theta = robot.nominal_theta[k, 0].copy()
+        if k + 1 < robot.n:
+            M = robot.mount_transform(k + 1)
+            theta += transform_theta(robot.nominal_theta[k + 1, 1], M[:3, :3], M[:3, 3])
+        np.testing.assert_allclose(model.inertias[k + 1].toDynamicParameters(),
+                                   theta_to_pinocchio(theta), atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_joint_torque_regressor_with_our_parameters_reproduces_rnea(name):
+    robot = load_robot(name)
+    model = robot.pinocchio_model()
+    data = model.createData()
+    rng = np.random.default_rng(3)
+    pis = []
+    for k in range(robot.n):
+        theta = robot.nominal_theta[k, 0].copy()
+        if k + 1 < robot.n:
+            M = robot.mount_transform(k + 1)
+            theta += transform_theta(robot.nominal_theta[k + 1, 1], M[:3, :3], M[:3, 3])
+        pis.append(theta_to_pinocchio(theta))
+    pi = np.concatenate(pis)
+    for _ in range(5):
+        q, v, a = (rng.uniform(-2, 2, robot.n) for _ in range(3))
+        Y = pin.computeJointTorqueRegressor(model, data, q, v, a)
+        np.testing.assert_allclose(Y @ pi, pin.rnea(model, data, q, v, a), atol=1e-10)
+
+
+@pytest.mark.parametrize("name", ROBOTS)
+def test_frames_match_pinocchio_and_interfaces_mate(name):
+    robot = load_robot(name)
+    model = robot.pinocchio_model()
+    data = model.createData()
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        q = rng.uniform(-robot.joint_limits, robot.joint_limits)
+        pin.framesForwardKinematics(model, data, q)
+        np.testing.assert_allclose(data.oMf[model.getFrameId("tool")].homogeneous,
+                                   robot.tip_pose(q), atol=1e-12)
+        for k, (T_C, T_A) in enumerate(robot.link_frames(q)):
+            np.testing.assert_allclose(data.oMf[model.getFrameId(f"link{k + 1}a")].homogeneous,
+                                       T_A, atol=1e-12)
+            np.testing.assert_allclose(data.oMf[model.getFrameId(f"link{k + 1}b")].homogeneous,
+                                       T_C, atol=1e-12)
+            if k:  # {B_k} is {T_k-1} turned by the twist about their common x axis
+                T_prev = data.oMf[model.getFrameId(f"T{k}")].homogeneous
+                B = data.oMf[model.getFrameId(f"B{k + 1}")].homogeneous
+                np.testing.assert_allclose(B[:3, 3], T_prev[:3, 3], atol=1e-12)
+                np.testing.assert_allclose(B[:3, :3], T_prev[:3, :3] @ rot_x(
+                    robot.modules[k].twist), atol=1e-12)
+
+
+def test_mrm3_quintic_tip_speed_is_the_papers():
+    """Table 2: 0.5226 m/s for q_i = i·q_d (quintic 0 → 0.1571 rad in 1 s)."""
+    robot = load_robot("mrm3")
+    model = robot.pinocchio_model()
+    data = model.createData()
+    fid = model.getFrameId("tool")
+    D = 0.1571
+    best = 0.0
+    for s in np.linspace(0.3, 0.7, 801):
+        qd = D * (10 * s**3 - 15 * s**4 + 6 * s**5) * np.array([1.0, 2.0, 3.0])
+        vd = D * (30 * s**2 - 60 * s**3 + 30 * s**4) * np.array([1.0, 2.0, 3.0])
+        pin.forwardKinematics(model, data, qd, vd)
+        pin.updateFramePlacements(model, data)
+        v = pin.getFrameVelocity(model, data, fid, pin.LOCAL_WORLD_ALIGNED).linear
+        best = max(best, float(np.linalg.norm(v)))
+    assert round(best, 4) == 0.5226
+
+
+def test_mrm3_spring_counterbalances_shoulder_gravity_at_rest():
+    robot = load_robot("mrm3")
+    model = robot.pinocchio_model()
+    g = pin.computeGeneralizedGravity(model, model.createData(), robot.home)
+    residual = g - robot.spring_torque(robot.home)
+    assert abs(g[1]) > 7.0 and abs(residual[1]) < 0.5
+    assert np.all(np.abs(residual) < robot.continuous_torques)
+
+
+def test_mrm6_rests_within_continuous_torques():
+    robot = load_robot("mrm6")
+    model = robot.pinocchio_model()
+    g = pin.computeGeneralizedGravity(model, model.createData(), robot.home)
+    assert np.all(np.abs(g - robot.spring_torque(robot.home)) < robot.continuous_torques)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_rpy_round_trip(seed):
+    rpy = np.random.default_rng(seed).uniform(-3, 3, 3) * [1, 0.5, 1]
+    R = rpy_to_matrix(rpy)
+    np.testing.assert_allclose(R, pin.rpy.rpyToMatrix(*rpy), atol=1e-14)
+    np.testing.assert_allclose(rpy_to_matrix(matrix_to_rpy(R)), R, atol=1e-12)
+
+
+def _doc(**over):
+    doc = {"name": "t", "modules": [{"type": "I"}, {"type": "II", "twist_deg": 90.0}]}
+    doc.update(over)
+    return doc
+
+
+@pytest.mark.parametrize("doc, field", [
+    (_doc(modules=[]), "modules"),
+    (_doc(modules=[{"type": "IV"}]), "modules[0].type"),
+    (_doc(modules=[{"type": "I", "twist": float("nan")}]), "modules[0].twist"),
+    (_doc(modules=[{"type": "I", "twist": 0.1, "twist_deg": 3}]), "modules[0].twist"),
+    (_doc(modules=[{"type": "I", "colour": "red"}]), "modules[0].colour"),
+    (_doc(modules=[{"type": "I", "spring": {"torque": 1.0}}]), "modules[0].spring"),
+    (_doc(modules=[{"type": "II", "spring": {"torque": 12.0}}]), "modules[0].spring.torque"),
+    (_doc(base={"xyz": [0, 0]}), "base.xyz"),
+    (_doc(base={"xyz": [0, 0, "up"]}), "base.xyz[2]"),
+    (_doc(home_deg=[0.0, 200.0]), "home_deg[1]"),
+    (_doc(home=[0.0]), "home"),
+    (_doc(gravity=[0, 0, -9.81]), "gravity"),
+    (_doc(module_types={"III": {"like": "V"}}), "module_types.III.like"),
+    (_doc(module_types={"III": {"actuator": "X"}}), "module_types.III.continuous_torque"),
+    (_doc(module_types={"III": {"like": "I", "length_a": -0.1}}), "module_types.III.length_a"),
+    (_doc(module_types={"III": {"like": "I", "gear_ratio": 1.5}}), "module_types.III.gear_ratio"),
+    (_doc(module_types={"III": {"like": "I", "continuous_torque": 20.0}}),
+     "module_types.III.continuous_torque"),
+    (_doc(module_types={"III": {"like": "I", "link_a": [1.0] + [0.0] * 9 + [1e-3, 1e-3, 5e-3]}}),
+     "module_types.III.link_a"),
+    (_doc(module_types={"I": {"like": "II"}}), "module_types.I"),
+])
+def test_rejects_bad_assembly_naming_the_field(doc, field):
+    with pytest.raises(InputError) as info:
+        robot_from_dict(doc)
+    assert info.value.field == field
+
+
+def test_user_module_type_like_builtin():
+    robot = robot_from_dict(_doc(
+        module_types={"Ilong": {"like": "I", "length_a": 0.3, "joint_limit_deg": 90}},
+        modules=[{"type": "Ilong"}, {"type": "I", "twist_deg": 90}]))
+    assert robot.modules[0].type.length_a == 0.3
+    assert robot.modules[0].type.link_a == MODULE_TYPES["I"].link_a
+    assert robot.joint_limits[0] == pytest.approx(math.pi / 2)
+    np.testing.assert_allclose(robot.tip_pose([0.0, 0.0])[:3, 3], [0.3 + 0.1 + 0.2 + 0.1, 0, 0])
+    pin.buildModelFromXML(robot.urdf())
+
+
+def test_unknown_robot_and_unreadable_file(tmp_path):
+    with pytest.raises(InputError, match="unknown robot"):
+        load_robot("mrm99")
+    with pytest.raises(InputError, match="cannot read"):
+        load_robot(str(tmp_path / "missing.toml"))
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = [")
+    with pytest.raises(InputError, match="not valid TOML"):
+        load_robot(str(bad))
