@@ -228,3 +228,16 @@ def test_unknown_robot_and_unreadable_file(tmp_path):
     bad.write_text("name = [")
     with pytest.raises(InputError, match="not valid TOML"):
         load_robot(str(bad))
+
+
+def test_docs_example_assembly_loads():
+    """The assembly shown in docs/robot.md is valid as printed."""
+    import re
+    import tomllib
+    from pathlib import Path
+
+    text = (Path(__file__).parents[1] / "docs" / "robot.md").read_text()
+    block = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
+    robot = robot_from_dict(tomllib.loads(block))
+    assert robot.n == 2 and robot.modules[1].type.length_a == 0.30
+    pin.buildModelFromXML(robot.urdf())
