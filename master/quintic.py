@@ -1,0 +1,161 @@
+"""Rest-to-rest quintic (minimum-jerk) point-to-point trajectories.
+
+Implements the MRM paper's test trajectory (Zhu et al., seeds/003, eq. 4)::
+
+    q(t) = q0 + Δ (10 τ³ − 15 τ⁴ + 6 τ⁵),   τ = t / tf,   Δ = qf − q0
+
+for many joints at once, with its derivatives up to jerk, and the exact (closed-form, not
+sampled) peaks of velocity, acceleration and jerk:
+
+    max |q̇| = (15/8) |Δ| / tf          at τ = 1/2
+    max |q̈| = (10/√3) |Δ| / tf²        at τ = 1/2 ∓ √3/6
+    max |q⃛| = 60 |Δ| / tf³             at τ = 0 and τ = 1
+
+The paper prints max q̈ = (45/8) Δ/tf², which is q̈ evaluated at τ = 1/4 rather than at the
+maximiser; see docs/trajectories.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from mrm.errors import InputError, require_finite, require_positive
+
+__all__ = ["QuinticProfile", "PEAK_VELOCITY_COEFF", "PEAK_ACCELERATION_COEFF",
+           "PEAK_JERK_COEFF", "mrm_test_profile"]
+
+#: max |q̇| = PEAK_VELOCITY_COEFF · |Δ| / tf
+PEAK_VELOCITY_COEFF = 15.0 / 8.0
+#: max |q̈| = PEAK_ACCELERATION_COEFF · |Δ| / tf²
+PEAK_ACCELERATION_COEFF = 10.0 / math.sqrt(3.0)
+#: max |q⃛| = PEAK_JERK_COEFF · |Δ| / tf³
+PEAK_JERK_COEFF = 60.0
+
+
+def _as_joint_vector(value, field: str) -> np.ndarray:
+    arr = np.atleast_1d(np.asarray(value, dtype=float))
+    if arr.ndim != 1 or arr.size == 0:
+        raise InputError(field, f"must be a number or a 1-D list of numbers, not {value!r}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(field, f"must be finite, not {value!r}")
+    return arr
+
+
+@dataclass(frozen=True)
+class QuinticProfile:
+    """A rest-to-rest quintic from ``q0`` to ``qf`` in ``tf`` seconds, for ``n_dof`` joints.
+
+    Parameters
+    ----------
+    q0, qf : ndarray, shape (n_dof,), rad
+        Start and end positions. A scalar is one joint; a scalar ``q0`` with a vector ``qf``
+        is broadcast.
+    tf : float, s
+        Duration, > 0.
+
+    Before ``t = 0`` the profile rests at ``q0`` and after ``tf`` at ``qf`` (all derivatives
+    zero), so the master may evaluate it on any clock.
+    """
+
+    q0: np.ndarray
+    qf: np.ndarray
+    tf: float
+
+    def __init__(self, q0, qf, tf: float):
+        q0 = _as_joint_vector(q0, "q0")
+        qf = _as_joint_vector(qf, "qf")
+        if q0.size == 1 and qf.size > 1:
+            q0 = np.full_like(qf, q0[0])
+        if q0.shape != qf.shape:
+            raise InputError("qf", f"has {qf.size} joints but q0 has {q0.size}")
+        object.__setattr__(self, "q0", q0)
+        object.__setattr__(self, "qf", qf)
+        object.__setattr__(self, "tf", require_positive(tf, "tf"))
+
+    @property
+    def n_dof(self) -> int:
+        """Number of joints."""
+        return int(self.q0.size)
+
+    @property
+    def delta(self) -> np.ndarray:
+        """Displacement ``qf − q0``, shape (n_dof,), rad."""
+        return self.qf - self.q0
+
+    @property
+    def peak_velocity(self) -> np.ndarray:
+        """Exact max |q̇| per joint, shape (n_dof,), rad/s (reached at t = tf/2)."""
+        return PEAK_VELOCITY_COEFF * np.abs(self.delta) / self.tf
+
+    @property
+    def peak_acceleration(self) -> np.ndarray:
+        """Exact max |q̈| per joint, shape (n_dof,), rad/s² (at t = tf (1/2 ∓ √3/6))."""
+        return PEAK_ACCELERATION_COEFF * np.abs(self.delta) / self.tf**2
+
+    @property
+    def peak_jerk(self) -> np.ndarray:
+        """Exact max |q⃛| per joint, shape (n_dof,), rad/s³ (at t = 0 and t = tf)."""
+        return PEAK_JERK_COEFF * np.abs(self.delta) / self.tf**3
+
+    def evaluate(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity, acceleration and jerk at times ``t``.
+
+        Parameters
+        ----------
+        t : float or ndarray, shape (n_samples,), s
+            Times; values outside [0, tf] give the rest state at the nearer end. The jerk
+            jumps at both ends; at exactly 0 and ``tf`` its one-sided value inside the move
+            (``60 Δ/tf³``) is returned, so sampled maxima reach the exact peak.
+
+        Returns
+        -------
+        q, qd, qdd, qddd : ndarray, shape (n_samples, n_dof)
+            rad, rad/s, rad/s², rad/s³ (time-major; a scalar ``t`` gives n_samples = 1).
+        """
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        if t.ndim != 1:
+            raise InputError("t", f"must be a scalar or a 1-D array, not shape {t.shape}")
+        if not np.all(np.isfinite(t)):
+            raise InputError("t", "must be finite")
+        tau = np.clip(t / self.tf, 0.0, 1.0)[:, None]
+        moving = ((t >= 0.0) & (t <= self.tf))[:, None]   # jerk: one-sided values at 0, tf
+        u = 1.0 - tau
+        d = self.delta[None, :]
+        # Factored forms: exact zeros at the ends, no cancellation near them.
+        shape = tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
+        q = np.where(tau >= 1.0, self.qf[None, :], self.q0[None, :] + d * shape)
+        qd = d / self.tf * 30.0 * tau**2 * u**2
+        qdd = d / self.tf**2 * 60.0 * tau * u * (1.0 - 2.0 * tau)
+        qddd = np.where(moving, d / self.tf**3 * (60.0 - 360.0 * tau + 360.0 * tau**2), 0.0)
+        return q, qd, qdd, qddd
+
+    def summary(self) -> dict:
+        """Closed-form figures: ``duration_s`` and per-joint peaks (lists, SI units)."""
+        return {
+            "duration_s": self.tf,
+            "peak_velocity": self.peak_velocity.tolist(),
+            "peak_acceleration": self.peak_acceleration.tolist(),
+            "peak_jerk": self.peak_jerk.tolist(),
+        }
+
+
+def mrm_test_profile(n_joints: int = 3, pf: float = 0.1571, tf: float = 1.0) -> QuinticProfile:
+    """The MRM paper's experiment (seeds/003 eqs. 1–4): joint i moves ``i · q_d(t)``.
+
+    Parameters
+    ----------
+    n_joints : int
+        Number of joints (3 in the paper).
+    pf : float, rad
+        Terminal position of ``q_d`` (0.1571 rad = 20,000 encoder counts).
+    tf : float, s
+        Duration.
+    """
+    if isinstance(n_joints, bool) or not isinstance(n_joints, int) or n_joints < 1:
+        raise InputError("n_joints", f"must be a positive integer, not {n_joints!r}")
+    scale = np.arange(1, n_joints + 1, dtype=float)
+    return QuinticProfile(np.zeros(n_joints), scale * require_finite(pf, "pf"), tf)
+
