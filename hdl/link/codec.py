@@ -1,0 +1,256 @@
+"""SpaceWire codec: one link endpoint with host character streams, credits and counters.
+
+# Ref: ECSS-E-ST-50-12C §6-§8: data-strobe signalling, characters, link state machine (§8.5),
+#      flow control (FCT = 8 N-chars, at most 56 outstanding), link error recovery,
+#      time-codes (§8.12).
+
+The codec runs from one 50 MHz clock ("sync"); its line ports carry ``slots`` samples per
+cycle (see :mod:`hdl.link.ds`). It starts at 10 Mbit/s (``start_div`` slots per bit) and sends
+at ``run_div`` slots per bit once in Run (150 Mbit/s with the defaults).
+
+Flow control: ``rx_credit`` counts the N-chars the peer may still send us; an FCT is sent when
+it is at most 48 and the receive FIFO has room for 8 more beyond it, keeping one FIFO entry in
+reserve for the EEP below. ``tx_credit`` counts what the peer allowed us; each FCT adds 8, and
+an FCT that would take it past 56 is a credit error, as is an N-char that arrives when
+``rx_credit`` is 0.
+
+Link errors: every error sends the link through Error-Reset. A packet cut by the error is
+ended with an EEP in the receive FIFO, so it never looks good to the host; on the sending side
+the rest of the cut packet is taken from the host and dropped, up to and including its
+EOP/EEP, so a fragment never starts a later packet.
+"""
+
+from amaranth import *
+from amaranth.lib import stream, wiring
+from amaranth.lib.fifo import SyncFIFO
+from amaranth.lib.wiring import In, Out
+
+from .chars import FCT_CREDIT, MAX_CREDIT, Char, CharKind, ErrorCounts, LinkState
+from .ds import DSReceiver, check_div, check_slots
+from .fsm import LinkFSM
+from .rx import CharReceiver
+from .tx import CharTransmitter
+
+__all__ = ["Codec", "CLOCK_HZ"]
+
+#: Node clock the timers are counted in.
+CLOCK_HZ = 50_000_000
+
+
+class Codec(wiring.Component):
+    """One SpaceWire link endpoint.
+
+    Parameters
+    ----------
+    slots : int
+        Line slots per 20 ns cycle (1 to 4): the SERDES width.
+    start_div : int or None
+        Bit period before Run, in slots; ``None`` for 10 Mbit/s (``5 * slots``).
+    run_div : int
+        Bit period in Run, in slots (1: ``slots`` x 50 Mbit/s).
+    reset_cycles : int
+        Error-Reset time, cycles (320 = 6.4 µs).
+    wait_cycles : int
+        Error-Wait time and Started/Connecting timeout, cycles (640 = 12.8 µs).
+    disconnect_cycles : int
+        Cycles from the last line transition to the disconnect error (43: 847-860 ns with
+        3 slots; see docs/link.md).
+    rx_fifo_depth : int
+        Receive FIFO entries (at least 9: 8 for one FCT's worth plus one reserved for an EEP).
+
+    Attributes
+    ----------
+    tx : In(stream.Signature(Char))
+        N-chars to send; ``ready`` only in Run with credit left (or while the rest of a cut
+        packet is being discarded).
+    rx : Out(stream.Signature(Char))
+        N-chars received.
+    tick_in, time_in : In(1), In(8)
+        Send a time-code (strobe; ignored unless running). ``time_in[7:6]`` are the control
+        flags, ``time_in[5:0]`` the time.
+    tick_out, time_out : Out(1), Out(8)
+        A time-code arrived (strobe, Run only); ``time_out`` holds its value until a link reset.
+    link_start, auto_start, link_disable : In(1)
+        Link control levels (§8.5.3).
+    running : Out(1)
+        The link is in Run.
+    state : Out(LinkState)
+    errors : Out(ErrorCounts)
+    tx_credit, rx_credit : Out(range(57))
+        N-chars we may still send / the peer may still send us.
+    d_in, s_in, d_out, s_out : In(slots), Out(slots)
+        The line, bit 0 = earliest slot of the cycle. Outputs are registered, inputs are
+        registered before use.
+    """
+
+    def __init__(self, *, slots: int = 3, start_div: int | None = None, run_div: int = 1,
+                 reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
+                 rx_fifo_depth: int = 64):
+        check_slots(slots)
+        if start_div is None:
+            start_div = 5 * slots
+        check_div(start_div, "Start bit period")
+        check_div(run_div, "Run bit period")
+        if not isinstance(disconnect_cycles, int) or disconnect_cycles < 3:
+            raise ValueError(f"Disconnect time must be an integer of at least 3 cycles, "
+                             f"not {disconnect_cycles!r}")
+        if not isinstance(rx_fifo_depth, int) or rx_fifo_depth < FCT_CREDIT + 1:
+            raise ValueError(f"Receive FIFO depth must be an integer of at least "
+                             f"{FCT_CREDIT + 1}, not {rx_fifo_depth!r}")
+        self.slots = slots
+        self.start_div = start_div
+        self.run_div = run_div
+        self.reset_cycles = reset_cycles
+        self.wait_cycles = wait_cycles
+        self.disconnect_cycles = disconnect_cycles
+        self.rx_fifo_depth = rx_fifo_depth
+        self._fsm = LinkFSM(reset_cycles=reset_cycles, wait_cycles=wait_cycles)
+        super().__init__({
+            "tx":           In(stream.Signature(Char)),
+            "rx":           Out(stream.Signature(Char)),
+            "tick_in":      In(1),
+            "time_in":      In(8),
+            "tick_out":     Out(1),
+            "time_out":     Out(8),
+            "link_start":   In(1),
+            "auto_start":   In(1),
+            "link_disable": In(1),
+            "running":      Out(1),
+            "state":        Out(LinkState),
+            "errors":       Out(ErrorCounts),
+            "tx_credit":    Out(range(MAX_CREDIT + 1)),
+            "rx_credit":    Out(range(MAX_CREDIT + 1)),
+            "d_in":         In(slots),
+            "s_in":         In(slots),
+            "d_out":        Out(slots),
+            "s_out":        Out(slots),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+
+        m.submodules.ds_rx = ds_rx = DSReceiver(slots=self.slots)
+        m.submodules.char_rx = rx = CharReceiver(slots=self.slots,
+                                                 disconnect_limit=self.disconnect_cycles - 2)
+        m.submodules.char_tx = tx = CharTransmitter(slots=self.slots, start_div=self.start_div,
+                                                    run_div=self.run_div)
+        m.submodules.fsm = fsm = self._fsm
+        m.submodules.fifo = fifo = SyncFIFO(width=Char.as_shape().size,
+                                            depth=self.rx_fifo_depth)
+
+        state      = fsm.state
+        running    = state == LinkState.RUN
+        connecting = state == LinkState.CONNECTING
+        leave_run  = Signal()
+        m.d.comb += [
+            self.running.eq(running),
+            self.state.eq(state),
+            self.errors.eq(fsm.errors),
+            leave_run.eq(running & fsm.go_reset),
+        ]
+
+        # Line in: front end, then character receiver (held in reset in Error-Reset).
+        m.d.comb += [
+            ds_rx.d_in.eq(self.d_in),
+            ds_rx.s_in.eq(self.s_in),
+            rx.enable.eq(state != LinkState.ERROR_RESET),
+            rx.bit_valid.eq(ds_rx.bit_valid),
+            rx.bit_data.eq(ds_rx.bit_data),
+            rx.activity.eq(ds_rx.activity),
+        ]
+
+        # Credits and the receive FIFO.
+        tx_credit, rx_credit = self.tx_credit, self.rx_credit
+        fct_overflow = rx.got_fct & (tx_credit > MAX_CREDIT - FCT_CREDIT)
+        rx_take      = rx.got_nchar & running & (rx_credit != 0)
+        err_credit   = running & (fct_overflow | (rx.got_nchar & (rx_credit == 0)))
+        fct_room     = ((rx_credit <= MAX_CREDIT - FCT_CREDIT) &
+                        (fifo.level + rx_credit + FCT_CREDIT + 1 <= self.rx_fifo_depth))
+
+        eep_pending  = Signal()     # a packet was cut: put an EEP into the FIFO
+        rx_in_packet = Signal()     # the last N-char put into the FIFO was a data character
+        eep = Signal(Char)
+        m.d.comb += [
+            eep.kind.eq(CharKind.EEP),
+            fifo.w_en.eq(eep_pending | rx_take),
+            fifo.w_data.eq(Mux(eep_pending, eep, rx.nchar)),
+            self.rx.valid.eq(fifo.r_rdy),
+            self.rx.payload.eq(fifo.r_data),
+            fifo.r_en.eq(self.rx.ready),
+        ]
+        rx_in_after = Mux(rx_take, rx.nchar.kind == CharKind.DATA, rx_in_packet)
+        with m.If(eep_pending):
+            with m.If(fifo.w_rdy):
+                m.d.sync += [eep_pending.eq(0), rx_in_packet.eq(0)]
+        with m.Else():
+            m.d.sync += [
+                eep_pending.eq(leave_run & rx_in_after),
+                rx_in_packet.eq(rx_in_after),
+            ]
+
+        # Link state machine.
+        m.d.comb += [
+            fsm.got_null.eq(rx.got_null),
+            fsm.got_fct.eq(rx.got_fct),
+            fsm.got_nchar.eq(rx.got_nchar),
+            fsm.got_time.eq(rx.got_time),
+            fsm.err_disconnect.eq(rx.err_disconnect),
+            fsm.err_parity.eq(rx.err_parity),
+            fsm.err_escape.eq(rx.err_escape),
+            fsm.err_credit.eq(err_credit),
+            fsm.link_start.eq(self.link_start),
+            fsm.auto_start.eq(self.auto_start),
+            fsm.link_disable.eq(self.link_disable),
+            fsm.fct_room.eq(fct_room),
+        ]
+
+        # Transmitter: NULLs from Started, FCTs from Connecting, everything in Run.
+        tc_pending = Signal()
+        tc_value   = Signal(8)
+        discard    = Signal()       # dropping the rest of a packet cut by a link reset
+        tx_in_packet = Signal()     # the last N-char taken from the host was a data character
+        nchar_ok = running & (tx_credit != 0) & ~discard
+        m.d.comb += [
+            tx.enable.eq((state == LinkState.STARTED) | connecting | running),
+            tx.fast.eq(running),
+            tx.send_time.eq(tc_pending),
+            tx.time.eq(tc_value),
+            tx.send_fct.eq((connecting | running) & fct_room),
+            tx.nchar.valid.eq(self.tx.valid & nchar_ok),
+            tx.nchar.payload.eq(self.tx.payload),
+            self.tx.ready.eq(discard | (nchar_ok & tx.nchar.ready)),
+            self.d_out.eq(tx.d_out),
+            self.s_out.eq(tx.s_out),
+        ]
+        tx_take = self.tx.valid & self.tx.ready
+        tx_sent = tx_take & ~discard
+        tx_in_after = Mux(tx_take, self.tx.payload.kind == CharKind.DATA, tx_in_packet)
+        m.d.sync += tx_in_packet.eq(tx_in_after)
+        with m.If(discard):
+            with m.If(tx_take & (self.tx.payload.kind != CharKind.DATA)):
+                m.d.sync += discard.eq(0)
+        with m.Elif(leave_run & tx_in_after):
+            m.d.sync += discard.eq(1)
+
+        with m.If(~running):
+            m.d.sync += tc_pending.eq(0)
+        with m.Elif(self.tick_in):
+            m.d.sync += [tc_pending.eq(1), tc_value.eq(self.time_in)]
+        with m.Elif(tx.time_sent):
+            m.d.sync += tc_pending.eq(0)
+
+        with m.If(connecting | running):
+            m.d.sync += [
+                tx_credit.eq(tx_credit + Mux(rx.got_fct & ~fct_overflow, FCT_CREDIT, 0)
+                             - tx_sent),
+                rx_credit.eq(rx_credit + Mux(tx.fct_sent, FCT_CREDIT, 0) - rx_take),
+            ]
+        with m.Else():
+            m.d.sync += [tx_credit.eq(0), rx_credit.eq(0)]
+
+        # Time-codes out.
+        m.d.comb += [
+            self.tick_out.eq(rx.got_time & running),
+            self.time_out.eq(rx.time),
+        ]
+        return m

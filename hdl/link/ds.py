@@ -1,0 +1,208 @@
+"""Data-strobe SERDES: ``slots`` line samples per 20 ns node-clock cycle on D and S.
+
+# Ref: ECSS-E-ST-50-12C §6.3 (data-strobe encoding), §6.6 (data signalling rate).
+
+Data-strobe encoding sends each bit on D; S changes whenever D does not, so exactly one of
+the two lines changes per bit and ``D xor S`` toggles once per bit. Here the line is modelled
+as ``slots`` equal time slots per clock cycle (a SERDES of width ``slots``): ``d_out[0]`` is the
+earliest slot of a cycle. With ``slots = 3`` a slot is 6.67 ns, so one bit per slot is
+150 Mbit/s and 15 slots per bit is 10 Mbit/s.
+
+:class:`DSTransmitter` shifts out groups of line bits (one character, NULL or time-code at a
+time) at a bit period of ``start_div`` or ``run_div`` slots. :class:`DSReceiver` registers the
+``slots`` samples of D and S each cycle and marks the slots in which ``D xor S`` changed: each
+such slot carries a new bit whose value is D. It accepts any peer rate up to one bit per slot.
+"""
+
+from amaranth import *
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.wiring import In, Out
+
+__all__ = ["TxBits", "DSTransmitter", "DSReceiver", "MAX_SLOTS", "GROUP_BITS"]
+
+#: Widest SERDES supported: with at most 4 slots a cycle holds at most one character boundary,
+#: which the character receiver and the transmitter's refill rule rely on.
+MAX_SLOTS = 4
+#: Longest group of line bits the transmitter accepts at once (a time-code: ESC + data).
+GROUP_BITS = 14
+
+
+class TxBits(data.Struct):
+    """A group of line bits to transmit, ``bits[0]`` first."""
+
+    bits:   GROUP_BITS
+    length: range(GROUP_BITS + 1)
+
+
+def check_slots(slots):
+    if not isinstance(slots, int) or not 1 <= slots <= MAX_SLOTS:
+        raise ValueError(f"Slots per cycle must be an integer from 1 to {MAX_SLOTS}, "
+                         f"not {slots!r}")
+
+
+def check_div(div, name):
+    if not isinstance(div, int) or isinstance(div, bool) or div < 1:
+        raise ValueError(f"{name} must be a positive integer number of slots, not {div!r}")
+
+
+class DSTransmitter(wiring.Component):
+    """Data-strobe transmitter producing ``slots`` line samples per cycle.
+
+    Parameters
+    ----------
+    slots : int
+        Line slots per clock cycle (1 to 4).
+    start_div, run_div : int
+        Bit period in slots while ``fast`` is low (link start-up, 10 Mbit/s) and high (Run).
+
+    Attributes
+    ----------
+    enable : In(1)
+        Low: the transmitter is reset and both lines are held low.
+    fast : In(1)
+        Selects ``run_div`` for every bit that starts while it is high.
+    groups : In(stream.Signature(TxBits))
+        Bit groups to send. ``ready`` is high, whatever ``valid`` is, in the cycles where fewer
+        than ``slots`` bits would remain queued after this cycle's slots: a group accepted then
+        follows the queued bits without a gap.
+    d_out, s_out : Out(slots)
+        Registered line samples, bit 0 = earliest slot.
+    """
+
+    def __init__(self, *, slots: int, start_div: int, run_div: int):
+        check_slots(slots)
+        check_div(start_div, "Start bit period")
+        check_div(run_div, "Run bit period")
+        self._slots = slots
+        self._start_div = start_div
+        self._run_div = run_div
+        super().__init__({
+            "enable": In(1),
+            "fast":   In(1),
+            "groups": In(stream.Signature(TxBits)),
+            "d_out":  Out(slots),
+            "s_out":  Out(slots),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        slots = self._slots
+
+        buf  = Signal(GROUP_BITS + slots - 1)          # queued line bits, bit 0 next
+        cnt  = Signal(range(len(buf) + 1))             # how many of them are valid
+        left = Signal(range(max(self._start_div, self._run_div)))  # slots left in this bit
+
+        div_m1 = Mux(self.fast, self._run_div - 1, self._start_div - 1)
+
+        # Walk the slots of this cycle: a new bit starts in a slot where the previous bit is over.
+        d, s, lft = self.d_out[-1], self.s_out[-1], left
+        taken = Const(0, range(slots + 1))
+        d_slots, s_slots = [], []
+        for i in range(slots):
+            take  = Signal(name=f"take_{i}")
+            bit   = Signal(name=f"bit_{i}")
+            d_i   = Signal(name=f"d_{i}")
+            s_i   = Signal(name=f"s_{i}")
+            lft_i = Signal.like(left, name=f"left_{i}")
+            tkn_i = Signal(range(slots + 1), name=f"taken_{i}")
+            m.d.comb += [
+                take.eq((lft == 0) & (taken < cnt)),
+                bit.eq(buf.bit_select(taken, 1)),
+                d_i.eq(Mux(take, bit, d)),
+                s_i.eq(Mux(take, s ^ ~(bit ^ d), s)),   # S toggles when D does not
+                lft_i.eq(Mux(take, div_m1, Mux(lft == 0, 0, lft - 1))),
+                tkn_i.eq(taken + take),
+            ]
+            d_slots.append(d_i)
+            s_slots.append(s_i)
+            d, s, lft, taken = d_i, s_i, lft_i, tkn_i
+
+        remain = Signal.like(cnt)
+        m.d.comb += [
+            remain.eq(cnt - taken),
+            self.groups.ready.eq(self.enable & (remain < slots)),
+        ]
+
+        with m.If(~self.enable):
+            m.d.sync += [
+                buf.eq(0),
+                cnt.eq(0),
+                left.eq(0),
+                self.d_out.eq(0),
+                self.s_out.eq(0),
+            ]
+        with m.Else():
+            m.d.sync += [
+                self.d_out.eq(Cat(d_slots)),
+                self.s_out.eq(Cat(s_slots)),
+                left.eq(lft),
+            ]
+            with m.If(self.groups.valid & self.groups.ready):
+                m.d.sync += [
+                    buf.eq((buf >> taken) | (self.groups.p.bits << remain)),
+                    cnt.eq(remain + self.groups.p.length),
+                ]
+            with m.Else():
+                m.d.sync += [
+                    buf.eq(buf >> taken),
+                    cnt.eq(remain),
+                ]
+        return m
+
+
+class DSReceiver(wiring.Component):
+    """Data-strobe receiver front end: registers the line and finds the bits in it.
+
+    Parameters
+    ----------
+    slots : int
+        Line slots per clock cycle (1 to 4).
+
+    Attributes
+    ----------
+    d_in, s_in : In(slots)
+        Line samples, bit 0 = earliest slot; registered before use.
+    bit_valid : Out(slots)
+        Slot ``i`` of the registered samples starts a new bit (``D xor S`` changed).
+    bit_data : Out(slots)
+        The bit value (D) in each slot.
+    activity : Out(1)
+        D or S changed in some slot of the registered samples (disconnect detection).
+    """
+
+    def __init__(self, *, slots: int):
+        check_slots(slots)
+        self._slots = slots
+        super().__init__({
+            "d_in":      In(slots),
+            "s_in":      In(slots),
+            "bit_valid": Out(slots),
+            "bit_data":  Out(slots),
+            "activity":  Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+
+        d_q = Signal(self._slots)
+        s_q = Signal(self._slots)
+        d_l = Signal()      # last slot of the previous cycle
+        s_l = Signal()
+        m.d.sync += [
+            d_q.eq(self.d_in),
+            s_q.eq(self.s_in),
+            d_l.eq(d_q[-1]),
+            s_l.eq(s_q[-1]),
+        ]
+
+        prev_d, prev_s = d_l, s_l
+        changes = []
+        for i in range(self._slots):
+            m.d.comb += self.bit_valid[i].eq((d_q[i] ^ s_q[i]) ^ (prev_d ^ prev_s))
+            changes.append((d_q[i] ^ prev_d) | (s_q[i] ^ prev_s))
+            prev_d, prev_s = d_q[i], s_q[i]
+        m.d.comb += [
+            self.bit_data.eq(d_q),
+            self.activity.eq(Cat(changes).any()),
+        ]
+        return m
