@@ -1,0 +1,221 @@
+"""``mrm plan``: plan a trajectory and print its figures (optionally write its samples).
+
+``mrm plan quintic``: rest-to-rest quintic (the MRM paper's eq. 4), exact peaks.
+``mrm plan line FILE.toml``: straight-line Cartesian move with quaternion orientation, the
+trigonometric jerk-continuous profile (default) or Ruckig's time-optimal one.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import tempfile
+import tomllib
+
+import numpy as np
+
+from mrm.errors import InputError, require_finite, require_positive
+
+LIMIT_KEYS = ("velocity", "acceleration", "jerk")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("plan", help="plan a trajectory (quintic, Cartesian line)")
+    sub = p.add_subparsers(dest="plan_command", required=True)
+
+    q = sub.add_parser("quintic", help="rest-to-rest quintic point-to-point, exact peaks")
+    q.add_argument("--q0", nargs="+", required=True, metavar="RAD",
+                   help="start position(s), rad (one per joint)")
+    q.add_argument("--qf", nargs="+", required=True, metavar="RAD",
+                   help="end position(s), rad (one per joint)")
+    q.add_argument("--tf", required=True, metavar="S", help="duration, s")
+    q.add_argument("--json", action="store_true", help="machine-readable output")
+    q.add_argument("--samples", metavar="OUT.csv", help="write q, q', q'', q''' at every --dt")
+    q.add_argument("--dt", default="0.001", metavar="S", help="sample period, s (0.001)")
+    q.set_defaults(func=_quintic)
+
+    ln = sub.add_parser("line", help="straight-line Cartesian move with quaternion orientation")
+    ln.add_argument("file", metavar="FILE.toml", help="start/end poses and limits")
+    ln.add_argument("--profile", choices=("trig", "ruckig"), default="trig",
+                    help="trigonometric jerk-continuous (default) or Ruckig time-optimal")
+    ln.add_argument("--json", action="store_true", help="machine-readable output")
+    ln.add_argument("--samples", metavar="OUT.csv",
+                    help="write pose, velocity, acceleration, jerk at every --dt")
+    ln.add_argument("--dt", default="0.001", metavar="S", help="sample period, s (0.001)")
+    ln.set_defaults(func=_line)
+
+
+# ---------------------------------------------------------------------------------- output
+
+
+def write_csv_atomic(path: str, header: list[str] | tuple[str, ...], table: np.ndarray) -> None:
+    """Write ``table`` (shape (n, len(header))) as CSV with a header row, atomically.
+
+    The rows go to a temporary file beside ``path`` that replaces it only once complete.
+    Numbers are written in Python's shortest round-trip form, so they read back bit for bit.
+    """
+    directory = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(directory):
+        raise InputError("--samples", f"directory {directory!r} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=".plan-", suffix=".csv.tmp", dir=directory)
+    try:
+        with os.fdopen(fd, "w", newline="") as f:
+            f.write(",".join(header) + "\n")
+            for row in (np.asarray(table, dtype=float) + 0.0).tolist():   # + 0.0: no "-0"
+                f.write(",".join(map(repr, row)) + "\n")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _print_json(figures: dict) -> None:
+    print(json.dumps(figures, indent=2))
+
+
+def _print_table(title: str, figures: dict) -> None:
+    print(title)
+    width = max(len(k) for k in figures)
+    for key, value in figures.items():
+        shown = (", ".join(f"{v:.9g}" for v in value) if isinstance(value, list)
+                 else f"{value:.9g}" if isinstance(value, float) else str(value))
+        print(f"  {key:<{width}}  {shown}")
+
+
+# ---------------------------------------------------------------------------------- quintic
+
+
+def _numbers(values: list[str], field: str) -> list[float]:
+    if len(values) == 1:
+        return [require_finite(_parse_float(values[0], field), field)]
+    return [require_finite(_parse_float(v, f"{field}[{i}]"), f"{field}[{i}]")
+            for i, v in enumerate(values)]
+
+
+def _parse_float(text: str, field: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise InputError(field, f"must be a number, not {text!r}") from None
+
+
+def quintic_figures(q0: list[float], qf: list[float], tf: float) -> dict:
+    """Closed-form figures of the quintic; scalars for one joint, lists for several."""
+    from master.quintic import QuinticProfile
+
+    if len(q0) not in (1, len(qf)):
+        raise InputError("--qf", f"has {len(qf)} joints but --q0 has {len(q0)}")
+    summary = QuinticProfile(q0, qf, tf).summary()
+    if len(qf) == 1:
+        summary = {k: (v[0] if isinstance(v, list) else v) for k, v in summary.items()}
+    return summary
+
+
+def _quintic(args) -> int:
+    from master.quintic import QuinticProfile
+    from master.trig_planner import sample_times
+
+    q0 = _numbers(args.q0, "--q0")
+    qf = _numbers(args.qf, "--qf")
+    tf = require_positive(_parse_float(args.tf, "--tf"), "--tf")
+    figures = quintic_figures(q0, qf, tf)
+    if args.samples:
+        dt = require_positive(_parse_float(args.dt, "--dt"), "--dt")
+        profile = QuinticProfile(q0, qf, tf)
+        t = sample_times(tf, dt)
+        q, qd, qdd, qddd = profile.evaluate(t)
+        n = profile.n_dof
+        header = (["t_s"] + [f"q{i}_rad" for i in range(1, n + 1)]
+                  + [f"qd{i}_rad_s" for i in range(1, n + 1)]
+                  + [f"qdd{i}_rad_s2" for i in range(1, n + 1)]
+                  + [f"qddd{i}_rad_s3" for i in range(1, n + 1)])
+        write_csv_atomic(args.samples, header, np.column_stack([t, q, qd, qdd, qddd]))
+    if args.json:
+        _print_json(figures)
+    else:
+        _print_table("quintic rest-to-rest (exact peaks; rad, s)", figures)
+    return 0
+
+
+# ---------------------------------------------------------------------------------- line
+
+
+def _check_keys(table, allowed: tuple[str, ...], field: str) -> None:
+    if not isinstance(table, dict):
+        raise InputError(field, f"must be a table, not {table!r}")
+    for key in table:
+        if key not in allowed:
+            raise InputError(f"{field}.{key}" if field else key,
+                             f"unknown key (expected {', '.join(allowed)})")
+    for key in allowed:
+        if key not in table:
+            raise InputError(f"{field}.{key}" if field else key, "missing")
+
+
+def parse_line_spec(doc: dict):
+    """Validate a parsed ``FILE.toml`` and return ``(start, end, LineLimits)``.
+
+    ``start`` and ``end`` are 4×4 lists (validated further by
+    :func:`master.trig_planner.pose_from_matrix`); every problem raises :class:`InputError`
+    naming its dotted field.
+    """
+    from master.trig_planner import AxisLimits, LineLimits
+
+    _check_keys(doc, ("start", "end", "limits"), "")
+    _check_keys(doc["start"], ("pose",), "start")
+    _check_keys(doc["end"], ("pose",), "end")
+    _check_keys(doc["limits"], ("translation", "rotation"), "limits")
+    axes = {}
+    for part in ("translation", "rotation"):
+        table = doc["limits"][part]
+        _check_keys(table, LIMIT_KEYS, f"limits.{part}")
+        values = {}
+        for key in LIMIT_KEYS:
+            name = f"limits.{part}.{key}"
+            value = table[key]
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise InputError(name, f"must be a number, not {value!r}")
+            values[key] = require_positive(value, name)
+        axes[part] = AxisLimits(**values)
+    return doc["start"]["pose"], doc["end"]["pose"], LineLimits(**axes)
+
+
+def load_line_file(path: str):
+    """Read and validate ``FILE.toml``; returns ``(start, end, LineLimits)``."""
+    try:
+        with open(path, "rb") as f:
+            doc = tomllib.load(f)
+    except FileNotFoundError:
+        raise InputError("FILE", f"{path!r} does not exist") from None
+    except IsADirectoryError:
+        raise InputError("FILE", f"{path!r} is a directory") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError("FILE", f"{path!r} is not valid TOML: {exc}") from None
+    return parse_line_spec(doc)
+
+
+def _line(args) -> int:
+    from master.trig_planner import plan_line, sample_times
+
+    dt = require_positive(_parse_float(args.dt, "--dt"), "--dt") if args.samples else None
+    start, end, limits = load_line_file(args.file)
+    plan = plan_line(start, end, limits)
+    if args.profile == "ruckig":
+        from master.ruckig_profile import plan_line_ruckig
+
+        plan = plan_line_ruckig(plan)
+    for note in plan.notes:
+        sys.stderr.write(f"mrm plan line: note: {note}\n")
+    if args.samples:
+        samples = plan.sample(sample_times(plan.duration, dt))
+        write_csv_atomic(args.samples, samples.COLUMNS, samples.table())
+    figures = plan.summary()
+    if args.json:
+        _print_json(figures)
+    else:
+        title = ("Ruckig time-optimal jerk-limited line (m, rad, s)" if args.profile == "ruckig"
+                 else "trigonometric jerk-continuous line (m, rad, s)")
+        _print_table(title, figures)
+    return 0
