@@ -141,6 +141,22 @@ class Dmp:
         """The same primitive with time constant ``tau`` (s): duration scales with it."""
         return replace(self, tau=require_positive(tau, "tau"))
 
+    def check_step(self, dt: float) -> float:
+        """Return ``k = Δt/τ`` if the recurrence is stable at this step, else raise.
+
+        The homogeneous recurrence has the matrix ``[[1 − k²αβ, k(1 − kα)], [−kαβ, 1 − kα]]``
+        on (x, v): determinant ``1 − kα`` and trace ``2 − kα − k²αβ``. Both eigenvalues lie
+        inside the unit circle iff ``kα < 2`` and ``k²αβ < 4 − 2kα`` (Jury); with ``β = α/4``
+        that is ``kα < 4(√2 − 1) ≈ 1.657``.
+        """
+        dt = require_positive(dt, "dt")
+        k = dt / self.tau
+        ka = k * self.alpha
+        if not (ka < 2.0 and k * k * self.alpha * self.beta < 4.0 - 2.0 * ka):
+            raise InputError("dt", f"{dt!r} s is too long for τ = {self.tau} s and α = "
+                                   f"{self.alpha}: the recurrence would diverge")
+        return k
+
     def step(self, x, v, s, dt: float) -> tuple[np.ndarray, np.ndarray, float]:
         """One step of the explicit recurrence.
 
@@ -157,7 +173,7 @@ class Dmp:
         x, v, s
             The state ``dt`` later.
         """
-        k = dt / self.tau
+        k = self.check_step(dt)
         vdot = self.alpha * (self.beta * (self.g - x) - v) + self.forcing(s)[0]
         v = v + k * vdot
         x = x + k * v
@@ -184,7 +200,7 @@ class Dmp:
             raise InputError("dt", f"is longer than the rollout ({duration} s)")
         if n > 10_000_000:
             raise InputError("dt", f"gives {n} steps; choose a larger step")
-        k = dt / self.tau
+        k = self.check_step(dt)
         decay = math.exp(-self.alpha_s * k)
         s = np.empty(n + 1)
         s[0] = 1.0

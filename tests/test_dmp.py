@@ -1,5 +1,7 @@
 """Discrete DMP: LWR learning, accuracy vs published references, goal/time scaling."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -182,3 +184,28 @@ def test_rejects_bad_rollout_input():
         with pytest.raises(InputError) as exc:
             call()
         assert exc.value.field == field
+
+
+def test_step_stability_bound_matches_the_spectral_radius():
+    """check_step accepts Δt exactly when the homogeneous recurrence's matrix has spectral
+    radius < 1 (eigenvalues by numpy, independent of the closed-form Jury conditions)."""
+    rng = np.random.default_rng(3)
+    base = learn_dmp(MIN_JERK, DT)
+    for _ in range(300):
+        alpha = rng.uniform(1, 60)
+        beta = alpha / 4 * rng.uniform(0.3, 3)
+        dmp = replace(base, alpha=alpha, beta=beta)
+        k = rng.uniform(0.001, 3.0) / alpha
+        M = np.array([[1 - k * k * alpha * beta, k * (1 - k * alpha)],
+                      [-k * alpha * beta, 1 - k * alpha]])
+        radius = np.max(np.abs(np.linalg.eigvals(M)))
+        if abs(radius - 1) < 1e-9:
+            continue
+        if radius < 1:
+            assert dmp.check_step(k * dmp.tau) == pytest.approx(k, rel=1e-15)
+        else:
+            with pytest.raises(InputError):
+                dmp.check_step(k * dmp.tau)
+    with pytest.raises(InputError, match="diverge"):
+        base.rollout(0.07)          # kα = 1.75 > 4(√2 − 1) for α = 25, β = α/4
+    base.rollout(0.06)              # kα = 1.5: stable
