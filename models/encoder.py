@@ -1,0 +1,158 @@
+"""Quadrature incremental encoder on the motor shaft, as the FPGA's 50 MHz logic sees it.
+
+Each joint's motor carries a 2000-line encoder (MRM paper Table 1); with ×4 quadrature decoding
+and the gear ratio of 100 that is 800,000 counts per joint revolution. Conventions (used by the
+plant, the HDL encoder interface and every test):
+
+* Count: ``c = floor(q · K)`` with ``K = counts_per_rev / (2π)`` counts/rad computed once as a
+  float64 (:func:`counts_per_rad`), ``q`` the joint angle in rad. ``c = 0`` on ``[0, 1/K)``.
+* Lines: the state ``c mod 4`` drives the lines as ``0 → (A, B) = (0, 0)``, ``1 → (1, 0)``,
+  ``2 → (1, 1)``, ``3 → (0, 1)``: Gray code, A leads B when ``q`` increases.
+* Clock: the plant advances in steps of ``dt`` (10 µs); the FPGA samples the lines every
+  ``cycle`` (20 ns, 50 MHz), so ``dt / cycle`` (500) cycles per step. Cycle ``k = 0 … K−1`` of
+  a step starting at ``t0`` sees the lines for the angle at ``t0 + (k + 1) · cycle``; the last
+  cycle of a step therefore sees the plant's end-of-step count. Inside the step the angle is
+  the integrator's own motion, ``q(s) = q0 + v0 s + ½ a s²`` with the step's constant
+  acceleration ``a = (v1 − v0) / dt`` (which ends exactly at ``q1`` up to rounding; the last
+  sample uses ``q1`` itself).
+* Legality: a real decoder needs at most one line change per sampled cycle, i.e. a count step of
+  at most 1 between consecutive cycles. That holds below ``1 / (cycle · K)`` = 392.7 rad/s at
+  the joint, 65× the FHA-C's maximum speed of 6.07 rad/s (≈ 773,000 counts/s at most, one count
+  every ≈ 65 cycles). Faster motion raises :class:`EncoderOverspeed` rather than producing an
+  illegal line sequence.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = ["CYCLE", "counts_per_rad", "joint_counts", "quadrature_levels", "EncoderCycles",
+           "EncoderOverspeed", "cycle_counts", "decode_quadrature", "max_legal_speed"]
+
+CYCLE = 20e-9
+"""FPGA clock period, s (50 MHz)."""
+
+
+class EncoderOverspeed(RuntimeError):
+    """The encoder moved more than one count in one FPGA cycle (lines would be illegal)."""
+
+
+class EncoderCycles(NamedTuple):
+    """Encoder outputs for each FPGA cycle of one plant step.
+
+    Attributes
+    ----------
+    counts : ndarray of int64, shape (cycles, n)
+        Exact count seen in each cycle.
+    a, b : ndarray of uint8, shape (cycles, n)
+        Line levels (0/1) of channels A and B in each cycle.
+    """
+
+    counts: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+
+
+def counts_per_rad(counts_per_rev) -> np.ndarray:
+    """Counts per radian of joint angle, float64, ``counts_per_rev / (2π)``, shape like input."""
+    return np.asarray(counts_per_rev, dtype=float) / (2.0 * math.pi)
+
+
+def joint_counts(q, k) -> np.ndarray:
+    """Encoder count ``floor(q · k)`` as int64.
+
+    Parameters
+    ----------
+    q : array_like, shape (..., n), rad
+    k : array_like, shape (n,), counts/rad (from :func:`counts_per_rad`)
+    """
+    return np.floor(np.multiply(q, k)).astype(np.int64)
+
+
+def quadrature_levels(counts) -> tuple[np.ndarray, np.ndarray]:
+    """Line levels ``(A, B)`` (uint8 arrays, same shape) for counts (any integers, also < 0)."""
+    c = np.asarray(counts, dtype=np.int64)
+    a = (((c + 1) >> 1) & 1).astype(np.uint8)
+    b = ((c >> 1) & 1).astype(np.uint8)
+    return a, b
+
+
+def max_legal_speed(k, cycle: float = CYCLE) -> np.ndarray:
+    """Joint speed (rad/s) at which the count advances one step per FPGA cycle."""
+    return 1.0 / (cycle * np.asarray(k, dtype=float))
+
+
+def cycle_counts(q0, v0, acc, q1, dt: float, cycles: int, k) -> np.ndarray:
+    """Counts in every FPGA cycle of one plant step (see the module docstring for timing).
+
+    Parameters
+    ----------
+    q0, v0 : ndarray, shape (n,)
+        Angle (rad) and velocity (rad/s) at the start of the step.
+    acc : ndarray, shape (n,), rad/s²
+        Constant acceleration of the step, ``(v1 − v0) / dt``.
+    q1 : ndarray, shape (n,), rad
+        Angle at the end of the step (the last cycle's sample).
+    dt : float, s
+    cycles : int
+        FPGA cycles per step, ``dt / cycle``.
+    k : ndarray, shape (n,), counts/rad
+
+    Returns
+    -------
+    ndarray of int64, shape (cycles, n)
+
+    Raises
+    ------
+    EncoderOverspeed
+        If the count changes by more than one between two consecutive cycles (or between the
+        start of the step and its first cycle).
+    """
+    s = (np.arange(1, cycles + 1, dtype=float) * (dt / cycles))[:, None]
+    q = q0 + s * (v0 + 0.5 * acc * s)
+    q[-1] = q1
+    c = joint_counts(q, k)
+    steps = np.diff(c, axis=0, prepend=joint_counts(q0, k)[None, :])
+    if np.any(np.abs(steps) > 1):
+        cyc, joint = np.argwhere(np.abs(steps) > 1)[0]
+        raise EncoderOverspeed(f"joint {joint + 1}: count jumps by {int(steps[cyc, joint])} in "
+                               f"cycle {cyc}; the joint is faster than the encoder interface "
+                               f"allows ({float(max_legal_speed(k)[joint]):.1f} rad/s)")
+    return c
+
+
+def decode_quadrature(a, b, count0) -> np.ndarray:
+    """Reference ×4 quadrature decoder: counts reconstructed from A/B line samples.
+
+    Parameters
+    ----------
+    a, b : array_like of 0/1, shape (cycles, n)
+        Line levels, one row per sampled cycle.
+    count0 : array_like of int, shape (n,)
+        Count before the first row; its ``mod 4`` must match the lines it implies.
+
+    Returns
+    -------
+    ndarray of int64, shape (cycles, n)
+        The decoder's count after each row.
+
+    Raises
+    ------
+    ValueError
+        On an illegal transition (both lines changing in one cycle).
+    """
+    a = np.asarray(a, dtype=np.int64)
+    b = np.asarray(b, dtype=np.int64)
+    phase = np.array([[0, 3], [1, 2]], dtype=np.int64)[a, b]   # (A, B) → c mod 4
+    c0 = np.asarray(count0, dtype=np.int64)
+    prev = np.concatenate([(c0 % 4)[None, :], phase[:-1]], axis=0)
+    d = (phase - prev) % 4
+    if np.any(d == 2):
+        cyc, joint = np.argwhere(d == 2)[0]
+        raise ValueError(f"illegal quadrature transition on joint {joint + 1} at row {cyc}: "
+                         "both lines changed")
+    step = np.where(d == 3, -1, d)
+    return c0 + np.cumsum(step, axis=0)
