@@ -1,0 +1,208 @@
+"""The master's share of virtual decomposition control, in float: kinematics base → tip and
+required force propagation tip → base (DESIGN.md "VDC in equations", MRM paper steps 2 and 6).
+
+Per module k the frames are {C_k} (Link b, proximal) and {A_k} (Link a, distal), sharing the
+joint origin with ``ᶜR_A = Rz(q_k)``; {C_k+1} is fixed in {A_k} by the robot's mount transform.
+Velocities are ``V = [v; ω]`` in the frame they belong to, forces ``F = [f; m]``.
+
+* Across a rigid mount (pose ``(R, r)`` of the child in the parent): ``V_c = Uᵀ V_p`` and, as U
+  is constant, ``V̇_c = Uᵀ V̇_p`` (body-coordinate derivatives).
+* Across joint k with ``U_q = diag(Rz(q), Rz(q))`` (no offset): ``V_A = U_qᵀ V_C + z q̇`` and
+  ``V̇_A = U_qᵀ V̇_C − q̇ Z U_qᵀ V_C + z q̈`` with ``Z = diag(ẑ×, ẑ×)`` (``d Rzᵀ/dt = −q̇ ẑ× Rzᵀ``).
+  Required quantities use q̇_r, q̈_r in place of q̇, q̈ but the actual q̇ in the rotating term.
+* Gravity enters as an upward acceleration of the base, ``V̇_0 = [0, 0, 9.81, 0, 0, 0]``
+  (RNEA's ``a₀ = −g``), so link dynamics need no separate gravity vector.
+* Each link's required net force ``F*`` (:func:`link_required_forces`); the force a module's
+  subtree needs at {A_k} is ``F_A,k = F*_a,k + U_mount F_C,k+1`` and at {C_k}
+  ``F_C,k = F*_b,k + U_q F_A,k``; the joint's required load torque is ``τ_Lr,k = zᵀ F_A,k``.
+
+:func:`inverse_dynamics` runs the chain with required = actual and no feedback; it equals
+pinocchio's ``rnea`` (tests/test_vdc_master.py), which is how the bookkeeping of frames and
+forces is known to be right, and how users check a new robot description.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from models.robot import load_robot
+from models.spatial import rigid_body_wrench
+from mrm.errors import InputError
+
+__all__ = ["ModuleKinematics", "propagate_velocities", "link_required_forces",
+           "propagate_forces", "inverse_dynamics", "BASE_ACCELERATION"]
+
+Z_AXIS = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+BASE_ACCELERATION = np.array([0.0, 0.0, 9.81, 0.0, 0.0, 0.0])
+
+
+def _joint_U(q: float) -> np.ndarray:
+    c, s = np.cos(q), np.sin(q)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    U = np.zeros((6, 6))
+    U[:3, :3] = R
+    U[3:, 3:] = R
+    return U
+
+
+def _mount_U(T) -> np.ndarray:
+    R, r = T[:3, :3], T[:3, 3]
+    rx = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
+    U = np.zeros((6, 6))
+    U[:3, :3] = R
+    U[3:, :3] = rx @ R
+    U[3:, 3:] = R
+    return U
+
+
+_ZX = np.zeros((6, 6))
+_ZX[0, 1], _ZX[1, 0], _ZX[3, 4], _ZX[4, 3] = -1.0, 1.0, -1.0, 1.0
+
+
+@dataclass
+class ModuleKinematics:
+    """Actual and required 6-D velocities (and required accelerations) of one module's frames.
+
+    Attributes (all shape (6,), body coordinates of the named frame)
+    ----------
+    V_C, V_A : actual velocities of {C_k} and {A_k}
+    Vr_C, Vr_A : required velocities
+    dVr_C, dVr_A : time derivatives of the required velocities, gravity included
+    """
+
+    V_C: np.ndarray
+    V_A: np.ndarray
+    Vr_C: np.ndarray
+    Vr_A: np.ndarray
+    dVr_C: np.ndarray
+    dVr_A: np.ndarray
+
+
+def propagate_velocities(robot, q, qd, qd_r, qdd_r) -> list[ModuleKinematics]:
+    """Base → tip: actual and required velocities of every {C_k} and {A_k} (MRM step 2).
+
+    Parameters
+    ----------
+    robot : Robot or str
+    q, qd : array_like, shape (n,)
+        Actual joint positions (rad) and velocities (rad/s).
+    qd_r, qdd_r : array_like, shape (n,)
+        Required joint velocities (rad/s) and accelerations (rad/s²).
+    """
+    robot = load_robot(robot)
+    q, qd, qd_r, qdd_r = (_vec(robot, x, name) for x, name in
+                          ((q, "q"), (qd, "qd"), (qd_r, "qd_r"), (qdd_r, "qdd_r")))
+    V = np.zeros(6)
+    Vr = np.zeros(6)
+    dVr = BASE_ACCELERATION.copy()
+    out = []
+    for k in range(robot.n):
+        Um = _mount_U(robot.mount_transform(k)).T
+        V_C, Vr_C, dVr_C = Um @ V, Um @ Vr, Um @ dVr
+        Uq = _joint_U(q[k]).T
+        V_A = Uq @ V_C + Z_AXIS * qd[k]
+        Vr_A = Uq @ Vr_C + Z_AXIS * qd_r[k]
+        dVr_A = Uq @ dVr_C - qd[k] * (_ZX @ (Uq @ Vr_C)) + Z_AXIS * qdd_r[k]
+        out.append(ModuleKinematics(V_C, V_A, Vr_C, Vr_A, dVr_C, dVr_A))
+        V, Vr, dVr = V_A, Vr_A, dVr_A
+    return out
+
+
+def link_required_forces(theta_a, theta_b, kin: ModuleKinematics, K_a=None, K_b=None):
+    """Required net force/moment of Link a (in {A_k}) and Link b (in {C_k}) — the slave's step 4.
+
+    ``F* = Y(ω, V_r, V̇_r) θ + K (V_r − V)`` with gravity carried by ``V̇_r``.
+
+    Parameters
+    ----------
+    theta_a, theta_b : array_like, shape (13,)
+        Parameter estimates of Link a ({A_k}) and Link b ({C_k}).
+    kin : ModuleKinematics
+    K_a, K_b : array_like, shape (6, 6) or (6,), optional
+        Velocity-error feedback gains (zero when omitted).
+
+    Returns
+    -------
+    F_a, F_b : ndarray, shape (6,)
+    """
+    zero = np.zeros(3)
+    F_a = rigid_body_wrench(theta_a, kin.V_A[3:], kin.Vr_A, kin.dVr_A, zero)
+    F_b = rigid_body_wrench(theta_b, kin.V_C[3:], kin.Vr_C, kin.dVr_C, zero)
+    if K_a is not None:
+        F_a = F_a + _gain(K_a) @ (kin.Vr_A - kin.V_A)
+    if K_b is not None:
+        F_b = F_b + _gain(K_b) @ (kin.Vr_C - kin.V_C)
+    return F_a, F_b
+
+
+def propagate_forces(robot, q, F_a, F_b):
+    """Tip → base: required force at every {A_k} and the joints' required load torques (step 6).
+
+    Parameters
+    ----------
+    robot : Robot or str
+    q : array_like, shape (n,), rad
+    F_a, F_b : array_like, shape (n, 6)
+        Required net forces of Link a ({A_k}) and Link b ({C_k}) of every module.
+
+    Returns
+    -------
+    F_A : ndarray, shape (n, 6)
+        Required force/moment the subtree beyond joint k needs, at {A_k}.
+    tau_Lr : ndarray, shape (n,)
+        Its projection on the joint axis (what Comm D carries), N·m.
+    """
+    robot = load_robot(robot)
+    q = _vec(robot, q, "q")
+    F_a, F_b = np.asarray(F_a, dtype=float), np.asarray(F_b, dtype=float)
+    F_A = np.zeros((robot.n, 6))
+    F_C_next = np.zeros(6)
+    for k in reversed(range(robot.n)):
+        F = F_a[k].copy()
+        if k + 1 < robot.n:
+            F += _mount_U(robot.mount_transform(k + 1)) @ F_C_next
+        F_A[k] = F
+        F_C_next = F_b[k] + _joint_U(q[k]) @ F
+    return F_A, F_A[:, 5].copy()
+
+
+def inverse_dynamics(robot, q, qd, qdd) -> np.ndarray:
+    """Joint torques of the rigid bodies (no armature, friction or springs) by the VDC chain.
+
+    Runs :func:`propagate_velocities` with required = actual, :func:`link_required_forces`
+    with the nominal Table 1 parameters and no feedback, and :func:`propagate_forces`.
+    Gravity is −9.81 m/s² along the world z axis.
+
+    Parameters
+    ----------
+    robot : Robot, built-in name (``"mrm3"``) or path to an assembly TOML
+    q, qd, qdd : array_like, shape (n,)
+        rad, rad/s, rad/s².
+
+    Returns
+    -------
+    tau : ndarray, shape (n,), N·m — equal to ``pinocchio.rnea`` on the same robot.
+    """
+    robot = load_robot(robot)
+    kin = propagate_velocities(robot, q, qd, qd, qdd)
+    theta = robot.nominal_theta
+    forces = [link_required_forces(theta[k, 0], theta[k, 1], kin[k]) for k in range(robot.n)]
+    F_a = np.array([f[0] for f in forces])
+    F_b = np.array([f[1] for f in forces])
+    return propagate_forces(robot, q, F_a, F_b)[1]
+
+
+def _gain(K) -> np.ndarray:
+    K = np.asarray(K, dtype=float)
+    return np.diag(K) if K.shape == (6,) else K
+
+
+def _vec(robot, x, name: str) -> np.ndarray:
+    a = np.asarray(x, dtype=float)
+    if a.shape != (robot.n,):
+        raise InputError(name, f"must have {robot.n} values, not shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise InputError(name, "must be finite")
+    return a
