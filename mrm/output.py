@@ -1,0 +1,40 @@
+"""Result folders written atomically: a failed run leaves no half-written folder behind."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+__all__ = ["atomic_output_dir", "write_json"]
+
+
+@contextlib.contextmanager
+def atomic_output_dir(path):
+    """Yield a fresh temporary folder beside ``path``; on success it replaces ``path``.
+
+    If the body raises, the temporary folder is removed and ``path`` is left as it was.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    old = None
+    if path.exists():
+        old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+        os.replace(path, old / path.name)
+    os.replace(tmp, path)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def write_json(path, obj) -> None:
+    """Write ``obj`` as indented JSON (the folder it goes to is made atomic by the caller)."""
+    Path(path).write_text(json.dumps(obj, indent=2, sort_keys=False) + "\n")

@@ -1,0 +1,78 @@
+"""The float closed-loop preview (the main job until the gateware loop exists)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from cosim.preview import paper_test_profile, run_preview
+from models.robot import load_robot
+from mrm.cli import main
+from mrm.errors import InputError
+from mrm.output import atomic_output_dir
+
+
+@pytest.fixture(scope="module")
+def short_run():
+    return run_preview("mrm3", duration=0.3, seed=1)
+
+
+def test_preview_tracks_the_quintic(short_run):
+    s = short_run.summary
+    assert s["max_joint_error_rad"] < 2e-3
+    assert s["rho_s"] == pytest.approx(s["max_tip_error_m"] / s["max_tip_speed_m_s"])
+    # The test trajectory is the paper's: joint i moves by i·q_d.
+    np.testing.assert_allclose(short_run.q_d[-1] / short_run.q_d[-1, 0], [1.0, 2.0, 3.0])
+
+
+def test_preview_is_deterministic_and_seeded(short_run):
+    again = run_preview("mrm3", duration=0.3, seed=1)
+    assert again.summary["trace_sha256"] == short_run.summary["trace_sha256"]
+    np.testing.assert_array_equal(again.q, short_run.q)
+    other = run_preview("mrm3", duration=0.3, seed=2)
+    assert other.summary["trace_sha256"] != short_run.summary["trace_sha256"]
+
+
+def test_paper_profile_pattern_for_six_modules():
+    robot = load_robot("mrm6")
+    prof = paper_test_profile(robot)
+    np.testing.assert_allclose(prof.delta, 0.1571 * np.array([1, 2, 3, 1, 2, 3]))
+
+
+def test_preview_rejects_bad_duration():
+    with pytest.raises(InputError) as info:
+        run_preview("mrm3", duration=float("nan"))
+    assert info.value.field == "duration"
+
+
+def test_cli_writes_results_folder(tmp_path, capsys):
+    out = tmp_path / "res"
+    assert main(["run", "preview", "--duration", "0.05", "--out", str(out), "--quiet"]) == 0
+    assert capsys.readouterr().out == ""
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["robot"] == "mrm3" and summary["version"]
+    assert (out / "tracking.png").stat().st_size > 1000
+    assert len((out / "trace.csv").read_text().splitlines()) == 1 + 50
+    config = json.loads((out / "config.json").read_text())
+    assert config["seed"] == 0 and config["robot"]["name"] == "mrm3"
+
+
+def test_cli_bad_input_leaves_nothing(tmp_path, capsys):
+    out = tmp_path / "res"
+    assert main(["run", "preview", "--duration", "-1", "--out", str(out)]) == 2
+    assert "duration" in capsys.readouterr().err
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_atomic_output_dir_keeps_old_results_on_failure(tmp_path):
+    out = tmp_path / "res"
+    with atomic_output_dir(out) as tmp:
+        (tmp / "a.txt").write_text("old")
+    with pytest.raises(RuntimeError), atomic_output_dir(out) as tmp:
+        (tmp / "a.txt").write_text("half")
+        raise RuntimeError("simulated crash")
+    assert (out / "a.txt").read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
+    with atomic_output_dir(out) as tmp:
+        (tmp / "b.txt").write_text("new")
+    assert sorted(p.name for p in out.iterdir()) == ["b.txt"]
