@@ -14,7 +14,11 @@ from amaranth.sim import Simulator
 
 from hdl.link.codec import Codec
 
-__all__ = ["stream_put", "stream_get", "run_simulation", "FaultyLine", "CodecPair"]
+__all__ = [
+    "stream_put", "stream_get", "run_simulation", "FaultyLine", "CodecPair",
+    "ERROR_CLASSES", "read_codec_outputs", "assert_outputs_equal", "apply_line_faults",
+    "RandomHost", "drive_codec_inputs", "token_bits", "LinePeer", "LineMonitor",
+]
 
 
 async def stream_put(ctx, stream, payload):
@@ -94,3 +98,255 @@ class CodecPair(Elaboratable):
                 dst.s_in.eq(line.s_out),
             ]
         return m
+
+
+# -- Lock-step comparison of a gateware codec pair with the Python reference -----------------
+
+ERROR_CLASSES = ("disconnect", "parity", "escape", "credit", "sequence")
+
+
+def read_codec_outputs(ctx, codec):
+    """The gateware codec's outputs this cycle, in the shape of ``CodecOutputs``."""
+    from hdl.link.codec_ref import CodecOutputs
+    errors = ctx.get(codec.errors)
+    return CodecOutputs(
+        tx_ready=ctx.get(codec.tx.ready),
+        rx_valid=ctx.get(codec.rx.valid),
+        rx_payload=ctx.get(codec.rx.payload.as_value()),
+        tick_out=ctx.get(codec.tick_out),
+        time_out=ctx.get(codec.time_out),
+        running=ctx.get(codec.running),
+        state=ctx.get(codec.state).value,
+        errors={name: getattr(errors, name) for name in ERROR_CLASSES},
+        tx_credit=ctx.get(codec.tx_credit),
+        rx_credit=ctx.get(codec.rx_credit),
+        d_out=ctx.get(codec.d_out),
+        s_out=ctx.get(codec.s_out),
+    )
+
+
+def assert_outputs_equal(rtl, ref, *, cycle, who):
+    """Compare two ``CodecOutputs``; ``rx_payload`` only matters while ``rx_valid``."""
+    if not rtl.rx_valid:
+        rtl = rtl._replace(rx_payload=0)
+        ref = ref._replace(rx_payload=0)
+    if rtl != ref:
+        diff = {k: (getattr(rtl, k), getattr(ref, k)) for k in rtl._fields
+                if getattr(rtl, k) != getattr(ref, k)}
+        raise AssertionError(f"cycle {cycle}, codec {who}: RTL != reference (rtl, ref): {diff}")
+
+
+def apply_line_faults(value, fault):
+    """Python twin of :class:`FaultyLine` for one line: ``fault = (clear, set, flip)``."""
+    clear, set_, flip = fault
+    return ((value & ~clear) | set_) ^ flip
+
+
+class RandomHost:
+    """Seeded random host traffic for one codec: packets with gaps, rx back-pressure, ticks.
+
+    Per cycle call :meth:`inputs` (values to drive), then :meth:`observe` with that cycle's
+    outputs. ``sent`` and ``received`` log the N-chars (Char values) that crossed the host
+    streams; ``ticks`` the time-code values delivered.
+    """
+
+    def __init__(self, rng, *, p_offer=0.6, p_stall=0.02, p_unstall=0.05, p_tick=0.004,
+                 max_len=20, p_eep=0.1):
+        from hdl.link.codec_ref import char_value
+        self._char_value = char_value
+        self.rng = rng
+        self.p_offer, self.p_stall, self.p_unstall = p_offer, p_stall, p_unstall
+        self.p_tick, self.max_len, self.p_eep = p_tick, max_len, p_eep
+        self.queue = []
+        self.offering = None
+        self.rx_ready = 1
+        self.sent, self.received, self.ticks = [], [], []
+        self._tick = 0
+
+    def _next_char(self):
+        if not self.queue:
+            n = int(self.rng.integers(0, self.max_len + 1))
+            data = [self._char_value(0, int(x)) for x in self.rng.integers(0, 256, n)]
+            end = 2 if self.rng.random() < self.p_eep else 1
+            self.queue = data + [self._char_value(end)]
+        return self.queue.pop(0)
+
+    def inputs(self):
+        rng = self.rng
+        if self.offering is None and rng.random() < self.p_offer:
+            self.offering = self._next_char()
+        if self.rx_ready and rng.random() < self.p_stall:
+            self.rx_ready = 0
+        elif not self.rx_ready and rng.random() < self.p_unstall:
+            self.rx_ready = 1
+        self._tick = int(rng.random() < self.p_tick)
+        return {
+            "tx_valid": int(self.offering is not None),
+            "tx_payload": self.offering if self.offering is not None else 0,
+            "rx_ready": self.rx_ready,
+            "tick_in": self._tick,
+            "time_in": int(rng.integers(0, 256)),
+        }
+
+    def observe(self, outputs):
+        if self.offering is not None and outputs.tx_ready:
+            self.sent.append(self.offering)
+            self.offering = None
+        if self.rx_ready and outputs.rx_valid:
+            self.received.append(outputs.rx_payload)
+        if outputs.tick_out:
+            self.ticks.append(outputs.time_out)
+
+
+def drive_codec_inputs(ctx, codec, values):
+    """Drive a codec's host inputs from a dict as :meth:`RandomHost.inputs` returns."""
+    ctx.set(codec.tx.valid, values["tx_valid"])
+    ctx.set(codec.tx.payload.as_value(), values["tx_payload"])
+    ctx.set(codec.rx.ready, values["rx_ready"])
+    ctx.set(codec.tick_in, values["tick_in"])
+    ctx.set(codec.time_in, values["time_in"])
+
+
+# -- Line-level bus-functional models (independent of the gateware and of CodecRef) ----------
+
+_CODES = {"FCT": (0, 0), "EOP": (0, 1), "EEP": (1, 0), "ESC": (1, 1)}   # (C0, C1), C0 sent first
+
+
+def token_bits(tokens, par=0):
+    """Line bits of a token sequence with odd parity, and the parity state after it.
+
+    Tokens: ``("FCT",)``, ``("EOP",)``, ``("EEP",)``, ``("ESC",)``, ``("NULL",)``,
+    ``("DATA", byte)``, ``("TIME", byte)``. A token may end with ``"bad-parity"`` to send its
+    (first) parity bit inverted. ``par`` is the XOR of the previous character's data bits.
+    """
+    bits = []
+    for token in tokens:
+        kind, args = token[0], [a for a in token[1:] if a != "bad-parity"]
+        bad = "bad-parity" in token[1:]
+        chars = {"NULL": [("ESC",), ("FCT",)], "TIME": [("ESC",), ("DATA", *args)]}.get(
+            kind, [(kind, *args)])
+        for n, (ck, *cargs) in enumerate(chars):
+            flag = 0 if ck == "DATA" else 1
+            p = 1 ^ par ^ flag ^ (1 if bad and n == 0 else 0)
+            if ck == "DATA":
+                payload = [(cargs[0] >> i) & 1 for i in range(8)]
+            else:
+                payload = list(_CODES[ck])
+            bits += [p, flag] + payload
+            par = sum(payload) & 1
+    return bits, par
+
+
+class LinePeer:
+    """A scripted far end: sends queued tokens at ``div`` slots per bit, NULLs in between.
+
+    ``silent`` keeps the line still (both lines low until the first bit). Call :meth:`cycle`
+    once per clock for the ``(d, s)`` words to drive.
+    """
+
+    def __init__(self, slots, div, *, silent=True):
+        self.slots, self.div = slots, div
+        self.silent = silent
+        self.bits = []
+        self.par = 0
+        self.d = self.s = 0
+        self.left = 0
+        self.fill_nulls = True
+
+    def send(self, *tokens):
+        bits, self.par = token_bits(tokens, self.par)
+        self.bits += bits
+
+    def cycle(self):
+        d_word = s_word = 0
+        for i in range(self.slots):
+            if self.left == 0 and not self.silent:
+                if not self.bits and self.fill_nulls:
+                    self.send(("NULL",))
+                if self.bits:
+                    bit = self.bits.pop(0)
+                    if bit == self.d:
+                        self.s ^= 1
+                    self.d = bit
+                    self.left = self.div
+            if self.left:
+                self.left -= 1
+            d_word |= self.d << i
+            s_word |= self.s << i
+        return d_word, s_word
+
+
+class LineMonitor:
+    """Decode a codec's line output into tokens, checking DS encoding and parity.
+
+    Feed :meth:`cycle` the ``(d, s)`` words; ``tokens`` collects ``(cycle, token)`` from the
+    first NULL on, with NULL and time-codes merged as in :func:`token_bits`; ``parity_errors``
+    counts parity failures. ``bit_slots`` are the slot indices (from the start) of every bit,
+    ``changes`` the ``(cycle, slot)`` of every change on either line.
+    """
+
+    def __init__(self, slots):
+        self.slots = slots
+        self.prev = (0, 0)
+        self.t = 0
+        self.bits = []
+        self.bit_slots = []
+        self.changes = []           # (cycle, slot) of every change on D or S
+        self.tokens = []
+        self.parity_errors = 0
+        self._pos = None        # index into self.bits of the next character, once framed
+        self._esc = False
+        self._par = 0
+        self._cycle = 0
+
+    def cycle(self, d_word, s_word):
+        for i in range(self.slots):
+            cur = ((d_word >> i) & 1, (s_word >> i) & 1)
+            assert not (cur[0] != self.prev[0] and cur[1] != self.prev[1]), \
+                f"D and S changed together at slot {self.t}"
+            if cur != self.prev:
+                self.changes.append((self._cycle, i))
+            if cur[0] ^ cur[1] != self.prev[0] ^ self.prev[1]:
+                self.bits.append(cur[0])
+                self.bit_slots.append(self.t)
+            self.prev = cur
+            self.t += 1
+        self._frame()
+        self._cycle += 1
+
+    def _frame(self):
+        b = self.bits
+        if self._pos is None:
+            for k in range(len(b) - 7):
+                if b[k + 1:k + 8] == [1, 1, 1, 0, 1, 0, 0]:
+                    self._pos, self._par = k + 8, 0
+                    self.tokens.append((self._cycle, ("NULL",)))
+                    break
+            return
+        while True:
+            k = self._pos
+            if len(b) < k + 2:
+                return
+            p, flag = b[k], b[k + 1]
+            n = 2 if flag else 8
+            if len(b) < k + 2 + n:
+                return
+            if (self._par ^ p ^ flag) != 1:
+                self.parity_errors += 1
+            payload = b[k + 2:k + 2 + n]
+            self._par = sum(payload) & 1
+            self._pos = k + 2 + n
+            if flag:
+                code = {v: name for name, v in _CODES.items()}[tuple(payload)]
+                if self._esc:
+                    self._esc = False
+                    self.tokens.append((self._cycle, ("NULL",) if code == "FCT"
+                                        else ("ESC", code)))
+                elif code == "ESC":
+                    self._esc = True
+                else:
+                    self.tokens.append((self._cycle, (code,)))
+            else:
+                value = sum(bit << i for i, bit in enumerate(payload))
+                self.tokens.append((self._cycle, ("TIME" if self._esc else "DATA", value)))
+                self._esc = False

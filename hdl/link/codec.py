@@ -94,6 +94,11 @@ class Codec(wiring.Component):
         if not isinstance(disconnect_cycles, int) or disconnect_cycles < 3:
             raise ValueError(f"Disconnect time must be an integer of at least 3 cycles, "
                              f"not {disconnect_cycles!r}")
+        if not isinstance(reset_cycles, int) or reset_cycles < disconnect_cycles + 5:
+            # Exchange of silence: the peer must have detected our silence and fallen silent
+            # itself before our receiver comes out of Error-Reset.
+            raise ValueError(f"Reset time must be at least the disconnect time + 5 cycles "
+                             f"({disconnect_cycles + 5}), not {reset_cycles!r}")
         if not isinstance(rx_fifo_depth, int) or rx_fifo_depth < FCT_CREDIT + 1:
             raise ValueError(f"Receive FIFO depth must be an integer of at least "
                              f"{FCT_CREDIT + 1}, not {rx_fifo_depth!r}")
