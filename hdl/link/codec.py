@@ -26,7 +26,8 @@ from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.wiring import In, Out
 
 from .chars import FCT_CREDIT, MAX_CREDIT, Char, CharKind, ErrorCounts, LinkState
-from .ds import DSReceiver, check_div, check_slots
+from .ds import DSReceiver
+from .params import codec_params, rejecting
 from .fsm import LinkFSM
 from .rx import CharReceiver
 from .tx import CharTransmitter
@@ -86,30 +87,13 @@ class Codec(wiring.Component):
     def __init__(self, *, slots: int = 3, start_div: int | None = None, run_div: int = 1,
                  reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
                  rx_fifo_depth: int = 64):
-        check_slots(slots)
-        if start_div is None:
-            start_div = 5 * slots
-        check_div(start_div, "Start bit period")
-        check_div(run_div, "Run bit period")
-        if not isinstance(disconnect_cycles, int) or disconnect_cycles < 3:
-            raise ValueError(f"Disconnect time must be an integer of at least 3 cycles, "
-                             f"not {disconnect_cycles!r}")
-        if not isinstance(reset_cycles, int) or reset_cycles < disconnect_cycles + 5:
-            # Exchange of silence: the peer must have detected our silence and fallen silent
-            # itself before our receiver comes out of Error-Reset.
-            raise ValueError(f"Reset time must be at least the disconnect time + 5 cycles "
-                             f"({disconnect_cycles + 5}), not {reset_cycles!r}")
-        if not isinstance(rx_fifo_depth, int) or rx_fifo_depth < FCT_CREDIT + 1:
-            raise ValueError(f"Receive FIFO depth must be an integer of at least "
-                             f"{FCT_CREDIT + 1}, not {rx_fifo_depth!r}")
-        self.slots = slots
-        self.start_div = start_div
-        self.run_div = run_div
-        self.reset_cycles = reset_cycles
-        self.wait_cycles = wait_cycles
-        self.disconnect_cycles = disconnect_cycles
-        self.rx_fifo_depth = rx_fifo_depth
-        self._fsm = LinkFSM(reset_cycles=reset_cycles, wait_cycles=wait_cycles)
+        with rejecting(self):
+            params = codec_params(slots=slots, start_div=start_div, run_div=run_div,
+                                  reset_cycles=reset_cycles, wait_cycles=wait_cycles,
+                                  disconnect_cycles=disconnect_cycles,
+                                  rx_fifo_depth=rx_fifo_depth)
+        for name, value in params.items():
+            setattr(self, name, value)
         super().__init__({
             "tx":           In(stream.Signature(Char)),
             "rx":           Out(stream.Signature(Char)),
@@ -125,10 +109,10 @@ class Codec(wiring.Component):
             "errors":       Out(ErrorCounts),
             "tx_credit":    Out(range(MAX_CREDIT + 1)),
             "rx_credit":    Out(range(MAX_CREDIT + 1)),
-            "d_in":         In(slots),
-            "s_in":         In(slots),
-            "d_out":        Out(slots),
-            "s_out":        Out(slots),
+            "d_in":         In(self.slots),
+            "s_in":         In(self.slots),
+            "d_out":        Out(self.slots),
+            "s_out":        Out(self.slots),
         })
 
     def elaborate(self, platform):
@@ -139,7 +123,8 @@ class Codec(wiring.Component):
                                                  disconnect_limit=self.disconnect_cycles - 2)
         m.submodules.char_tx = tx = CharTransmitter(slots=self.slots, start_div=self.start_div,
                                                     run_div=self.run_div)
-        m.submodules.fsm = fsm = self._fsm
+        m.submodules.fsm = fsm = LinkFSM(reset_cycles=self.reset_cycles,
+                                         wait_cycles=self.wait_cycles)
         m.submodules.fifo = fifo = SyncFIFO(width=Char.as_shape().size,
                                             depth=self.rx_fifo_depth)
 

@@ -15,7 +15,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from .chars import FCT_CREDIT, MAX_CREDIT, CharKind, LinkState
-from .ds import GROUP_BITS, check_div, check_slots
+from .ds import GROUP_BITS
+from .params import codec_params
 from .rx import NULL_PATTERN
 
 __all__ = ["CodecRef", "CodecOutputs", "char_value", "char_fields"]
@@ -64,36 +65,14 @@ class CodecRef:
     def __init__(self, *, slots: int = 3, start_div: int | None = None, run_div: int = 1,
                  reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
                  rx_fifo_depth: int = 64):
-        check_slots(slots)
-        if start_div is None:
-            start_div = 5 * slots
-        check_div(start_div, "Start bit period")
-        check_div(run_div, "Run bit period")
-        if not isinstance(disconnect_cycles, int) or disconnect_cycles < 3:
-            raise ValueError(f"Disconnect time must be an integer of at least 3 cycles, "
-                             f"not {disconnect_cycles!r}")
-        if not isinstance(reset_cycles, int) or reset_cycles < disconnect_cycles + 5:
-            # Exchange of silence: the peer must have detected our silence and fallen silent
-            # itself before our receiver comes out of Error-Reset.
-            raise ValueError(f"Reset time must be at least the disconnect time + 5 cycles "
-                             f"({disconnect_cycles + 5}), not {reset_cycles!r}")
-        if not isinstance(rx_fifo_depth, int) or rx_fifo_depth < FCT_CREDIT + 1:
-            raise ValueError(f"Receive FIFO depth must be an integer of at least "
-                             f"{FCT_CREDIT + 1}, not {rx_fifo_depth!r}")
-        for name, value in (("Reset time", reset_cycles), ("Wait time", wait_cycles)):
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"{name} must be a positive integer number of cycles, "
-                                 f"not {value!r}")
-        self.slots = slots
-        self.start_div = start_div
-        self.run_div = run_div
-        self.reset_cycles = reset_cycles
-        self.wait_cycles = wait_cycles
-        self.disconnect_cycles = disconnect_cycles
-        self.rx_fifo_depth = rx_fifo_depth
-        self._limit = disconnect_cycles - 2
-        self._timer_mask = _range_mask(max(reset_cycles, wait_cycles))
-        self._buf_mask = (1 << (GROUP_BITS + slots - 1)) - 1
+        params = codec_params(slots=slots, start_div=start_div, run_div=run_div,
+                              reset_cycles=reset_cycles, wait_cycles=wait_cycles,
+                              disconnect_cycles=disconnect_cycles, rx_fifo_depth=rx_fifo_depth)
+        for name, value in params.items():
+            setattr(self, name, value)
+        self._limit = self.disconnect_cycles - 2
+        self._timer_mask = _range_mask(max(self.reset_cycles, self.wait_cycles))
+        self._buf_mask = (1 << (GROUP_BITS + self.slots - 1)) - 1
         self.reset()
 
     def reset(self):

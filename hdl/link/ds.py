@@ -18,11 +18,10 @@ from amaranth import *
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
-__all__ = ["TxBits", "DSTransmitter", "DSReceiver", "MAX_SLOTS", "GROUP_BITS"]
+from .params import check_div, check_slots, rejecting
 
-#: Widest SERDES supported: with at most 4 slots a cycle holds at most one character boundary,
-#: which the character receiver and the transmitter's refill rule rely on.
-MAX_SLOTS = 4
+__all__ = ["TxBits", "DSTransmitter", "DSReceiver", "GROUP_BITS"]
+
 #: Longest group of line bits the transmitter accepts at once (a time-code: ESC + data).
 GROUP_BITS = 14
 
@@ -32,17 +31,6 @@ class TxBits(data.Struct):
 
     bits:   GROUP_BITS
     length: range(GROUP_BITS + 1)
-
-
-def check_slots(slots):
-    if not isinstance(slots, int) or not 1 <= slots <= MAX_SLOTS:
-        raise ValueError(f"Slots per cycle must be an integer from 1 to {MAX_SLOTS}, "
-                         f"not {slots!r}")
-
-
-def check_div(div, name):
-    if not isinstance(div, int) or isinstance(div, bool) or div < 1:
-        raise ValueError(f"{name} must be a positive integer number of slots, not {div!r}")
 
 
 class DSTransmitter(wiring.Component):
@@ -70,9 +58,10 @@ class DSTransmitter(wiring.Component):
     """
 
     def __init__(self, *, slots: int, start_div: int, run_div: int):
-        check_slots(slots)
-        check_div(start_div, "Start bit period")
-        check_div(run_div, "Run bit period")
+        with rejecting(self):
+            check_slots(slots)
+            check_div(start_div, "Start bit period")
+            check_div(run_div, "Run bit period")
         self._slots = slots
         self._start_div = start_div
         self._run_div = run_div
@@ -171,7 +160,8 @@ class DSReceiver(wiring.Component):
     """
 
     def __init__(self, *, slots: int):
-        check_slots(slots)
+        with rejecting(self):
+            check_slots(slots)
         self._slots = slots
         super().__init__({
             "d_in":      In(slots),

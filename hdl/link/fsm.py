@@ -29,6 +29,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
 from .chars import ErrorCounts, LinkState
+from .params import check_cycles, rejecting
 
 __all__ = ["LinkFSM"]
 
@@ -75,10 +76,9 @@ class LinkFSM(wiring.Component):
     errors:         Out(ErrorCounts)
 
     def __init__(self, *, reset_cycles: int, wait_cycles: int):
-        for name, value in (("Reset time", reset_cycles), ("Wait time", wait_cycles)):
-            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"{name} must be a positive integer number of cycles, "
-                                 f"not {value!r}")
+        with rejecting(self):
+            check_cycles(reset_cycles, "Reset time")
+            check_cycles(wait_cycles, "Wait time")
         self._reset_cycles = reset_cycles
         self._wait_cycles = wait_cycles
         super().__init__()

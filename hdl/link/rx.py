@@ -19,7 +19,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
 from .chars import Char, CharKind, ControlCode
-from .ds import check_slots
+from .params import check_cycles, check_slots, rejecting
 
 __all__ = ["CharReceiver", "NULL_PATTERN"]
 
@@ -60,10 +60,9 @@ class CharReceiver(wiring.Component):
     """
 
     def __init__(self, *, slots: int, disconnect_limit: int):
-        check_slots(slots)
-        if not isinstance(disconnect_limit, int) or disconnect_limit < 1:
-            raise ValueError(f"Disconnect limit must be a positive integer, "
-                             f"not {disconnect_limit!r}")
+        with rejecting(self):
+            check_slots(slots)
+            check_cycles(disconnect_limit, "Disconnect limit")
         self._slots = slots
         self._limit = disconnect_limit
         super().__init__({

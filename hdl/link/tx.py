@@ -19,6 +19,7 @@ from amaranth.lib.wiring import In, Out
 from .chars import (CONTROL_BITS, DATA_BITS, NULL_BITS, TIME_BITS, Char, CharKind, ControlChar,
                     ControlCode, DataChar)
 from .ds import DSTransmitter
+from .params import check_div, check_slots, rejecting
 
 __all__ = ["CharTransmitter"]
 
@@ -54,7 +55,11 @@ class CharTransmitter(wiring.Component):
     """
 
     def __init__(self, *, slots: int, start_div: int, run_div: int):
-        self._ds = DSTransmitter(slots=slots, start_div=start_div, run_div=run_div)
+        with rejecting(self):
+            check_slots(slots)
+            check_div(start_div, "Start bit period")
+            check_div(run_div, "Run bit period")
+        self._params = dict(slots=slots, start_div=start_div, run_div=run_div)
         super().__init__({
             "enable":    In(1),
             "fast":      In(1),
@@ -70,7 +75,7 @@ class CharTransmitter(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        m.submodules.ds = ds = self._ds
+        m.submodules.ds = ds = DSTransmitter(**self._params)
 
         par = Signal()      # XOR of the data/control bits of the previous character
         m.d.comb += [
@@ -96,12 +101,9 @@ class CharTransmitter(wiring.Component):
         nchar_data = Signal(DataChar)
         m.d.comb += _fields(nchar_data, parity=~par, flag=0, data=self.nchar.p.data)
         nchar_ctrl = Signal(ControlChar)
-        m.d.comb += _fields(nchar_ctrl, parity=par, flag=1)
-        with m.Switch(self.nchar.p.kind):
-            with m.Case(CharKind.EOP):
-                m.d.comb += nchar_ctrl.code.eq(ControlCode.EOP)
-            with m.Default():
-                m.d.comb += nchar_ctrl.code.eq(ControlCode.EEP)
+        m.d.comb += _fields(nchar_ctrl, parity=par, flag=1,
+                            code=Mux(self.nchar.p.kind == CharKind.EOP,
+                                     ControlCode.EOP, ControlCode.EEP))
 
         # `nchar.ready` does not look at `nchar.valid`: the host sees a Moore-style ready.
         m.d.comb += self.nchar.ready.eq(ds.groups.ready & ~self.send_time & ~self.send_fct)

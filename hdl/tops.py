@@ -1,0 +1,64 @@
+"""Registry of the gateware tops that can be exported as Verilog: name -> factory.
+
+Each entry builds a :class:`~amaranth.lib.wiring.Component` whose signature gives the ports of
+the generated module. ``mrm hdl verilog --top NAME`` uses it; other layers add their tops here
+(the packet layer adds ``link_node``).
+"""
+
+from __future__ import annotations
+
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from amaranth.back import verilog
+from amaranth.lib import wiring
+
+__all__ = ["Top", "TOPS", "build_top", "component_verilog", "verilog_text"]
+
+
+@dataclass(frozen=True)
+class Top:
+    """A buildable top: ``factory(**params)`` returns the component; ``help`` says what it is."""
+
+    factory: Callable[..., wiring.Component]
+    help: str
+
+    def parameters(self) -> dict[str, object]:
+        """The factory's keyword parameters and their defaults."""
+        return {name: p.default for name, p in inspect.signature(self.factory).parameters.items()
+                if p.kind is p.KEYWORD_ONLY}
+
+
+def _spw_codec(*, slots: int = 3, start_div: int | None = None, run_div: int = 1,
+               reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
+               rx_fifo_depth: int = 64) -> wiring.Component:
+    from .link.codec import Codec
+    return Codec(slots=slots, start_div=start_div, run_div=run_div, reset_cycles=reset_cycles,
+                 wait_cycles=wait_cycles, disconnect_cycles=disconnect_cycles,
+                 rx_fifo_depth=rx_fifo_depth)
+
+
+TOPS: dict[str, Top] = {
+    "spw_codec": Top(_spw_codec, "standalone SpaceWire codec (wire ports d_in, s_in, d_out, "
+                                 "s_out; N-char streams, time-codes, link control/status)"),
+}
+
+
+def build_top(name: str, **params) -> wiring.Component:
+    """Build the top ``name`` with ``params``; ``KeyError`` for an unknown name or parameter."""
+    top = TOPS[name]
+    unknown = set(params) - set(top.parameters())
+    if unknown:
+        raise KeyError(f"top {name!r} has no parameter {sorted(unknown)[0]!r}")
+    return top.factory(**params)
+
+
+def component_verilog(component: wiring.Component, name: str) -> str:
+    """Verilog of ``component`` as module ``name``; ports from its signature, no src attributes."""
+    return verilog.convert(component, name=name, emit_src=False)
+
+
+def verilog_text(name: str, **params) -> str:
+    """Verilog of the top ``name`` built with ``params``, as a module of the same name."""
+    return component_verilog(build_top(name, **params), name)

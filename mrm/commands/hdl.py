@@ -1,0 +1,89 @@
+"""``mrm hdl``: export gateware tops as Verilog.
+
+``mrm hdl verilog --top spw_codec --out DIR [--param slots=1 ...]`` writes ``DIR/<top>.v``
+atomically (a temporary file renamed into place), so a failed run leaves no partial file.
+``mrm hdl tops`` lists the tops and their parameters.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from mrm.errors import InputError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("hdl", help="export gateware tops as Verilog")
+    sub = p.add_subparsers(dest="hdl_command", required=True)
+    p_verilog = sub.add_parser("verilog", help="write DIR/<top>.v for a gateware top")
+    p_verilog.add_argument("--top", required=True, help="top name (see `mrm hdl tops`)")
+    p_verilog.add_argument("--out", required=True, type=Path, help="output folder")
+    p_verilog.add_argument("--param", action="append", default=[], metavar="NAME=INT",
+                           help="top parameter, e.g. slots=1 (repeatable)")
+    p_verilog.set_defaults(func=_verilog)
+    p_tops = sub.add_parser("tops", help="list the tops and their parameters")
+    p_tops.set_defaults(func=_tops)
+
+
+def parse_params(items: list[str]) -> dict[str, int]:
+    """``["slots=1", "run_div=2"]`` -> ``{"slots": 1, "run_div": 2}``; InputError if malformed."""
+    params = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise InputError("--param", f"must look like NAME=INT, not {item!r}")
+        try:
+            params[name] = int(value, 0)
+        except ValueError:
+            raise InputError(f"--param {name}", f"must be an integer, not {value!r}") from None
+    return params
+
+
+def write_verilog(top: str, out: Path, params: dict[str, int]) -> Path:
+    """Generate ``top`` with ``params`` and write ``out/<top>.v`` atomically; return its path."""
+    from hdl.tops import TOPS, build_top, component_verilog
+
+    if top not in TOPS:
+        raise InputError("--top", f"unknown top {top!r}; known: {', '.join(sorted(TOPS))}")
+    known = TOPS[top].parameters()
+    for name in params:
+        if name not in known:
+            raise InputError(f"--param {name}",
+                             f"top {top!r} has no such parameter; known: {', '.join(known)}")
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError("--out", f"{str(out)!r} exists and is not a folder")
+    try:
+        component = build_top(top, **params)
+    except ValueError as exc:
+        raise InputError("--param", str(exc)) from None
+    text = component_verilog(component, top)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{top}.v"
+    fd, tmp = tempfile.mkstemp(prefix=f".{top}.", suffix=".v.tmp", dir=out)
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _verilog(args) -> int:
+    path = write_verilog(args.top, args.out, parse_params(args.param))
+    print(path)
+    return 0
+
+
+def _tops(args) -> int:
+    from hdl.tops import TOPS
+
+    for name, top in sorted(TOPS.items()):
+        params = ", ".join(f"{k}={v}" for k, v in top.parameters().items())
+        print(f"{name}: {top.help}\n    parameters: {params}")
+    return 0

