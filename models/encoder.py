@@ -74,9 +74,9 @@ def joint_counts(q, k) -> np.ndarray:
 
 def quadrature_levels(counts) -> tuple[np.ndarray, np.ndarray]:
     """Line levels ``(A, B)`` (uint8 arrays, same shape) for counts (any integers, also < 0)."""
-    c = np.asarray(counts, dtype=np.int64)
-    a = (((c + 1) >> 1) & 1).astype(np.uint8)
-    b = ((c >> 1) & 1).astype(np.uint8)
+    phase = (np.asarray(counts, dtype=np.int64) & 3).astype(np.uint8)    # c mod 4
+    b = phase >> 1
+    a = b ^ (phase & 1)
     return a, b
 
 
@@ -110,18 +110,51 @@ def cycle_counts(q0, v0, acc, q1, dt: float, cycles: int, k) -> np.ndarray:
     EncoderOverspeed
         If the count changes by more than one between two consecutive cycles (or between the
         start of the step and its first cycle).
+
+    Notes
+    -----
+    Only joints whose count can change inside the step (different counts at its ends, or a
+    turning point inside it) are sampled cycle by cycle; the others keep their count, which
+    is what sampling would give for a monotonic motion between two equal counts.
     """
-    s = (np.arange(1, cycles + 1, dtype=float) * (dt / cycles))[:, None]
-    q = q0 + s * (v0 + 0.5 * acc * s)
-    q[-1] = q1
-    c = joint_counts(q, k)
-    steps = np.diff(c, axis=0, prepend=joint_counts(q0, k)[None, :])
+    q0 = np.asarray(q0, dtype=float)
+    c0 = joint_counts(q0, k)
+    c1 = joint_counts(q1, k)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_turn = -np.asarray(v0) / np.asarray(acc)
+    active = (c0 != c1) | ((t_turn > 0.0) & (t_turn < dt))
+    out = np.empty((cycles, c0.size), dtype=np.int64)
+    out[:] = c0
+    if not active.any():
+        return out
+    idx = np.flatnonzero(active)
+    s = _sample_times(dt, cycles)
+    q = q0[idx] + s * (v0[idx] + 0.5 * acc[idx] * s)
+    q[-1] = q1[idx]
+    c = joint_counts(q, k[idx])
+    steps = np.diff(c, axis=0, prepend=c0[idx][None, :])
     if np.any(np.abs(steps) > 1):
-        cyc, joint = np.argwhere(np.abs(steps) > 1)[0]
-        raise EncoderOverspeed(f"joint {joint + 1}: count jumps by {int(steps[cyc, joint])} in "
+        cyc, col = np.argwhere(np.abs(steps) > 1)[0]
+        joint = idx[col]
+        raise EncoderOverspeed(f"joint {joint + 1}: count jumps by {int(steps[cyc, col])} in "
                                f"cycle {cyc}; the joint is faster than the encoder interface "
                                f"allows ({float(max_legal_speed(k)[joint]):.1f} rad/s)")
-    return c
+    out[:, idx] = c
+    return out
+
+
+_SAMPLE_TIMES: dict[tuple[float, int], np.ndarray] = {}
+
+
+def _sample_times(dt: float, cycles: int) -> np.ndarray:
+    """Sample instants ``(k + 1) · dt / cycles`` inside a step, shape (cycles, 1), cached."""
+    key = (dt, cycles)
+    s = _SAMPLE_TIMES.get(key)
+    if s is None:
+        s = (np.arange(1, cycles + 1, dtype=float) * (dt / cycles))[:, None]
+        s.flags.writeable = False
+        _SAMPLE_TIMES[key] = s
+    return s
 
 
 def decode_quadrature(a, b, count0) -> np.ndarray:
@@ -146,7 +179,7 @@ def decode_quadrature(a, b, count0) -> np.ndarray:
     """
     a = np.asarray(a, dtype=np.int64)
     b = np.asarray(b, dtype=np.int64)
-    phase = np.array([[0, 3], [1, 2]], dtype=np.int64)[a, b]   # (A, B) → c mod 4
+    phase = 2 * b + (a ^ b)                                    # (A, B) → c mod 4
     c0 = np.asarray(count0, dtype=np.int64)
     prev = np.concatenate([(c0 % 4)[None, :], phase[:-1]], axis=0)
     d = (phase - prev) % 4
