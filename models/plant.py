@@ -137,7 +137,11 @@ class PlantConfig:
         object.__setattr__(self, "cycle", cycle)
         p = self.perturbation
         if not isinstance(p, Perturbation):
-            p = Perturbation.uniform(require_finite(p, "plant.perturbation"))
+            amount = require_finite(p, "plant.perturbation")
+            if not 0.0 <= amount <= _MAX_PERTURBATION:
+                raise InputError("plant.perturbation",
+                                 f"must be in [0, {_MAX_PERTURBATION}], not {p!r}")
+            p = Perturbation.uniform(amount)
         object.__setattr__(self, "perturbation", p)
         if self.current_bandwidth is not None:
             object.__setattr__(self, "current_bandwidth",
@@ -459,11 +463,12 @@ class Plant:
             A command of the wrong length or not finite (the state is left unchanged).
         """
         try:
-            cmd = np.asarray(tau_cmd, dtype=float).tolist()
+            arr = np.asarray(tau_cmd, dtype=float)
         except (TypeError, ValueError):
             raise InputError("tau_cmd", f"must be {self.n} numbers, not {tau_cmd!r}") from None
-        if not isinstance(cmd, list) or len(cmd) != self.n:
-            raise InputError("tau_cmd", f"must have {self.n} values, not {tau_cmd!r}")
+        if arr.shape != (self.n,):
+            raise InputError("tau_cmd", f"must have shape ({self.n},), not {arr.shape}")
+        cmd = arr.tolist()
         for x in cmd:
             if not isfinite(x):
                 raise InputError("tau_cmd", f"must be finite, not {cmd!r}")
