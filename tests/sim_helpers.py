@@ -17,7 +17,8 @@ from hdl.link.codec import Codec
 __all__ = [
     "stream_put", "stream_get", "run_simulation", "FaultyLine", "CodecPair",
     "ERROR_CLASSES", "read_codec_outputs", "assert_outputs_equal", "apply_line_faults",
-    "RandomHost", "drive_codec_inputs", "token_bits", "LinePeer", "LineMonitor",
+    "RandomHost", "drive_codec_inputs", "token_bits", "LinePeer", "LineMonitor", "PeerBench",
+    "PairBench",
 ]
 
 
@@ -217,12 +218,16 @@ def token_bits(tokens, par=0):
 
     Tokens: ``("FCT",)``, ``("EOP",)``, ``("EEP",)``, ``("ESC",)``, ``("NULL",)``,
     ``("DATA", byte)``, ``("TIME", byte)``. A token may end with ``"bad-parity"`` to send its
-    (first) parity bit inverted. ``par`` is the XOR of the previous character's data bits.
+    (first) parity bit inverted, or ``"corrupt"`` to send its last character with the first
+    data/control bit inverted after the parity was worked out (a bit error on the line, which
+    the *next* character's parity exposes). ``par`` is the XOR of the previous character's
+    data bits.
     """
     bits = []
     for token in tokens:
-        kind, args = token[0], [a for a in token[1:] if a != "bad-parity"]
+        kind, args = token[0], [a for a in token[1:] if a not in ("bad-parity", "corrupt")]
         bad = "bad-parity" in token[1:]
+        corrupt = "corrupt" in token[1:]
         chars = {"NULL": [("ESC",), ("FCT",)], "TIME": [("ESC",), ("DATA", *args)]}.get(
             kind, [(kind, *args)])
         for n, (ck, *cargs) in enumerate(chars):
@@ -232,8 +237,10 @@ def token_bits(tokens, par=0):
                 payload = [(cargs[0] >> i) & 1 for i in range(8)]
             else:
                 payload = list(_CODES[ck])
-            bits += [p, flag] + payload
             par = sum(payload) & 1
+            if corrupt and n == len(chars) - 1:
+                payload = [payload[0] ^ 1] + payload[1:]
+            bits += [p, flag] + payload
     return bits, par
 
 
@@ -282,7 +289,8 @@ class LineMonitor:
     Feed :meth:`cycle` the ``(d, s)`` words; ``tokens`` collects ``(cycle, token)`` from the
     first NULL on, with NULL and time-codes merged as in :func:`token_bits`; ``parity_errors``
     counts parity failures. ``bit_slots`` are the slot indices (from the start) of every bit,
-    ``changes`` the ``(cycle, slot)`` of every change on either line.
+    ``changes`` the ``(cycle, slot)`` of every change on either line. A drop of both lines from
+    1 1 to 0 0 (the transmitter being reset) restarts the framing and is logged in ``resets``.
     """
 
     def __init__(self, slots):
@@ -292,9 +300,11 @@ class LineMonitor:
         self.bits = []
         self.bit_slots = []
         self.changes = []           # (cycle, slot) of every change on D or S
+        self.resets = []            # cycles where the transmitter dropped both lines
         self.tokens = []
         self.parity_errors = 0
         self._pos = None        # index into self.bits of the next character, once framed
+        self._search_from = 0   # where the search for the first NULL resumes
         self._esc = False
         self._par = 0
         self._cycle = 0
@@ -302,6 +312,15 @@ class LineMonitor:
     def cycle(self, d_word, s_word):
         for i in range(self.slots):
             cur = ((d_word >> i) & 1, (s_word >> i) & 1)
+            if cur == (0, 0) and self.prev == (1, 1):
+                # The transmitter was reset (both lines dropped): framing starts over.
+                self.bits, self._pos, self._esc, self._par = [], None, False, 0
+                self._search_from = 0
+                self.resets.append(self._cycle)
+                self.changes.append((self._cycle, i))
+                self.prev = cur
+                self.t += 1
+                continue
             assert not (cur[0] != self.prev[0] and cur[1] != self.prev[1]), \
                 f"D and S changed together at slot {self.t}"
             if cur != self.prev:
@@ -317,11 +336,13 @@ class LineMonitor:
     def _frame(self):
         b = self.bits
         if self._pos is None:
-            for k in range(len(b) - 7):
+            for k in range(self._search_from, len(b) - 7):
                 if b[k + 1:k + 8] == [1, 1, 1, 0, 1, 0, 0]:
                     self._pos, self._par = k + 8, 0
                     self.tokens.append((self._cycle, ("NULL",)))
                     break
+            else:
+                self._search_from = max(self._search_from, len(b) - 7)
             return
         while True:
             k = self._pos
@@ -332,7 +353,11 @@ class LineMonitor:
             if len(b) < k + 2 + n:
                 return
             if (self._par ^ p ^ flag) != 1:
+                # As a receiver would: count it and look for the next NULL (the transmitter
+                # restarts with NULLs after a reset that did not drop both lines together).
                 self.parity_errors += 1
+                self._pos, self._esc, self._search_from = None, False, k
+                return self._frame()
             payload = b[k + 2:k + 2 + n]
             self._par = sum(payload) & 1
             self._pos = k + 2 + n
@@ -350,3 +375,150 @@ class LineMonitor:
                 value = sum(bit << i for i, bit in enumerate(payload))
                 self.tokens.append((self._cycle, ("TIME" if self._esc else "DATA", value)))
                 self._esc = False
+
+
+class PeerBench:
+    """One gateware codec (``dut``) against a scripted :class:`LinePeer`.
+
+    Drive it from a testbench with :meth:`cycle` (one clock: line in from the peer, line out
+    into ``monitor``, received N-chars into ``received`` while ``rx_ready``) and :meth:`bring_up`
+    (the start-up handshake from the peer's side, ending with the DUT in Run).
+    """
+
+    def __init__(self, *, peer_div=None, **params):
+        self.dut = Codec(**params)
+        self.peer = LinePeer(self.dut.slots, peer_div or self.dut.start_div)
+        self.monitor = LineMonitor(self.dut.slots)
+        self.received = []
+        self.rx_ready = 1
+        self.cycles = 0
+
+    async def cycle(self, ctx):
+        dut = self.dut
+        d, s = self.peer.cycle()
+        ctx.set(dut.d_in, d)
+        ctx.set(dut.s_in, s)
+        ctx.set(dut.rx.ready, self.rx_ready)
+        self.monitor.cycle(ctx.get(dut.d_out), ctx.get(dut.s_out))
+        if self.rx_ready and ctx.get(dut.rx.valid):
+            self.received.append(ctx.get(dut.rx.payload.as_value()))
+        await ctx.tick()
+        self.cycles += 1
+
+    async def run(self, ctx, n):
+        for _ in range(n):
+            await self.cycle(ctx)
+
+    async def until(self, ctx, condition, limit=5000):
+        """Clock until ``condition()`` holds (checked before each cycle); fail after ``limit``."""
+        for _ in range(limit):
+            if condition():
+                return
+            await self.cycle(ctx)
+        raise AssertionError(f"condition not reached within {limit} cycles")
+
+    async def bring_up(self, ctx, *, fast_div=1):
+        """Handshake to Run: NULLs once the DUT has started, an FCT once it sends FCTs."""
+        from hdl.link.chars import LinkState
+        dut = self.dut
+        ctx.set(dut.link_start, 1)
+        await self.until(ctx, lambda: ctx.get(dut.state) == LinkState.STARTED)
+        self.peer.silent = False
+        await self.until(ctx, lambda: any(t == ("FCT",) for _, t in self.monitor.tokens))
+        self.peer.send(("FCT",))
+        await self.until(ctx, lambda: ctx.get(dut.running))
+        self.peer.div = fast_div
+
+    def errors(self, ctx):
+        counts = ctx.get(self.dut.errors)
+        return {name: getattr(counts, name) for name in ERROR_CLASSES}
+
+
+class PairBench:
+    """A :class:`CodecPair` driven cycle by cycle from queues, with line faults and a log.
+
+    ``tx[who]`` are the N-chars (Char values) each host still has to send, offered back to back;
+    ``sent[who]`` those the codec took, ``received[who]`` those it delivered while
+    ``rx_ready[who]``; ``states[who]`` is a list of (first cycle, LinkState) per state
+    entered; ``ticks[who]`` the (cycle, time value) of each tick_out. ``faults`` maps "ab"/"ba"
+    to ``((clear, set, flip) for D, (clear, set, flip) for S)`` applied from the next cycle.
+    """
+
+    def __init__(self, **params):
+        self.pair = CodecPair(**params)
+        self.codecs = {"a": self.pair.a, "b": self.pair.b}
+        self.lines = {"ab": self.pair.ab, "ba": self.pair.ba}
+        self.tx = {"a": [], "b": []}
+        self.sent = {"a": [], "b": []}
+        self.received = {"a": [], "b": []}
+        self.rx_ready = {"a": 1, "b": 1}
+        self.states = {"a": [], "b": []}
+        self.ticks = {"a": [], "b": []}
+        self.faults = {}
+        self.cycles = 0
+
+    def state(self, ctx, who):
+        return ctx.get(self.codecs[who].state)
+
+    async def cycle(self, ctx, *, tick=None):
+        """One clock. ``tick`` = (who, value) strobes tick_in on that codec this cycle."""
+        self.apply_faults(ctx)
+        taken = {}
+        for who, codec in self.codecs.items():
+            ctx.set(codec.link_start, 1)
+            ctx.set(codec.tx.valid, int(bool(self.tx[who])))
+            if self.tx[who]:
+                ctx.set(codec.tx.payload.as_value(), self.tx[who][0])
+            ctx.set(codec.rx.ready, self.rx_ready[who])
+            ctx.set(codec.tick_in, int(tick is not None and tick[0] == who))
+            if tick is not None and tick[0] == who:
+                ctx.set(codec.time_in, tick[1])
+            state = ctx.get(codec.state)
+            if not self.states[who] or self.states[who][-1][1] != state:
+                self.states[who].append((self.cycles, state))
+            taken[who] = bool(self.tx[who]) and ctx.get(codec.tx.ready)
+            if self.rx_ready[who] and ctx.get(codec.rx.valid):
+                self.received[who].append(ctx.get(codec.rx.payload.as_value()))
+            if ctx.get(codec.tick_out):
+                self.ticks[who].append((self.cycles, ctx.get(codec.time_out)))
+        for who, took in taken.items():
+            if took:
+                self.sent[who].append(self.tx[who].pop(0))
+        await ctx.tick()
+        self.cycles += 1
+
+    def apply_faults(self, ctx):
+        """Drive ``faults`` onto the lines now (``cycle`` does it too)."""
+        for key, line in self.lines.items():
+            (cd, sd, fd), (cs, ss, fs) = self.faults.get(key, ((0, 0, 0), (0, 0, 0)))
+            ctx.set(line.clear_d, cd)
+            ctx.set(line.set_d, sd)
+            ctx.set(line.flip_d, fd)
+            ctx.set(line.clear_s, cs)
+            ctx.set(line.set_s, ss)
+            ctx.set(line.flip_s, fs)
+
+    async def run(self, ctx, n):
+        for _ in range(n):
+            await self.cycle(ctx)
+
+    async def until(self, ctx, condition, limit=5000):
+        for _ in range(limit):
+            if condition():
+                return
+            await self.cycle(ctx)
+        raise AssertionError(f"condition not reached within {limit} cycles")
+
+    async def bring_up(self, ctx, limit=5000):
+        await self.until(ctx, lambda: ctx.get(self.pair.a.running) and
+                         ctx.get(self.pair.b.running), limit)
+
+    def errors(self, ctx, who):
+        counts = ctx.get(self.codecs[who].errors)
+        return {name: getattr(counts, name) for name in ERROR_CLASSES}
+
+    def simulate(self, testbench, name):
+        sim = Simulator(self.pair)
+        sim.add_clock(20e-9)
+        sim.add_testbench(testbench)
+        run_simulation(sim, name)

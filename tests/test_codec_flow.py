@@ -1,0 +1,166 @@
+# amaranth: UnusedElaboratable=no
+"""Flow control, throughput, time-codes, and what happens to packets cut by a link error.
+
+# Ref: ECSS-E-ST-50-12C §8.5 / flow control (FCT = 8 N-chars, at most 56 outstanding),
+#      §8.12 (time-codes), link error recovery (EEP at the receiver, spill at the sender).
+"""
+
+import pytest
+
+from hdl.link.chars import CharKind, LinkState
+from hdl.link.codec_ref import char_value
+
+from .sim_helpers import PairBench
+
+SHORT = {"reset_cycles": 60, "wait_cycles": 150}
+DATA, EOP, EEP = (k.value for k in CharKind)
+
+
+def data(values):
+    return [char_value(DATA, v & 0xFF) for v in values]
+
+
+@pytest.mark.parametrize("depth,limit", [(64, 56), (24, 16), (16, 8)])
+def test_sender_stops_when_credit_runs_out_and_resumes(depth, limit):
+    """rx never read: the sender stops after the credit the FIFO can back, then resumes."""
+    bench = PairBench(**SHORT, rx_fifo_depth=depth)
+    chars = data(range(150))
+    result = {}
+
+    async def testbench(ctx):
+        bench.rx_ready["b"] = 0
+        await bench.bring_up(ctx)
+        bench.tx["a"] = list(chars)
+        await bench.run(ctx, 400)
+        result["stopped_at"] = len(bench.sent["a"])
+        await bench.run(ctx, 300)
+        result["still"] = len(bench.sent["a"])
+        result["credits"] = (ctx.get(bench.pair.a.tx_credit), ctx.get(bench.pair.b.rx_credit))
+        bench.rx_ready["b"] = 1
+        await bench.until(ctx, lambda: len(bench.received["b"]) == len(chars), limit=2000)
+        result["errors"] = (bench.errors(ctx, "a"), bench.errors(ctx, "b"))
+
+    bench.simulate(testbench, f"credit_{depth}")
+    assert result["stopped_at"] == limit == min(56, 8 * ((depth - 1) // 8))
+    assert result["still"] == limit, "no N-char may go out without credit"
+    assert result["credits"] == (0, 0)
+    assert bench.received["b"] == chars
+    assert all(n == 0 for e in result["errors"] for n in e.values())
+
+
+@pytest.mark.parametrize("both_ways", [False, True])
+def test_run_rate_is_150_mbit_per_s(both_ways):
+    """Saturated link at 3 slots/cycle: 10 line bits per data character, plus one 4-bit FCT
+    per 8 characters received when the line also carries the other direction's credit."""
+    bench = PairBench(**SHORT)
+    window = 840
+    result = {}
+
+    async def testbench(ctx):
+        await bench.bring_up(ctx)
+        bench.tx["a"] = data(range(600))
+        if both_ways:
+            bench.tx["b"] = data(range(600))
+        await bench.run(ctx, 200)
+        start = len(bench.received["b"])
+        await bench.run(ctx, window)
+        result["count"] = len(bench.received["b"]) - start
+
+    bench.simulate(testbench, f"rate_{both_ways}")
+    bits_per_char = 10 + (4 / 8 if both_ways else 0)
+    expected = window * 3 / bits_per_char          # 240 or 252 characters
+    assert abs(result["count"] - expected) <= 2
+    assert bench.received["b"] == bench.sent["a"][:len(bench.received["b"])]
+
+
+def test_time_codes_arrive_once_each_and_do_not_disturb_packets():
+    bench = PairBench(**SHORT)
+    values = [0x00, 0x01, 0x3F, 0x40 | 0x05, 0xC0 | 0x2A]
+    sent_at = []
+
+    async def testbench(ctx):
+        # A tick before Run is ignored (the standard sends time-codes only in Run).
+        await bench.until(ctx, lambda: bench.state(ctx, "a") == LinkState.CONNECTING)
+        await bench.cycle(ctx, tick=("a", 0x3E))
+        await bench.bring_up(ctx)
+        bench.tx["a"] = data(range(100)) + [char_value(EOP)]
+        bench.tx["b"] = data(range(100)) + [char_value(EOP)]
+        for value in values:
+            await bench.run(ctx, 37)
+            sent_at.append(bench.cycles)
+            await bench.cycle(ctx, tick=("a", value))
+        await bench.run(ctx, 400)
+
+    bench.simulate(testbench, "time_codes")
+    assert [v for _, v in bench.ticks["b"]] == values
+    latencies = [t - s for (t, _), s in zip(bench.ticks["b"], sent_at, strict=True)]
+    # Wait for the group being queued (<= 14 bits), 14 bits of ESC + data, two more bits to
+    # the next flag, and the pipeline (output, input, receiver registers): under 12 cycles.
+    assert max(latencies) <= 12
+    assert bench.ticks["a"] == []
+    assert bench.received["b"] == bench.sent["a"]
+    assert bench.received["a"] == bench.sent["b"]
+
+
+def test_cut_packet_ends_in_eep_and_its_rest_is_spilled_at_the_sender():
+    bench = PairBench(**SHORT)
+    first = data(range(200)) + [char_value(EOP)]
+    second = data(range(50, 60)) + [char_value(EOP)]
+    result = {}
+
+    async def testbench(ctx):
+        await bench.bring_up(ctx)
+        bench.tx["a"] = first + second
+        await bench.run(ctx, 100)                       # part of the first packet is across
+        bench.faults["ab"] = ((7, 0, 0), (7, 0, 0))    # cut, longer than the 850 ns timeout
+        await bench.run(ctx, 100)
+        bench.faults.clear()
+        await bench.until(ctx, lambda: len(bench.received["b"]) >= 2 and
+                          bench.received["b"][-1] == char_value(EOP) and
+                          len(bench.sent["a"]) == len(first) + len(second), limit=3000)
+        result["errors"] = (bench.errors(ctx, "a"), bench.errors(ctx, "b"))
+
+    bench.simulate(testbench, "cut_packet")
+    received = bench.received["b"]
+    eep_at = received.index(char_value(EEP))
+    assert 0 < eep_at < 200
+    assert received[:eep_at] == first[:eep_at], "what arrived of the cut packet is intact"
+    assert received[eep_at + 1:] == second, "the next packet arrives whole, nothing between"
+    assert bench.sent["a"] == first + second, "the rest of the cut packet was taken and dropped"
+    errors_a, errors_b = result["errors"]
+    assert errors_b["disconnect"] == 1 and errors_a["disconnect"] == 1
+    assert sum(errors_a.values()) + sum(errors_b.values()) == 2
+
+
+def test_disconnect_detected_within_the_standard_window():
+    """Cut a -> b: b flags the disconnect 727-1000 ns after the last transition it saw."""
+    bench = PairBench(**SHORT)
+    seen = []                       # (cycle, slot) of each change at b's input
+    result = {}
+
+    async def testbench(ctx):
+        await bench.bring_up(ctx)
+        prev = None
+        for n in range(200):
+            if n == 50:
+                bench.faults["ab"] = ((7, 0, 0), (7, 0, 0))
+            bench.apply_faults(ctx)
+            word = (ctx.get(bench.pair.ab.d_out), ctx.get(bench.pair.ab.s_out))
+            for i in range(3):
+                bit = ((word[0] >> i) & 1, (word[1] >> i) & 1)
+                if prev is not None and bit != prev:
+                    seen.append((bench.cycles, i))
+                prev = bit
+            if bench.state(ctx, "b") != LinkState.RUN and "left_run" not in result:
+                result["left_run"] = bench.cycles
+            await bench.cycle(ctx)
+        result["errors"] = bench.errors(ctx, "b")
+
+    bench.simulate(testbench, "disconnect_window")
+    last_cycle, last_slot = max(c for c in seen if c[0] < result["left_run"])
+    # The error is flagged in the cycle before b enters Error-Reset.
+    flagged = result["left_run"] - 1
+    detect_ns = (flagged - last_cycle) * 20 - last_slot * 20 / 3
+    assert 727 <= detect_ns <= 1000
+    assert 846 < detect_ns <= 860, "43 cycles from the last transition's cycle"
+    assert result["errors"]["disconnect"] == 1
