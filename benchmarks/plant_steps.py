@@ -12,7 +12,8 @@ Speed is measured in three regimes, because the step takes different paths:
 * ``mixed``: the last joint moves, the others are held (likely-pattern check on M's blocks);
 
 plus the cost of producing the per-FPGA-cycle encoder lines of a step (``encoder_cycles``)
-while every joint moves. Each figure is the best of ``--repeat`` runs (the machine is shared).
+while every joint moves. Each figure is the best of ``--repeat`` runs, measured both per CPU
+second of this process (stable on a shared machine) and per wall-clock second.
 
 ``--accuracy`` measures the error of the 10 µs step: friction-free motion against scipy's
 DOP853 at rtol 1e-12 (and 20/40 µs to show the order), and a run with friction, stick-slip and
@@ -42,15 +43,21 @@ def _holding(plant_truth, q):
             - plant_truth.spring_torque * np.cos(q + plant_truth.spring_phase))
 
 
-def _time_steps(plant: Plant, cmd: np.ndarray, steps: int, repeat: int, reset) -> float:
-    best = math.inf
+def _best_rate(calls: int, repeat: int, reset, body) -> dict:
+    """Calls per second of ``body``, best of ``repeat`` runs, by CPU time and by wall time."""
+    cpu, wall = math.inf, math.inf
     for _ in range(repeat):
         reset()
-        start = time.perf_counter()
-        for _ in range(steps):
-            plant.step(cmd)
-        best = min(best, time.perf_counter() - start)
-    return steps / best
+        c0, w0 = time.process_time(), time.perf_counter()
+        for _ in range(calls):
+            body()
+        cpu = min(cpu, time.process_time() - c0)
+        wall = min(wall, time.perf_counter() - w0)
+    return {"per_cpu_s": calls / cpu, "per_wall_s": calls / wall}
+
+
+def _time_steps(plant: Plant, cmd: np.ndarray, steps: int, repeat: int, reset) -> dict:
+    return _best_rate(steps, repeat, reset, lambda: plant.step(cmd))
 
 
 def bench_speed(name: str, steps: int, repeat: int) -> dict:
@@ -80,14 +87,8 @@ def bench_speed(name: str, steps: int, repeat: int) -> dict:
     # encoder lines for every FPGA cycle of a step, all joints moving
     plant.reset(q0, v0, tau_motor0=push)
     plant.step(push)
-    best = math.inf
-    calls = max(steps // 10, 10)
-    for _ in range(repeat):
-        start = time.perf_counter()
-        for _ in range(calls):
-            plant.encoder_cycles()
-        best = min(best, time.perf_counter() - start)
-    out["encoder_cycles_per_s"] = calls / best
+    out["encoder_cycles"] = _best_rate(max(steps // 10, 10), repeat, lambda: None,
+                                       plant.encoder_cycles)
     return out
 
 
@@ -179,12 +180,13 @@ def main(argv=None) -> int:
         print(json.dumps(report, indent=2))
         return 0
     realtime = 1.0 / report["dt_s"]
-    print(f"plant steps/s (dt = {report['dt_s'] * 1e6:g} µs; real time = {realtime:,.0f}/s)")
+    print(f"plant steps per CPU second (per wall second in brackets); dt = "
+          f"{report['dt_s'] * 1e6:g} µs, real time = {realtime:,.0f} steps/s")
     for row in report["speed"]:
-        print(f"  {row['robot']} (n={row['n']}): sliding {row['sliding']:9,.0f}   "
-              f"rest {row['rest']:9,.0f}   mixed {row['mixed']:9,.0f}   "
-              f"encoder_cycles {row['encoder_cycles_per_s']:9,.0f}/s "
-              f"({row['mixed_moving_joints']} joint(s) moving in 'mixed')")
+        cells = "   ".join(f"{key} {row[key]['per_cpu_s']:8,.0f} ({row[key]['per_wall_s']:,.0f})"
+                           for key in ("sliding", "rest", "mixed", "encoder_cycles"))
+        print(f"  {row['robot']} (n={row['n']}): {cells}   "
+              f"[{row['mixed_moving_joints']} joint(s) moving in 'mixed']")
     for acc in report["accuracy"]:
         print(f"  {acc['robot']} accuracy, friction-free vs DOP853 over "
               f"{acc['friction_free_T_s']} s:")

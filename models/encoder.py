@@ -30,7 +30,8 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["CYCLE", "counts_per_rad", "joint_counts", "quadrature_levels", "EncoderCycles",
-           "EncoderOverspeed", "cycle_counts", "decode_quadrature", "max_legal_speed"]
+           "EncoderOverspeed", "cycle_counts", "cycle_counts_sampled", "decode_quadrature",
+           "max_legal_speed"]
 
 CYCLE = 20e-9
 """FPGA clock period, s (50 MHz)."""
@@ -88,6 +89,15 @@ def max_legal_speed(k, cycle: float = CYCLE) -> np.ndarray:
 def cycle_counts(q0, v0, acc, q1, dt: float, cycles: int, k) -> np.ndarray:
     """Counts in every FPGA cycle of one plant step (see the module docstring for timing).
 
+    Row ``m`` is ``floor(q(s_m) · k)`` with ``s_m = (m + 1) · dt / cycles`` and
+    ``q(s) = q0 + s · (v0 + 0.5 · acc · s)`` (float64, in that order), except the last row,
+    which is ``floor(q1 · k)``. The result is identical to sampling every cycle
+    (:func:`cycle_counts_sampled`), but only the cycles where a count can change are evaluated:
+    between two samples of a monotonic stretch with equal counts nothing changes, so a joint
+    with few changes in the step has them found by bisection (``O(changes · log cycles)``
+    evaluations; the few samples around a turning point inside the step are evaluated one by
+    one); joints with many changes are sampled every cycle, vectorised.
+
     Parameters
     ----------
     q0, v0 : ndarray, shape (n,)
@@ -110,37 +120,100 @@ def cycle_counts(q0, v0, acc, q1, dt: float, cycles: int, k) -> np.ndarray:
     EncoderOverspeed
         If the count changes by more than one between two consecutive cycles (or between the
         start of the step and its first cycle).
-
-    Notes
-    -----
-    Only joints whose count can change inside the step (different counts at its ends, or a
-    turning point inside it) are sampled cycle by cycle; the others keep their count, which
-    is what sampling would give for a monotonic motion between two equal counts.
     """
     q0 = np.asarray(q0, dtype=float)
     c0 = joint_counts(q0, k)
     c1 = joint_counts(q1, k)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_turn = -np.asarray(v0) / np.asarray(acc)
-    active = (c0 != c1) | ((t_turn > 0.0) & (t_turn < dt))
     out = np.empty((cycles, c0.size), dtype=np.int64)
     out[:] = c0
-    if not active.any():
-        return out
-    idx = np.flatnonzero(active)
-    s = _sample_times(dt, cycles)
-    q = q0[idx] + s * (v0[idx] + 0.5 * acc[idx] * s)
-    q[-1] = q1[idx]
-    c = joint_counts(q, k[idx])
-    steps = np.diff(c, axis=0, prepend=c0[idx][None, :])
-    if np.any(np.abs(steps) > 1):
-        cyc, col = np.argwhere(np.abs(steps) > 1)[0]
-        joint = idx[col]
-        raise EncoderOverspeed(f"joint {joint + 1}: count jumps by {int(steps[cyc, col])} in "
-                               f"cycle {cyc}; the joint is faster than the encoder interface "
-                               f"allows ({float(max_legal_speed(k)[joint]):.1f} rad/s)")
-    out[:, idx] = c
+    v0 = np.asarray(v0, dtype=float)
+    acc = np.asarray(acc, dtype=float)
+    k = np.asarray(k, dtype=float)
+    q0l, v0l, accl, kl = q0.tolist(), v0.tolist(), acc.tolist(), k.tolist()
+    c0l, c1l = c0.tolist(), c1.tolist()
+    step = dt / cycles
+    dense = []
+    for j in range(c0.size):
+        turning = accl[j] != 0.0 and 0.0 < -v0l[j] / accl[j] < dt
+        if c0l[j] == c1l[j] and not turning:
+            continue                            # monotonic between equal counts: constant
+        if abs(c1l[j] - c0l[j]) > _FEW_CHANGES or (turning and abs(v0l[j]) * dt * kl[j] > 1.0):
+            dense.append(j)                     # many changes: sampling every cycle is cheaper
+            continue
+        events = _count_changes(q0l[j], v0l[j], accl[j], c0l[j], c1l[j], step, cycles, kl[j],
+                                turning)
+        prev = c0l[j]
+        for m, c in events:
+            if abs(c - prev) > 1:
+                raise EncoderOverspeed(
+                    f"joint {j + 1}: count jumps by {c - prev} in cycle {m}; the joint is "
+                    f"faster than the encoder interface allows "
+                    f"({float(max_legal_speed(kl[j])):.1f} rad/s)")
+            out[m:, j] = c
+            prev = c
+    if dense:
+        idx = np.array(dense)
+        out[:, idx] = cycle_counts_sampled(q0[idx], v0[idx], acc[idx], np.asarray(q1)[idx], dt,
+                                           cycles, k[idx])
     return out
+
+
+_FEW_CHANGES = 2
+"""Joints with at most this many count changes in a step are bisected, others sampled."""
+
+
+def _count_changes(q0, v0, acc, c_start, c_end, step, cycles, k, turning):
+    """Cycles at which one joint's sampled count changes, as ``[(cycle, new count), …]``."""
+    half_acc = 0.5 * acc
+
+    def count(m):
+        s = (m + 1) * step
+        return math.floor((q0 + s * (v0 + half_acc * s)) * k)
+
+    events = []
+
+    def bisect(lo, hi, c_before, c_hi):
+        # samples lo..hi are monotonic; c_before is the count just before lo, c_hi at hi
+        while c_before != c_hi:
+            if lo == hi:
+                events.append((hi, c_hi))
+                return
+            mid = (lo + hi) // 2
+            c_mid = count(mid)
+            bisect(lo, mid, c_before, c_mid)
+            lo, c_before = mid + 1, c_mid
+
+    explicit = {cycles - 1}
+    if turning:
+        m_turn = int(-v0 / acc / step) - 1          # last sample before the turning point
+        explicit.update(m for m in range(m_turn - 1, m_turn + 3) if 0 <= m < cycles)
+    prev, lo = c_start, 0
+    for e in sorted(explicit):
+        if lo <= e - 1:
+            c_hi = count(e - 1)
+            bisect(lo, e - 1, prev, c_hi)
+            prev = c_hi
+        c_e = c_end if e == cycles - 1 else count(e)
+        if c_e != prev:
+            events.append((e, c_e))
+        prev, lo = c_e, e + 1
+    return events
+
+
+def cycle_counts_sampled(q0, v0, acc, q1, dt: float, cycles: int, k) -> np.ndarray:
+    """Reference for :func:`cycle_counts`: sample every cycle (vectorised), same definition."""
+    q0 = np.asarray(q0, dtype=float)
+    s = _sample_times(dt, cycles)
+    q = q0 + s * (v0 + 0.5 * acc * s)
+    q[-1] = q1
+    c = joint_counts(q, k)
+    steps = np.diff(c, axis=0, prepend=joint_counts(q0, k)[None, :])
+    if np.any(np.abs(steps) > 1):
+        cyc, joint = np.argwhere(np.abs(steps) > 1)[0]
+        raise EncoderOverspeed(f"count jumps by {int(steps[cyc, joint])} in cycle {cyc} "
+                               f"(column {joint}); faster than the encoder interface allows "
+                               f"({float(max_legal_speed(k)[joint]):.1f} rad/s)")
+    return c
 
 
 _SAMPLE_TIMES: dict[tuple[float, int], np.ndarray] = {}

@@ -9,7 +9,7 @@ import pytest
 
 from models.actuators import ACTUATORS
 from models.encoder import CYCLE, EncoderOverspeed, counts_per_rad, cycle_counts, \
-    decode_quadrature, joint_counts, max_legal_speed, quadrature_levels
+    cycle_counts_sampled, decode_quadrature, joint_counts, max_legal_speed, quadrature_levels
 
 K = counts_per_rad(np.array([800_000]))
 
@@ -103,13 +103,39 @@ def test_cycle_counts_reversal_inside_a_step_is_legal():
     np.testing.assert_array_equal(decode_quadrature(a, b, joint_counts(q0, k)), c)
 
 
+def test_bisection_equals_sampling_every_cycle():
+    """The fast per-cycle counts are those of sampling all 500 cycles, bit for bit, for
+    motions from rest to 50 rad/s, with and without a turning point, on and off boundaries."""
+    rng = np.random.default_rng(4)
+    k = np.repeat(K, 6)
+    dt = 1e-5
+    turning = 0
+    for trial in range(600):
+        q0 = rng.uniform(-3.0, 3.0, 6)
+        if trial % 3 == 0:                                    # start on or next to a boundary
+            q0 = np.round(q0 * k) / k + rng.choice([0.0, 1e-15, -1e-15, 1e-12], 6)
+        v0 = rng.choice([0.0, 1e-6, 1e-3, 0.3, 1.0, 6.0, 50.0], 6) * rng.choice([-1, 1], 6)
+        acc = rng.choice([0.0, 1.0, 1e2, 1e4, 1e6], 6) * rng.choice([-1, 1], 6)
+        q1 = q0 + dt * (v0 + 0.5 * acc * dt)
+        turning += int(np.sum((acc != 0) & (-v0 / np.where(acc != 0, acc, 1) > 0)
+                              & (-v0 / np.where(acc != 0, acc, 1) < dt)))
+        fast = cycle_counts(q0, v0, acc, q1, dt, 500, k)
+        np.testing.assert_array_equal(fast, cycle_counts_sampled(q0, v0, acc, q1, dt, 500, k))
+    assert turning > 50
+
+
 def test_overspeed_is_reported_not_hidden():
     k = K
     v_max = max_legal_speed(k)[0]
     assert v_max == pytest.approx(1.0 / (CYCLE * 800_000 / (2.0 * math.pi)))
-    with pytest.raises(EncoderOverspeed, match="joint 1"):
-        cycle_counts(np.array([0.0]), np.array([1.5 * v_max]), np.zeros(1),
-                     np.array([1.5 * v_max * 1e-5]), 1e-5, 500, k)
+    for fn in (cycle_counts, cycle_counts_sampled):
+        with pytest.raises(EncoderOverspeed, match="faster than the encoder"):
+            fn(np.array([0.0]), np.array([1.5 * v_max]), np.zeros(1),
+               np.array([1.5 * v_max * 1e-5]), 1e-5, 500, k)
+    # just below the limit is legal: at most one count per cycle
+    c = cycle_counts(np.array([0.0]), np.array([0.99 * v_max]), np.zeros(1),
+                     np.array([0.99 * v_max * 1e-5]), 1e-5, 500, k)
+    assert np.abs(np.diff(c[:, 0])).max() == 1
 
 
 def test_legal_speed_far_above_actuator_max_speed():
