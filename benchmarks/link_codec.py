@@ -1,9 +1,12 @@
-"""Simulation speed of the SpaceWire codec: pysim cycles/s of a codec pair, reference cycles/s.
+"""SpaceWire codec figures: pysim and reference cycles/s of a codec pair; fault recovery times.
 
-Run on purpose (not a test): ``python benchmarks/link_codec.py [--cycles N] [--slots W]``.
-The pair is wired back to back, starts with the standard timers and then streams packets
-both ways at the run rate; the clock is free-running (no per-cycle Python testbench), which is
-how a co-simulation steps the gateware between exchanges with the master.
+Run on purpose (not a test): ``python benchmarks/link_codec.py [--cycles N] [--slots W]
+[--recovery]``. The pair is wired back to back, starts with the standard timers and then
+streams packets both ways at the run rate; the clock is free-running (no per-cycle Python
+testbench), which is how a co-simulation steps the gateware between exchanges with the master.
+``--recovery`` injects line faults a -> b into a pair streaming data both ways (standard
+timers) and prints, per fault, when the link went down and when both ends were back in Run,
+counted from the first faulty cycle, with the error counters.
 """
 
 import argparse
@@ -81,10 +84,70 @@ def bench_reference(cycles, slots):
     return cycles / (time.perf_counter() - start), received
 
 
+FAULTS = [
+    # name, ((clear, set, flip) on D, (clear, set, flip) on S), cycles
+    ("cut (both lines low) 2 us", ((7, 0, 0), (7, 0, 0)), 100),
+    ("D stuck high 2 us", ((0, 7, 0), (0, 0, 0)), 100),
+    ("S stuck low 2 us", ((0, 0, 0), (7, 0, 0)), 100),
+    ("D glitch, one 6.7 ns slot", ((0, 0, 2), (0, 0, 0)), 1),
+    ("bit error (D and S, one slot)", ((0, 0, 2), (0, 0, 2)), 1),
+]
+
+
+def bench_recovery():
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from tests.sim_helpers import PairBench
+
+    rows = []
+    for name, fault, duration in FAULTS:
+        bench = PairBench()
+        result = {}
+
+        async def testbench(ctx, bench=bench, fault=fault, duration=duration, result=result):
+            await bench.bring_up(ctx)
+            for who in "ab":
+                bench.tx[who] = [char_value(CharKind.DATA.value, 0x80 | (n & 0x0F))
+                                 for n in range(4000)]
+            await bench.run(ctx, 50)
+            start = bench.cycles
+            bench.faults["ab"] = fault
+            for n in range(5000):
+                if n == duration:
+                    bench.faults.clear()
+                both = ctx.get(bench.pair.a.running) and ctx.get(bench.pair.b.running)
+                if "down" not in result and not both:
+                    result["down"] = bench.cycles - start
+                if "down" in result and both:
+                    result["up"] = bench.cycles - start
+                    break
+                await bench.cycle(ctx)
+            result["errors"] = (bench.errors(ctx, "a"), bench.errors(ctx, "b"))
+
+        bench.simulate(testbench, "recovery")
+        # Data characters sent here all have bit 7 set: a received one without it is garbage
+        # the line fault produced and parity could not see.
+        garbage = sum(1 for v in bench.received["b"]
+                      if (v & 3) == CharKind.DATA.value and not (v >> 2) & 0x80)
+        rows.append((name, result, garbage))
+
+    print("fault a -> b (standard timers)   down after   both in Run after   errors a / b"
+          "   bad chars delivered")
+    for name, result, garbage in rows:
+        def fmt(errors):
+            return ",".join(f"{k}={v}" for k, v in errors.items() if v) or "-"
+        errors_a, errors_b = result["errors"]
+        down, up = result["down"] * 20 / 1000, result["up"] * 20 / 1000
+        print(f"{name:32s} {down:8.2f} us   {up:10.2f} us      {fmt(errors_a)} / "
+              f"{fmt(errors_b)}   {garbage}")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cycles", type=int, default=20_000)
     parser.add_argument("--slots", type=int, default=3)
+    parser.add_argument("--recovery", action="store_true", help="also measure fault recovery")
     args = parser.parse_args()
     rate, received = bench_pysim(args.cycles, args.slots)
     print(f"pysim     codec pair, {args.slots} slots: {rate:8.0f} cycles/s "
@@ -92,6 +155,8 @@ def main():
     rate, received = bench_reference(args.cycles, args.slots)
     print(f"reference codec pair, {args.slots} slots: {rate:8.0f} cycles/s "
           f"({args.cycles} cycles, {received} N-chars received by b)")
+    if args.recovery:
+        bench_recovery()
 
 
 if __name__ == "__main__":
