@@ -1,0 +1,235 @@
+"""Simulation helpers for the packet layer: stream bus-functional models and a daisy chain.
+
+:class:`Chain` wires a master-side :class:`~hdl.link.codec.Codec` to ``n_nodes``
+:class:`~hdl.link.node.LinkNode` s back to back (master ─ node 1 ─ node 2 ─ … ─ node N, node
+``k`` at address ``k``; the last node's downstream port is left unconnected). The async helpers
+below drive and check its streams from Amaranth testbenches (``sim.add_testbench``); characters
+and packets are in the integer form of :mod:`hdl.link.packet_ref`.
+"""
+
+from __future__ import annotations
+
+from amaranth import *
+from amaranth.lib import stream, wiring
+from amaranth.lib.wiring import In, Out
+
+from . import packet_ref as ref
+from .chars import Char, CharKind
+from .codec import Codec
+from .node import LinkNode
+from .packet import Beat, Header, RxStats
+from .packet_ref import DEFAULT_MAX_PAYLOAD
+
+__all__ = ["Chain", "char_value", "char_int", "beat_value", "beat_fields", "put_chars",
+           "get_chars", "put_packet", "get_packet", "master_send", "master_receive",
+           "node_send", "node_receive", "read_stats"]
+
+
+_CHAR = Char.as_shape()
+_BEAT = Beat.as_shape()
+_HEADER = Header.as_shape()
+_KIND_OF = {ref.EOP: CharKind.EOP.value, ref.EEP: CharKind.EEP.value}
+_INT_OF = {CharKind.EOP.value: ref.EOP, CharKind.EEP.value: ref.EEP}
+
+
+def char_value(char: int) -> int:
+    """Raw value of a :class:`~hdl.link.chars.Char` for an integer character."""
+    if 0 <= char <= 0xFF:
+        return (CharKind.DATA.value << _CHAR["kind"].offset) | (char << _CHAR["data"].offset)
+    return _KIND_OF[char] << _CHAR["kind"].offset
+
+
+def char_int(raw: int) -> int:
+    """Integer character for the raw value of a :class:`~hdl.link.chars.Char`."""
+    kind = (raw >> _CHAR["kind"].offset) & 0b11
+    if kind == CharKind.DATA.value:
+        return (raw >> _CHAR["data"].offset) & 0xFF
+    return _INT_OF[kind]
+
+
+def beat_value(header: ref.Header, byte: int, last: bool) -> int:
+    """Raw value of a :class:`~hdl.link.packet.Beat`."""
+    h = 0
+    for name in ("dest", "src", "type", "seq"):
+        h |= getattr(header, name) << _HEADER[name].offset
+    return ((h << _BEAT["header"].offset) | (byte << _BEAT["data"].offset) |
+            (int(bool(last)) << _BEAT["last"].offset))
+
+
+def beat_fields(raw: int) -> tuple[ref.Header, int, bool]:
+    """``(header, byte, last)`` of the raw value of a :class:`~hdl.link.packet.Beat`."""
+    h = raw >> _BEAT["header"].offset
+    header = ref.Header(*((h >> _HEADER[name].offset) & 0xFF
+                          for name in ("dest", "src", "type", "seq")))
+    return header, (raw >> _BEAT["data"].offset) & 0xFF, bool((raw >> _BEAT["last"].offset) & 1)
+
+
+async def _idle(ctx, rng, p_idle):
+    while rng is not None and p_idle and rng.random() < p_idle:
+        await ctx.tick()
+
+
+async def put_chars(ctx, stream, chars, *, rng=None, p_idle: float = 0.0):
+    """Offer integer characters on a Char stream, idling a random cycle with ``p_idle``."""
+    for char in chars:
+        await _idle(ctx, rng, p_idle)
+        ctx.set(stream.payload.as_value(), char_value(char))
+        ctx.set(stream.valid, 1)
+        await ctx.tick().until(stream.ready)
+        ctx.set(stream.valid, 0)
+
+
+async def get_chars(ctx, stream, n_packets: int, *, rng=None, p_stall: float = 0.0
+                    ) -> list[int]:
+    """Take characters from a Char stream until ``n_packets`` EOP/EEP have passed."""
+    chars = []
+    ends = 0
+    while ends < n_packets:
+        ready = not (rng is not None and p_stall and rng.random() < p_stall)
+        ctx.set(stream.ready, ready)
+        _, _, valid, raw = await ctx.tick().sample(stream.valid, stream.payload.as_value())
+        if ready and valid:
+            chars.append(char_int(raw))
+            ends += chars[-1] in (ref.EOP, ref.EEP)
+    ctx.set(stream.ready, 0)
+    return chars
+
+
+async def put_packet(ctx, stream, header: ref.Header, payload, *, rng=None,
+                     p_idle: float = 0.0):
+    """Offer one packet as :class:`~hdl.link.packet.Beat` s on a host stream."""
+    payload = bytes(payload)
+    for index, byte in enumerate(payload):
+        await _idle(ctx, rng, p_idle)
+        ctx.set(stream.payload.as_value(), beat_value(header, byte, index == len(payload) - 1))
+        ctx.set(stream.valid, 1)
+        await ctx.tick().until(stream.ready)
+        ctx.set(stream.valid, 0)
+
+
+async def get_packet(ctx, stream, *, rng=None, p_stall: float = 0.0
+                     ) -> tuple[ref.Header, bytes]:
+    """Take one packet from a host :class:`~hdl.link.packet.Beat` stream.
+
+    Checks that the header stays the same on every beat of the packet.
+    """
+    header, payload = None, bytearray()
+    while True:
+        ready = not (rng is not None and p_stall and rng.random() < p_stall)
+        ctx.set(stream.ready, ready)
+        _, _, valid, raw = await ctx.tick().sample(stream.valid, stream.payload.as_value())
+        if ready and valid:
+            beat_header, byte, last = beat_fields(raw)
+            assert header is None or beat_header == header, \
+                f"header changed inside a packet: {header} -> {beat_header}"
+            header = beat_header
+            payload.append(byte)
+            if last:
+                ctx.set(stream.ready, 0)
+                return header, bytes(payload)
+
+
+class Chain(wiring.Component):
+    """Master-side codec plus ``n_nodes`` link nodes in a daisy chain, for simulation.
+
+    Parameters
+    ----------
+    n_nodes : int
+        Nodes in the chain (1..254); node ``k`` (1-based) gets address ``k``.
+    codec : dict
+        Keyword arguments for every :class:`~hdl.link.codec.Codec` (master's and nodes'),
+        e.g. shortened ``reset_cycles``/``wait_cycles`` for fast tests.
+    max_payload : int
+        Largest payload the nodes accept.
+
+    Attributes
+    ----------
+    master_tx : In(stream.Signature(Char))
+        Characters the master sends (frames from :func:`~hdl.link.packet_ref.encode`).
+    master_rx : Out(stream.Signature(Char))
+        Characters the master receives.
+    tick_in, time_in : In(1), In(8)
+        Time-code to send from the master.
+    master_running : Out(1)
+        The master's link is in Run.
+    nodes : list of LinkNode
+        The nodes, index ``k - 1`` for node ``k``; testbenches drive their ``tx``/``rx`` host
+        streams and read their time-code and status outputs directly.
+    cycle : Out(32)
+        Free-running cycle counter (the same count every node captures time-codes with).
+    """
+
+    def __init__(self, n_nodes: int = 3, *, codec: dict | None = None,
+                 max_payload: int = DEFAULT_MAX_PAYLOAD):
+        if not isinstance(n_nodes, int) or not 1 <= n_nodes <= 254:
+            raise ValueError(f"Node count must be an integer in 1..254, not {n_nodes!r}")
+        self._codec_args = dict(codec or {})
+        self.master = Codec(**self._codec_args)
+        self.nodes = [LinkNode(codec=self._codec_args, max_payload=max_payload)
+                      for _ in range(n_nodes)]
+        super().__init__({
+            "master_tx":      In(stream.Signature(Char)),
+            "master_rx":      Out(stream.Signature(Char)),
+            "tick_in":        In(1),
+            "time_in":        In(8),
+            "master_running": Out(1),
+            "cycle":          Out(32),
+        })
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.nodes)
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.master = master = self.master
+        m.d.comb += [
+            master.link_start.eq(1),
+            master.tick_in.eq(self.tick_in),
+            master.time_in.eq(self.time_in),
+            self.master_running.eq(master.running),
+        ]
+        wiring.connect(m, tx=wiring.flipped(self.master_tx), codec=master.tx)
+        wiring.connect(m, rx=wiring.flipped(self.master_rx), codec=master.rx)
+        m.d.sync += self.cycle.eq(self.cycle + 1)
+
+        upper = master  # the line port above the next node: the master codec, then `down`s
+        for k, node in enumerate(self.nodes, start=1):
+            m.submodules[f"node{k}"] = node
+            m.d.comb += [
+                node.address.eq(k),
+                node.up.d_in.eq(upper.d_out),
+                node.up.s_in.eq(upper.s_out),
+                upper.d_in.eq(node.up.d_out),
+                upper.s_in.eq(node.up.s_out),
+            ]
+            upper = node.down
+        return m
+
+
+async def master_send(ctx, chain: Chain, header: ref.Header, payload, **kwargs):
+    """Send one frame from the master (``kwargs`` go to :func:`put_chars`)."""
+    await put_chars(ctx, chain.master_tx, ref.encode(header, payload), **kwargs)
+
+
+async def master_receive(ctx, chain: Chain, n_packets: int = 1, **kwargs
+                         ) -> list[list[int]]:
+    """Receive ``n_packets`` packets at the master, as character lists."""
+    return ref.split_packets(await get_chars(ctx, chain.master_rx, n_packets, **kwargs))
+
+
+async def node_send(ctx, node: LinkNode, header: ref.Header, payload, **kwargs):
+    """Send one packet from a node's host interface (``kwargs`` go to :func:`put_packet`)."""
+    await put_packet(ctx, node.tx, header, payload, **kwargs)
+
+
+async def node_receive(ctx, node: LinkNode, **kwargs) -> tuple[ref.Header, bytes]:
+    """Receive one packet at a node's host interface."""
+    return await get_packet(ctx, node.rx, **kwargs)
+
+
+def read_stats(ctx, stats) -> dict[str, int]:
+    """The fields of an :class:`~hdl.link.packet.RxStats` port as a dict."""
+    layout = RxStats.as_shape()
+    raw = ctx.get(stats.as_value())
+    return {name: (raw >> field.offset) & 0xFFFF for name, field in layout}
