@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from models.actuators import ACTUATORS
 from models.spatial import theta_from_physical
 
 __all__ = ["LinkParams", "SpringSpec", "ModuleType", "MODULE_TYPES", "TABLE1", "TABLE1_ERRATA"]
@@ -199,17 +200,18 @@ def _builtin_types() -> dict[str, ModuleType]:
     # Geometry: see docs/robot.md. Lengths are chosen so that each link's centre of mass
     # (Table 1) lies between its joint and its interface, nearer the joint where the actuator
     # sits, and so that the paper's quintic test gives its reported 0.5226 m/s tip speed on
-    # mrm3. Speeds: FHA-11C/14C-100 maximum output speed 60 r/min (2π rad/s).
-    common = dict(gear_ratio=100, encoder_lines=2000, joint_limit=np.deg2rad(170.0),
-                  max_speed=2.0 * np.pi)
+    # mrm3. Maximum speeds are the actuators' (models.actuators: FHA-C manual).
+    common = dict(gear_ratio=100, encoder_lines=2000, joint_limit=np.deg2rad(170.0))
     return {
         "I": ModuleType(
             name="I", actuator="FHA-11C-100", peak_torque=11.0, continuous_torque=4.2,
+            max_speed=ACTUATORS["FHA-11C-100"].max_speed,
             link_a=LinkParams.from_table(TABLE1["I"]["a"]),
             link_b=LinkParams.from_table(TABLE1["I"]["b"]),
             length_a=0.20, length_b=0.10, source="MRM paper Table 1, Type-I", **common),
         "II": ModuleType(
             name="II", actuator="FHA-14C-100", peak_torque=28.0, continuous_torque=6.8,
+            max_speed=ACTUATORS["FHA-14C-100"].max_speed,
             link_a=LinkParams.from_table(TABLE1["II"]["a"]),
             link_b=LinkParams.from_table(TABLE1["II"]["b"]),
             length_a=0.16, length_b=0.22, spring_max=11.0, spring=SpringSpec(8.0, 0.0),

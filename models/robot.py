@@ -435,12 +435,12 @@ def _module_type(name: str, table: dict, known: dict[str, ModuleType]) -> Module
         fields = {}
     else:
         missing = sorted({"actuator", "peak_torque", "continuous_torque", "link_a", "link_b",
-                          "length_a", "length_b"} - set(table))
+                          "length_a", "length_b", "max_speed"} - set(table))
         if missing:
             raise InputError(f"{where}.{missing[0]}", "missing (or give like = \"I\")")
         base = None
         fields = dict(gear_ratio=100, encoder_lines=2000, joint_limit=math.radians(170.0),
-                      max_speed=2.0 * math.pi, spring_max=0.0, spring=None)
+                      spring_max=0.0, spring=None)
     if "actuator" in table:
         if not isinstance(table["actuator"], str) or not table["actuator"]:
             raise InputError(f"{where}.actuator", f"must be a name, not {table['actuator']!r}")
