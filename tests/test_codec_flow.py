@@ -94,9 +94,11 @@ def test_time_codes_arrive_once_each_and_do_not_disturb_packets():
     bench.simulate(testbench, "time_codes")
     assert [v for _, v in bench.ticks["b"]] == values
     latencies = [t - s for (t, _), s in zip(bench.ticks["b"], sent_at, strict=True)]
-    # Wait for the group being queued (<= 14 bits), 14 bits of ESC + data, two more bits to
-    # the next flag, and the pipeline (output, input, receiver registers): under 12 cycles.
-    assert max(latencies) <= 12
+    # tick_in is registered (1 cycle); the queue ahead drains to under 3 bits (a data
+    # character just queued: <= 4 cycles); then 2 + 14 bits of ESC + data and 2 more to the
+    # next flag, which commits it (18 bits, 6 cycles); output, input and receiver registers
+    # (3 cycles): at most 14 cycles (10-13 measured).
+    assert max(latencies) <= 14
     assert bench.ticks["a"] == []
     assert bench.received["b"] == bench.sent["a"]
     assert bench.received["a"] == bench.sent["b"]
