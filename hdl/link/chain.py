@@ -10,15 +10,16 @@ and packets are in the integer form of :mod:`hdl.link.packet_ref`.
 from __future__ import annotations
 
 from amaranth import *
-from amaranth.lib import stream, wiring
+from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from . import packet_ref as ref
 from .chars import Char, CharKind
 from .codec import Codec
 from .node import LinkNode
-from .packet import Beat, Header, RxStats
+from .packet import Beat, Header
 from .packet_ref import DEFAULT_MAX_PAYLOAD
+from .params import rejecting
 
 __all__ = ["Chain", "char_value", "char_int", "beat_value", "beat_fields", "put_chars",
            "get_chars", "put_packet", "get_packet", "master_send", "master_receive",
@@ -161,12 +162,20 @@ class Chain(wiring.Component):
 
     def __init__(self, n_nodes: int = 3, *, codec: dict | None = None,
                  max_payload: int = DEFAULT_MAX_PAYLOAD):
-        if not isinstance(n_nodes, int) or not 1 <= n_nodes <= 254:
-            raise ValueError(f"Node count must be an integer in 1..254, not {n_nodes!r}")
-        self._codec_args = dict(codec or {})
-        self.master = Codec(**self._codec_args)
-        self.nodes = [LinkNode(codec=self._codec_args, max_payload=max_payload)
-                      for _ in range(n_nodes)]
+        parts = []
+        with rejecting(self):
+            if (not isinstance(n_nodes, int) or isinstance(n_nodes, bool) or
+                    not 1 <= n_nodes <= 254):
+                raise ValueError(f"Node count must be an integer in 1..254, not {n_nodes!r}")
+            try:
+                parts.append(Codec(**dict(codec or {})))
+                for _ in range(n_nodes):
+                    parts.append(LinkNode(codec=codec, max_payload=max_payload))
+            except BaseException:
+                for part in parts:
+                    part._MustUse__silence = True
+                raise
+        self.master, *self.nodes = parts
         super().__init__({
             "master_tx":      In(stream.Signature(Char)),
             "master_rx":      Out(stream.Signature(Char)),
@@ -228,8 +237,8 @@ async def node_receive(ctx, node: LinkNode, **kwargs) -> tuple[ref.Header, bytes
     return await get_packet(ctx, node.rx, **kwargs)
 
 
-def read_stats(ctx, stats) -> dict[str, int]:
-    """The fields of an :class:`~hdl.link.packet.RxStats` port as a dict."""
-    layout = RxStats.as_shape()
-    raw = ctx.get(stats.as_value())
-    return {name: (raw >> field.offset) & 0xFFFF for name, field in layout}
+def read_stats(ctx, view) -> dict[str, int]:
+    """The fields of a struct port of plain-width fields (``RxStats``, ``ErrorCounts``)."""
+    layout = data.Layout.cast(view.shape())
+    raw = ctx.get(view.as_value())
+    return {name: (raw >> field.offset) & ((1 << field.width) - 1) for name, field in layout}

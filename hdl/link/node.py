@@ -31,10 +31,11 @@ from .chars import ErrorCounts
 from .codec import Codec
 from .packet import Beat, Depacketizer, Packetizer, RxStats
 from .packet_ref import DEFAULT_MAX_PAYLOAD
+from .params import rejecting
 from .router import Router
 
 
-__all__ = ["line_signature", "LinkNode"]
+__all__ = ["line_signature", "LinkNode", "link_node_top"]
 
 
 def line_signature(slots: int) -> wiring.Signature:
@@ -90,9 +91,17 @@ class LinkNode(wiring.Component):
     def __init__(self, *, codec: dict | None = None, max_payload: int = DEFAULT_MAX_PAYLOAD,
                  rx_slots: int = 2):
         codec = dict(codec or {})
-        self._up_codec = Codec(**codec)
-        self._down_codec = Codec(**codec)
-        self._depacketizer = Depacketizer(max_payload=max_payload, slots=rx_slots)
+        parts = []
+        with rejecting(self):
+            try:
+                parts.append(Depacketizer(max_payload=max_payload, slots=rx_slots))
+                parts.append(Codec(**codec))
+                parts.append(Codec(**codec))
+            except BaseException:
+                for part in parts:
+                    part._MustUse__silence = True
+                raise
+        self._depacketizer, self._up_codec, self._down_codec = parts
         slots = self._up_codec.slots
         super().__init__({
             "address":      In(8),
@@ -178,3 +187,19 @@ class LinkNode(wiring.Component):
             ]
 
         return m
+
+
+def link_node_top(*, slots: int = 3, start_div: int | None = None, run_div: int = 1,
+                  reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
+                  rx_fifo_depth: int = 64, max_payload: int = DEFAULT_MAX_PAYLOAD,
+                  rx_slots: int = 2) -> LinkNode:
+    """Factory for the ``link_node`` Verilog top (``mrm hdl verilog --top link_node``).
+
+    The codec parameters are those of :class:`~hdl.link.codec.Codec`; ``max_payload`` and
+    ``rx_slots`` those of :class:`LinkNode`.
+    """
+    return LinkNode(codec=dict(slots=slots, start_div=start_div, run_div=run_div,
+                               reset_cycles=reset_cycles, wait_cycles=wait_cycles,
+                               disconnect_cycles=disconnect_cycles,
+                               rx_fifo_depth=rx_fifo_depth),
+                    max_payload=max_payload, rx_slots=rx_slots)

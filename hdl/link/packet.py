@@ -25,6 +25,7 @@ from amaranth.utils import ceil_log2
 
 from .chars import Char, CharKind
 from .crc import CRC16
+from .params import rejecting
 from .packet_ref import (BROADCAST, COUNTER_MAX, CRC_BYTES, DATA_PAYLOAD, DEFAULT_MAX_PAYLOAD,
                          HEADER_BYTES, MASTER_ADDRESS, MIN_PAYLOAD)
 
@@ -206,11 +207,14 @@ class Depacketizer(wiring.Component):
     stats: Out(RxStats)
 
     def __init__(self, *, max_payload: int = DEFAULT_MAX_PAYLOAD, slots: int = 2):
-        if not isinstance(max_payload, int) or not MIN_PAYLOAD <= max_payload <= 255:
-            raise ValueError(f"Maximum payload must be an integer in {MIN_PAYLOAD}..255, "
-                             f"not {max_payload!r}")
-        if not isinstance(slots, int) or slots < 1 or slots & (slots - 1):
-            raise ValueError(f"Slot count must be a power of two, not {slots!r}")
+        with rejecting(self):
+            if (not isinstance(max_payload, int) or isinstance(max_payload, bool) or
+                    not MIN_PAYLOAD <= max_payload <= 255):
+                raise ValueError(f"Maximum payload must be an integer in {MIN_PAYLOAD}..255, "
+                                 f"not {max_payload!r}")
+            if (not isinstance(slots, int) or isinstance(slots, bool) or slots < 1 or
+                    slots & (slots - 1)):
+                raise ValueError(f"Slot count must be a power of two, not {slots!r}")
         self._max_payload = max_payload
         self._slots = slots
         super().__init__()
