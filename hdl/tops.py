@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from amaranth.back import verilog
 from amaranth.lib import wiring
 
+from .link.node import link_node_top
+
 __all__ = ["Top", "TOPS", "build_top", "component_verilog", "verilog_text"]
 
 
@@ -42,6 +44,8 @@ def _spw_codec(*, slots: int = 3, start_div: int | None = None, run_div: int = 1
 TOPS: dict[str, Top] = {
     "spw_codec": Top(_spw_codec, "standalone SpaceWire codec (wire ports d_in, s_in, d_out, "
                                  "s_out; N-char streams, time-codes, link control/status)"),
+    "link_node": Top(link_node_top, "daisy-chain endpoint: up/down codecs, router, packet layer "
+                                    "(host beat streams), time-code capture"),
 }
 
 
