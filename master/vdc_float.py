@@ -18,10 +18,12 @@ the module's two links (DESIGN.md "VDC in equations"; Zhu 2010, App. A):
 What the node knows (docs/node.md, "Comm B and the required accelerations"): each period it
 receives ``q̇_r``, ``V_C`` and ``V_rC`` (Comm B) and uses its own encoder snapshot ``q, q̇`` taken
 at the period start (the values it reported in Comm A, so master and node agree on them). It
-does not receive accelerations: :class:`ModuleVDC` derives ``dV_r/dt`` by a backward difference
-of the required velocities of the previous period (each expressed in its own link frame), and
-the (upward) gravity vector ``g_C`` arrives in the previous period's Comm D. The fixed-point
-unit uses exactly this information, so the two differ only by number formats.
+does not receive accelerations: :class:`ModuleVDC` derives ``dV_rC/dt`` and ``q̈_r`` by backward
+differences over one period of the received ``V_rC`` and ``q̇_r``, and carries them across the
+joint with the exact derivative of the velocity mapping (:func:`link_a_acceleration`, with the
+actual ``q̇`` rotating the frame). The (upward) gravity vector ``g_C`` arrives in the previous
+period's Comm D. The fixed-point unit uses exactly this information, so the two differ only by
+number formats.
 
 Vectors are ``[v; ω]`` and ``[f; m]``, linear part first, SI units (m/s, rad/s, N, N·m).
 """
@@ -32,9 +34,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models.spatial import N_PARAMS, regressor
+from models.spatial import N_PARAMS
 
-__all__ = ["rz", "link_a_velocity", "link_a_acceleration", "required_net_force",
+__all__ = ["rz", "link_regressor", "link_a_velocity", "link_a_acceleration", "required_net_force",
            "adaptation_signal", "projection_update", "ModuleGains", "ModuleVDC"]
 
 _Z6 = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
@@ -44,6 +46,55 @@ def rz(q: float) -> np.ndarray:
     """``Rz(q)`` (3×3): orientation of {A} in {C} at joint angle ``q`` (rad)."""
     c, s = np.cos(q), np.sin(q)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _skew(w) -> np.ndarray:
+    x, y, z = w
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
+_Q_BASIS = []   # symmetric basis matrices of Q for θ₅..θ₁₀, with their trace weight
+for (_i, _j) in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)):
+    _B = np.zeros((3, 3))
+    _B[_i, _j] = _B[_j, _i] = 1.0
+    _Q_BASIS.append((_B, 1.0 if _i == _j else 0.0))
+
+
+def link_regressor(omega, V_r, dV_r, g) -> np.ndarray:
+    """The 6×13 regressor ``Y(ω, V_r, dV_r/dt, g)`` assembled block by block.
+
+    Same matrix as :func:`models.spatial.regressor` (tested), written out for speed: with
+    ``a = v̇_r + ω × v_r + g``, ``f = θ₁ a + (ω̇_r×) h + (ω×)(ω_r×) h`` and
+    ``n = h × a + J ω̇_r + ω × (I_d ω_r) + I_d (ω × ω_r) + (Q ω) × ω_r``,
+    ``J = I_d + (θ₅+θ₆+θ₇) E − Q`` (DESIGN.md "VDC in equations").
+
+    Parameters
+    ----------
+    omega : array_like, shape (3,), rad/s
+        Actual angular velocity of the link, in its frame.
+    V_r, dV_r : array_like, shape (6,)
+        Required velocity ``[v; ω]`` and its time derivative, in the link frame.
+    g : array_like, shape (3,), m/s²
+        Upward gravity in the link frame.
+    """
+    w = np.asarray(omega, dtype=float)
+    V_r = np.asarray(V_r, dtype=float)
+    dV_r = np.asarray(dV_r, dtype=float)
+    v_r, w_r, dw = V_r[:3], V_r[3:], dV_r[3:]
+    W, Wr = _skew(w), _skew(w_r)
+    a = dV_r[:3] + W @ v_r + np.asarray(g, dtype=float)
+    Y = np.zeros((6, N_PARAMS))
+    Y[:3, 0] = a
+    Y[:3, 1:4] = _skew(dw) + W @ Wr
+    Y[3:, 1:4] = -_skew(a)
+    for c, (B, tr) in enumerate(_Q_BASIS):
+        Y[3:, 4 + c] = tr * dw - B @ dw - Wr @ (B @ w)
+    w_x_wr = W @ w_r
+    for j in range(3):
+        col = W[:, j] * w_r[j]
+        col[j] += dw[j] + w_x_wr[j]
+        Y[3:, 10 + j] = col
+    return Y
 
 
 def _rotate_t(q: float, V) -> np.ndarray:
@@ -122,7 +173,7 @@ def required_net_force(theta, V, V_r, dV_r, g, K) -> np.ndarray:
     """
     V = np.asarray(V, dtype=float)
     V_r = np.asarray(V_r, dtype=float)
-    Y = regressor(V[3:], V_r, dV_r, g)
+    Y = link_regressor(V[3:], V_r, dV_r, g)
     return Y @ np.asarray(theta, dtype=float) + np.asarray(K, dtype=float) * (V_r - V)
 
 
@@ -130,7 +181,7 @@ def adaptation_signal(V, V_r, dV_r, g) -> np.ndarray:
     """``s = Yᵀ (V_r − V)``, shape (13,): the gradient that drives adaptation."""
     V = np.asarray(V, dtype=float)
     V_r = np.asarray(V_r, dtype=float)
-    return regressor(V[3:], V_r, dV_r, g).T @ (V_r - V)
+    return link_regressor(V[3:], V_r, dV_r, g).T @ (V_r - V)
 
 
 def projection_update(theta, s, rho_T, lower, upper) -> np.ndarray:
@@ -194,7 +245,7 @@ class ModuleVDC:
     Notes
     -----
     The first call after construction or :meth:`reset` has no previous required velocity: its
-    required accelerations are zero (the node starts its derivative history there too).
+    ``dV_rC/dt`` and ``q̈_r`` are zero (the node starts its derivative history there too).
     """
 
     def __init__(self, theta, gains: ModuleGains, period: float = 1e-3):
@@ -206,10 +257,10 @@ class ModuleVDC:
         self.period = float(period)
         self.lower = theta.copy() if gains.lower is None else np.array(gains.lower, dtype=float)
         self.upper = theta.copy() if gains.upper is None else np.array(gains.upper, dtype=float)
-        self._prev: tuple[np.ndarray, np.ndarray] | None = None
+        self._prev: tuple[float, np.ndarray] | None = None
 
     def reset(self) -> None:
-        """Forget the derivative history (next call has zero required accelerations)."""
+        """Forget the derivative history (next call has zero ``dV_rC/dt`` and ``q̈_r``)."""
         self._prev = None
 
     def step(self, q: float, qd: float, qd_r: float, V_C, V_rC, g_C,
@@ -242,12 +293,11 @@ class ModuleVDC:
         V_rA = link_a_velocity(q, qd_r, V_rC)
         g_A = rz(q).T @ g_C
         if self._prev is None:
-            dV_rA = np.zeros(6)
-            dV_rC = np.zeros(6)
-        else:
-            dV_rA = (V_rA - self._prev[0]) / self.period
-            dV_rC = (V_rC - self._prev[1]) / self.period
-        self._prev = (V_rA, V_rC)
+            self._prev = (qd_r, V_rC)
+        qdd_r = (qd_r - self._prev[0]) / self.period
+        dV_rC = (V_rC - self._prev[1]) / self.period
+        dV_rA = link_a_acceleration(q, qd, qdd_r, V_rC, dV_rC)
+        self._prev = (qd_r, V_rC)
         links = ((V_A, V_rA, dV_rA, g_A), (V_C, V_rC, dV_rC, g_C))
         forces = []
         for i, (V, V_r, dV_r, g) in enumerate(links):

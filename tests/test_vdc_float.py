@@ -5,7 +5,8 @@ import pinocchio as pin
 import pytest
 
 from master.vdc_float import (ModuleGains, ModuleVDC, adaptation_signal, link_a_acceleration,
-                              link_a_velocity, projection_update, required_net_force, rz)
+                              link_a_velocity, link_regressor, projection_update,
+                              required_net_force, rz)
 from models.robot import load_robot
 from models.spatial import regressor, rigid_body_wrench, theta_to_pinocchio, transform_U
 
@@ -34,6 +35,15 @@ def test_regressor_matches_pinocchio_body_regressor():
         a = dV + np.concatenate([g, np.zeros(3)])
         theirs = pin.bodyRegressor(pin.Motion(V), pin.Motion(a)) @ theta_to_pinocchio(theta)
         np.testing.assert_allclose(ours, theirs, rtol=1e-12, atol=1e-12)
+
+
+def test_fast_regressor_is_the_spatial_one():
+    rng = np.random.default_rng(6)
+    for _ in range(30):
+        w, g = rng.normal(size=(2, 3))
+        V_r, dV_r = rng.normal(size=(2, 6))
+        np.testing.assert_allclose(link_regressor(w, V_r, dV_r, g), regressor(w, V_r, dV_r, g),
+                                   rtol=1e-13, atol=1e-13)
 
 
 def test_net_force_is_regressor_plus_velocity_feedback():
