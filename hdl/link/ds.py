@@ -9,9 +9,9 @@ earliest slot of a cycle. With ``slots = 3`` a slot is 6.67 ns, so one bit per s
 150 Mbit/s and 15 slots per bit is 10 Mbit/s.
 
 :class:`DSTransmitter` shifts out groups of line bits (one character, NULL or time-code at a
-time) at a bit period of ``start_div`` or ``run_div`` slots. :class:`DSReceiver` registers the
-``slots`` samples of D and S each cycle and marks the slots in which ``D xor S`` changed: each
-such slot carries a new bit whose value is D. It accepts any peer rate up to one bit per slot.
+time) at a bit period of ``start_div`` or ``run_div`` slots. :class:`DSReceiver` marks the
+slots of each cycle in which ``D xor S`` changed (each carries a new bit whose value is D) and
+registers the result. It accepts any peer rate up to one bit per slot.
 """
 
 from amaranth import *
@@ -140,7 +140,7 @@ class DSTransmitter(wiring.Component):
 
 
 class DSReceiver(wiring.Component):
-    """Data-strobe receiver front end: registers the line and finds the bits in it.
+    """Data-strobe receiver front end: finds the bits on the line, one cycle later.
 
     Parameters
     ----------
@@ -150,13 +150,14 @@ class DSReceiver(wiring.Component):
     Attributes
     ----------
     d_in, s_in : In(slots)
-        Line samples, bit 0 = earliest slot; registered before use.
+        Line samples, bit 0 = earliest slot.
     bit_valid : Out(slots)
-        Slot ``i`` of the registered samples starts a new bit (``D xor S`` changed).
+        Registered: slot ``i`` of the previous cycle's samples started a new bit
+        (``D xor S`` changed from the slot before it).
     bit_data : Out(slots)
-        The bit value (D) in each slot.
+        Registered: the bit value (D) in each of those slots.
     activity : Out(1)
-        D or S changed in some slot of the registered samples (disconnect detection).
+        Registered: D or S changed in some slot of the previous cycle (disconnect detection).
     """
 
     def __init__(self, *, slots: int):
@@ -174,25 +175,22 @@ class DSReceiver(wiring.Component):
     def elaborate(self, platform):
         m = Module()
 
-        d_q = Signal(self._slots)
-        s_q = Signal(self._slots)
-        d_l = Signal()      # last slot of the previous cycle
+        # The decoded slots are registered (rather than the raw samples), so everything
+        # downstream sees registers only; the timing is the same as registering the line.
+        d_l = Signal()      # last slot of the previous cycle's samples
         s_l = Signal()
-        m.d.sync += [
-            d_q.eq(self.d_in),
-            s_q.eq(self.s_in),
-            d_l.eq(d_q[-1]),
-            s_l.eq(s_q[-1]),
-        ]
-
         prev_d, prev_s = d_l, s_l
-        changes = []
+        valid, changes = [], []
         for i in range(self._slots):
-            m.d.comb += self.bit_valid[i].eq((d_q[i] ^ s_q[i]) ^ (prev_d ^ prev_s))
-            changes.append((d_q[i] ^ prev_d) | (s_q[i] ^ prev_s))
-            prev_d, prev_s = d_q[i], s_q[i]
-        m.d.comb += [
-            self.bit_data.eq(d_q),
+            d, s = self.d_in[i], self.s_in[i]
+            valid.append((d ^ s) ^ (prev_d ^ prev_s))
+            changes.append((d ^ prev_d) | (s ^ prev_s))
+            prev_d, prev_s = d, s
+        m.d.sync += [
+            d_l.eq(self.d_in[-1]),
+            s_l.eq(self.s_in[-1]),
+            self.bit_valid.eq(Cat(valid)),
+            self.bit_data.eq(self.d_in),
             self.activity.eq(Cat(changes).any()),
         ]
         return m
