@@ -70,14 +70,22 @@ async def _idle(ctx, rng, p_idle):
         await ctx.tick()
 
 
+async def _offer(ctx, stream):
+    """Hold ``valid`` until a clock edge where ``ready`` is high (the transfer)."""
+    ctx.set(stream.valid, 1)
+    while True:
+        _, _, ready = await ctx.tick().sample(stream.ready)
+        if ready:
+            break
+    ctx.set(stream.valid, 0)
+
+
 async def put_chars(ctx, stream, chars, *, rng=None, p_idle: float = 0.0):
     """Offer integer characters on a Char stream, idling a random cycle with ``p_idle``."""
     for char in chars:
         await _idle(ctx, rng, p_idle)
         ctx.set(stream.payload.as_value(), char_value(char))
-        ctx.set(stream.valid, 1)
-        await ctx.tick().until(stream.ready)
-        ctx.set(stream.valid, 0)
+        await _offer(ctx, stream)
 
 
 async def get_chars(ctx, stream, n_packets: int, *, rng=None, p_stall: float = 0.0
@@ -103,9 +111,7 @@ async def put_packet(ctx, stream, header: ref.Header, payload, *, rng=None,
     for index, byte in enumerate(payload):
         await _idle(ctx, rng, p_idle)
         ctx.set(stream.payload.as_value(), beat_value(header, byte, index == len(payload) - 1))
-        ctx.set(stream.valid, 1)
-        await ctx.tick().until(stream.ready)
-        ctx.set(stream.valid, 0)
+        await _offer(ctx, stream)
 
 
 async def get_packet(ctx, stream, *, rng=None, p_stall: float = 0.0
