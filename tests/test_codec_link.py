@@ -5,9 +5,11 @@
 #      Connecting, Run), §6.6 (10 Mbit/s start-up rate).
 """
 
+import pytest
 from amaranth.sim import Simulator
 
 from hdl.link.chars import LinkState
+from hdl.link.codec import Codec
 
 from .sim_helpers import ERROR_CLASSES, CodecPair, LineMonitor, run_simulation
 
@@ -164,3 +166,15 @@ def test_link_disable_in_run_resets_and_peer_sees_disconnect():
     assert sum(errors["b"].values()) == 1
     assert all(n == 0 for n in errors["a"].values())
     assert trace["a"][-1][1] == RUN and trace["b"][-1][1] == RUN, "both restart and reach Run"
+
+
+@pytest.mark.parametrize("args,match", [
+    ({"slots": 0}, "Slots"),
+    ({"run_div": 0}, "Run bit period"),
+    ({"disconnect_cycles": 2}, "Disconnect time"),
+    ({"reset_cycles": 47}, "Reset time"),
+    ({"rx_fifo_depth": 8}, "FIFO depth"),
+])
+def test_codec_rejects_bad_parameters(args, match):
+    with pytest.raises(ValueError, match=match):
+        Codec(**args)
