@@ -36,9 +36,9 @@ def test_writes_the_node_module_with_its_ports(node_verilog):
     assert module_ports(text, "link_node") == {
         "address", "tx__payload", "tx__valid", "tx__ready", "rx__payload", "rx__valid",
         "rx__ready", "up__d_in", "up__s_in", "up__d_out", "up__s_out", "down__d_in",
-        "down__s_in", "down__d_out", "down__s_out", "tc_strobe", "tc_time", "tc_stamp", "cycle",
-        "up_running", "down_running", "rx_stats", "dropped", "up_errors", "down_errors", "clk",
-        "rst"}
+        "down__s_in", "down__d_out", "down__s_out", "tc_strobe", "tc_time", "tc_stamp",
+        "tc_in_sequence", "cycle", "up_running", "down_running", "rx_stats", "dropped",
+        "up_errors", "down_errors", "clk", "rst"}
     # Beat = header (32) + data (8) + last (1); three line slots per cycle by default.
     assert "input [40:0] tx__payload;" in text and "output [40:0] rx__payload;" in text
     assert "input [2:0] up__d_in;" in text and "output [2:0] down__d_out;" in text

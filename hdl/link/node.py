@@ -16,8 +16,11 @@ itself (``link_start``), so every link of the chain comes up from the master's s
 each node at once. A time-code received upstream is passed to the downstream codec in the same
 cycle and stamped with the free-running ``cycle`` counter: ``tc_strobe`` pulses one cycle after
 the upstream codec's ``tick_out``, with ``tc_stamp`` the counter value of the ``tick_out``
-cycle and ``tc_time`` the time-code. Every time-code is forwarded: the chain has no loops, so
-the standard's "value must be one more than the last" propagation rule (§8.12) is not needed.
+cycle and ``tc_time`` the time-code. Every time-code is forwarded and strobed: the chain has
+no loops for time-codes to circulate in, which is what the standard's "one more than the last
+value" propagation rule (§8.12) guards against, and absorbing an out-of-sequence code would cost
+every node below a period start. ``tc_in_sequence`` tells the node logic whether the code was
+the last one plus 1 (mod 64), so it can apply the rule itself.
 
 The node address is the ``address`` input, not a parameter: modules are interchangeable, so
 it comes from outside the link layer (strap pins, or a configuration register of the node).
@@ -76,6 +79,8 @@ class LinkNode(wiring.Component):
         Its value (flags in bits 7:6, time in 5:0); held until the next one.
     tc_stamp : Out(32)
         ``cycle`` when it arrived; held until the next one.
+    tc_in_sequence : Out(1)
+        Its time (bits 5:0) was the previous time-code's plus 1, mod 64; held with ``tc_time``.
     cycle : Out(32)
         Free-running cycle counter (50 MHz), wrapping.
     up_running, down_running : Out(1)
@@ -104,21 +109,22 @@ class LinkNode(wiring.Component):
         self._depacketizer, self._up_codec, self._down_codec = parts
         slots = self._up_codec.slots
         super().__init__({
-            "address":      In(8),
-            "tx":           In(stream.Signature(Beat)),
-            "rx":           Out(stream.Signature(Beat)),
-            "up":           Out(line_signature(slots)),
-            "down":         Out(line_signature(slots)),
-            "tc_strobe":    Out(1),
-            "tc_time":      Out(8),
-            "tc_stamp":     Out(32),
-            "cycle":        Out(32),
-            "up_running":   Out(1),
-            "down_running": Out(1),
-            "rx_stats":     Out(RxStats),
-            "dropped":      Out(16),
-            "up_errors":    Out(ErrorCounts),
-            "down_errors":  Out(ErrorCounts),
+            "address":        In(8),
+            "tx":             In(stream.Signature(Beat)),
+            "rx":             Out(stream.Signature(Beat)),
+            "up":             Out(line_signature(slots)),
+            "down":           Out(line_signature(slots)),
+            "tc_strobe":      Out(1),
+            "tc_time":        Out(8),
+            "tc_stamp":       Out(32),
+            "tc_in_sequence": Out(1),
+            "cycle":          Out(32),
+            "up_running":     Out(1),
+            "down_running":   Out(1),
+            "rx_stats":       Out(RxStats),
+            "dropped":        Out(16),
+            "up_errors":      Out(ErrorCounts),
+            "down_errors":    Out(ErrorCounts),
         })
 
     @property
@@ -184,6 +190,7 @@ class LinkNode(wiring.Component):
             m.d.sync += [
                 self.tc_stamp.eq(self.cycle),
                 self.tc_time.eq(up_codec.time_out),
+                self.tc_in_sequence.eq(up_codec.time_out[:6] == (self.tc_time[:6] + 1)[:6]),
             ]
 
         return m
