@@ -9,7 +9,24 @@ import shutil
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_output_dir", "write_json"]
+__all__ = ["atomic_output_dir", "atomic_write_text", "write_json"]
+
+
+def atomic_write_text(path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file beside it that replaces it only once
+    complete; the file gets the usual permissions (0666 less the umask)."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", newline="") as f:
+            f.write(text)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 @contextlib.contextmanager

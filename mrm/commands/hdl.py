@@ -7,11 +7,10 @@ atomically (a temporary file renamed into place), so a failed run leaves no part
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 from mrm.errors import InputError
+from mrm.output import atomic_write_text
 
 
 def register(subparsers) -> None:
@@ -63,14 +62,7 @@ def write_verilog(top: str, out: Path, params: dict[str, int]) -> Path:
     text = component_verilog(component, top)
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{top}.v"
-    fd, tmp = tempfile.mkstemp(prefix=f".{top}.", suffix=".v.tmp", dir=out)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_text(path, text)
     return path
 
 

@@ -10,12 +10,12 @@ from __future__ import annotations
 import json
 import os
 import sys
-import tempfile
 import tomllib
 
 import numpy as np
 
 from mrm.errors import InputError, require_finite, require_positive
+from mrm.output import atomic_write_text
 
 LIMIT_KEYS = ("velocity", "acceleration", "jerk")
 
@@ -58,17 +58,9 @@ def write_csv_atomic(path: str, header: list[str] | tuple[str, ...], table: np.n
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
         raise InputError("--samples", f"directory {directory!r} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=".plan-", suffix=".csv.tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "w", newline="") as f:
-            f.write(",".join(header) + "\n")
-            for row in (np.asarray(table, dtype=float) + 0.0).tolist():   # + 0.0: no "-0"
-                f.write(",".join(map(repr, row)) + "\n")
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    rows = (np.asarray(table, dtype=float) + 0.0).tolist()   # + 0.0: no "-0"
+    atomic_write_text(path, "".join([",".join(header) + "\n"]
+                                    + [",".join(map(repr, row)) + "\n" for row in rows]))
 
 
 def _print_json(figures: dict) -> None:
