@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from amaranth import *
 from amaranth.lib import wiring
 from amaranth.sim import Simulator
@@ -82,6 +84,33 @@ def test_reference_rejects_bad_input():
         ref.Header(1, 0, 0, 256)
     with pytest.raises(ValueError, match="end with EOP"):
         ref.check_frame([1, 2, 3])
+
+
+headers = st.builds(ref.Header, *[st.integers(0, 255)] * 4)
+payloads = st.binary(min_size=1, max_size=ref.DEFAULT_MAX_PAYLOAD)
+
+
+@settings(max_examples=200, deadline=None)
+@given(headers, payloads, st.data())
+def test_reference_round_trip_and_any_single_corruption_is_rejected(header, payload, data):
+    frame = ref.encode(header, payload)
+    assert ref.check_frame(frame) == (ref.Verdict.GOOD, header, payload)
+    index = data.draw(st.integers(0, len(frame) - 2))
+    bad = list(frame)
+    bad[index] ^= data.draw(st.integers(1, 255))   # any error burst within one character
+    assert ref.check_frame(bad)[0] is ref.Verdict.CRC
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.one_of(st.integers(0, 255), st.sampled_from([ref.EOP, ref.EEP])),
+                max_size=200))
+def test_reference_delivers_only_well_formed_frames(chars):
+    model = ref.DepacketizerModel()
+    for header, payload in model.feed(chars):
+        frame = ref.encode(header, payload)
+        assert any(chars[i:i + len(frame)] == frame for i in range(len(chars)))
+    ends = sum(char in (ref.EOP, ref.EEP) for char in chars)
+    assert sum(model.counts.values()) == ends
 
 
 def test_reference_counters_saturate():

@@ -151,13 +151,15 @@ def test_round_robin_alternates_when_both_wait():
 def test_upstream_link_down_discards_without_blocking_the_host():
     rng = np.random.default_rng(24)
     own = random_packets(rng, 5, [0])
+    model = ref.RouterModel(ADDRESS)
+    assert all(model.to_upstream(packet, up_running=False) is None for packet in own)
     dut = Router()
     sim = make_sim(dut, up_running=0)
 
     async def host(ctx):
         await put_chars(ctx, dut.local_tx, flatten(own))
         await ctx.tick().repeat(3)
-        assert ctx.get(dut.dropped) == 5
+        assert ctx.get(dut.dropped) == model.dropped == 5
         assert not ctx.get(dut.up_tx.valid)
 
     sim.add_testbench(host)
