@@ -1,0 +1,246 @@
+"""Quadrature encoder interface: synchronizer, glitch filter, ×4 decoder, velocity estimator.
+
+Cycle-exact behaviour, the reasons for the M/T velocity method and the reciprocal (table plus
+one Newton–Raphson step, since there is no divider) are in :mod:`.encoder_ref`, which this
+gateware equals bit for bit. Velocity pipeline, one stage per cycle after a ``sample`` strobe::
+
+    S0  case (measure / bound / stop), numerator, denominator latched
+    S1  leading-one normalization of the denominator to 18 bits; table address
+    S2  u  = m · y0                         (table word y0 arrives)
+    S3  y1 = y0 · (2 − u)                   (Newton–Raphson)
+    S4  t  = y1 · K_v
+    S5  w  = t · numerator
+    S6  velocity ← round(w / 2^(p+9)) per case   → visible VEL_LATENCY cycles after the strobe
+"""
+
+from amaranth import *
+from amaranth.lib import wiring
+from amaranth.lib.memory import Memory
+from amaranth.lib.wiring import In, Out
+
+from .encoder_ref import AGE_BITS, AGE_MAX, DC_MAX, RECIP_TABLE, EncoderParams
+from .fixed import WORD, WORD_MAX, WORD_MIN
+
+__all__ = ["QuadratureEncoder"]
+
+_MEASURE, _BOUND, _STOP = 0, 1, 2
+
+
+class QuadratureEncoder(wiring.Component):
+    """Encoder lines in; count, illegal-transition count and velocity estimate out.
+
+    Parameters
+    ----------
+    params : EncoderParams
+
+    Attributes
+    ----------
+    a, b : In(1)
+        Raw encoder lines (asynchronous).
+    sample : In(1)
+        Strobe: start a velocity update from the current state.
+    preset, preset_count : In(1), In(signed(32))
+        Strobe: load the count (and the velocity reference) with ``preset_count``.
+    count : Out(signed(32))
+    velocity : Out(signed(24))
+        VEL word (rad/s, LSB 2^-19).
+    errors : Out(16)
+        Illegal transitions (both lines changed at once), saturating.
+    """
+
+    a:            In(1)
+    b:            In(1)
+    sample:       In(1)
+    preset:       In(1)
+    preset_count: In(signed(32))
+    count:        Out(signed(32))
+    velocity: Out(signed(WORD))
+    errors:   Out(16)
+
+    def __init__(self, params: EncoderParams | None = None):
+        self._p = params or EncoderParams()
+        super().__init__()
+
+    @property
+    def params(self) -> EncoderParams:
+        return self._p
+
+    def elaborate(self, platform):
+        m = Module()
+        p = self._p
+
+        # --- synchronizer, filter, decoder ----------------------------------------------------
+        s1 = Signal(2)
+        s2 = Signal(2)
+        filt = Signal(2)
+        m.d.sync += [
+            s1.eq(Cat(self.a, self.b)),
+            s2.eq(s1),
+        ]
+        new = Signal(2)
+        m.d.comb += new.eq(filt)
+        wait   = Signal(2, init=2)
+        primed = Signal()
+        running = Signal()
+        m.d.comb += running.eq((wait == 0) & primed)
+        with m.If(wait != 0):
+            m.d.sync += wait.eq(wait - 1)
+        with m.Elif(~primed):
+            m.d.comb += new.eq(s2)
+            m.d.sync += primed.eq(1)
+        for k in range(2):
+            fcnt = Signal(range(max(2, p.filter_cycles)), name=f"fcnt_{k}")
+            with m.If(~running):
+                pass
+            with m.Elif(s2[k] != filt[k]):
+                with m.If(fcnt == p.filter_cycles - 1):
+                    m.d.comb += new[k].eq(s2[k])
+                    m.d.sync += fcnt.eq(0)
+                with m.Else():
+                    m.d.sync += fcnt.eq(fcnt + 1)
+            with m.Else():
+                m.d.sync += fcnt.eq(0)
+        m.d.sync += filt.eq(new)
+
+        def phase(ab):  # (A, B) = (0,0) (1,0) (1,1) (0,1) -> 0 1 2 3
+            return Cat(ab[0] ^ ab[1], ab[1])
+
+        d = Signal(2)
+        m.d.comb += d.eq(Mux(running, phase(new) - phase(filt), 0))
+        edge = Signal()
+        m.d.comb += edge.eq((d == 1) | (d == 3))
+        with m.If((d == 2) & (self.errors != 0xFFFF)):
+            m.d.sync += self.errors.eq(self.errors + 1)
+        with m.If(self.preset):
+            m.d.sync += self.count.eq(self.preset_count)
+        with m.Elif(d == 1):
+            m.d.sync += self.count.eq(self.count + 1)
+        with m.Elif(d == 3):
+            m.d.sync += self.count.eq(self.count - 1)
+
+        # --- ages and the sample decision -----------------------------------------------------
+        age_edge = Signal(AGE_BITS)
+        age_ref  = Signal(AGE_BITS)
+        c_ref    = Signal(signed(32))
+        with m.If(edge):
+            m.d.sync += age_edge.eq(0)
+        with m.Elif(age_edge != AGE_MAX):
+            m.d.sync += age_edge.eq(age_edge + 1)
+
+        dc_full = Signal(signed(33))
+        dc      = Signal(signed(11))
+        window  = Signal(signed(AGE_BITS + 1))
+        m.d.comb += [
+            dc_full.eq(self.count - c_ref),
+            dc.eq(Mux(dc_full > DC_MAX, DC_MAX, Mux(dc_full < -DC_MAX, -DC_MAX, dc_full))),
+            window.eq(age_ref - age_edge),
+        ]
+        s0_case = Signal(2)
+        s0_num  = Signal(signed(11))
+        s0_den  = Signal(AGE_BITS)
+        s0_ok   = Signal()
+        m.d.sync += s0_ok.eq(self.sample)
+        measure = (dc != 0) & (window >= p.min_window)
+        with m.If(self.sample & measure):
+            m.d.sync += [
+                s0_case.eq(_MEASURE),
+                s0_num.eq(dc),
+                s0_den.eq(window),
+                c_ref.eq(self.count),
+                age_ref.eq(Mux(age_edge == AGE_MAX, AGE_MAX, age_edge + 1)),
+            ]
+        with m.Else():
+            with m.If(age_ref != AGE_MAX):
+                m.d.sync += age_ref.eq(age_ref + 1)
+            with m.If(self.sample & (age_edge >= p.stop_cycles)):
+                m.d.sync += [
+                    s0_case.eq(_STOP),
+                    s0_num.eq(0),
+                    s0_den.eq(1),
+                ]
+            with m.Elif(self.sample):
+                m.d.sync += [
+                    s0_case.eq(_BOUND),
+                    s0_num.eq(Mux(dc < 0, -dc, dc) + 1),
+                    s0_den.eq(age_ref),
+                ]
+
+        with m.If(self.preset):
+            m.d.sync += c_ref.eq(self.preset_count)
+
+        # --- S1: normalize --------------------------------------------------------------------
+        den = Signal(AGE_BITS)
+        m.d.comb += den.eq(Mux(s0_den == 0, 1, s0_den))
+        lead = Signal(range(AGE_BITS))
+        for i in range(AGE_BITS):
+            with m.If(den[i]):
+                m.d.comb += lead.eq(i)
+        norm = Signal(AGE_BITS)
+        shift = Signal(range(AGE_BITS))
+        m.d.comb += [
+            shift.eq(AGE_BITS - 1 - lead),
+            norm.eq(den << shift),
+        ]
+        m.submodules.table = table = Memory(shape=18, depth=256, init=RECIP_TABLE)
+        rd = table.read_port()
+        m.d.comb += rd.addr.eq(norm[AGE_BITS - 9:AGE_BITS - 1])
+
+        def stage(name, value_or_shape, src):
+            sig = Signal(value_or_shape, name=name)
+            m.d.sync += sig.eq(src)
+            return sig
+
+        s1_ok, s1_case, s1_num = (stage("s1_ok", 1, s0_ok), stage("s1_case", 2, s0_case),
+                                  stage("s1_num", signed(11), s0_num))
+        s1_p = stage("s1_p", range(AGE_BITS), lead)
+        s1_m = stage("s1_m", 18, norm[AGE_BITS - 18:])
+
+        # --- S2: u = m · y0 -------------------------------------------------------------------
+        y0 = rd.data
+        s2_ok, s2_case, s2_num, s2_p = (stage("s2_ok", 1, s1_ok), stage("s2_case", 2, s1_case),
+                                        stage("s2_num", signed(11), s1_num),
+                                        stage("s2_p", range(AGE_BITS), s1_p))
+        s2_y0 = stage("s2_y0", 18, y0)
+        s2_u  = stage("s2_u", 20, (s1_m * y0) >> 17)
+
+        # --- S3: y1 = y0 (2 − u) --------------------------------------------------------------
+        s3_ok, s3_case, s3_num, s3_p = (stage("s3_ok", 1, s2_ok), stage("s3_case", 2, s2_case),
+                                        stage("s3_num", signed(11), s2_num),
+                                        stage("s3_p", range(AGE_BITS), s2_p))
+        s3_y1 = stage("s3_y1", 20, (s2_y0 * ((1 << 19) - s2_u)) >> 18)
+
+        # --- S4: t = y1 · K_v -----------------------------------------------------------------
+        s4_ok, s4_case, s4_num, s4_p = (stage("s4_ok", 1, s3_ok), stage("s4_case", 2, s3_case),
+                                        stage("s4_num", signed(11), s3_num),
+                                        stage("s4_p", range(AGE_BITS), s3_p))
+        s4_t = stage("s4_t", 40, s3_y1 * p.kv)
+
+        # --- S5: w = t · numerator ------------------------------------------------------------
+        s5_ok, s5_case, s5_p = (stage("s5_ok", 1, s4_ok), stage("s5_case", 2, s4_case),
+                                stage("s5_p", range(AGE_BITS), s4_p))
+        s5_w = stage("s5_w", signed(52), s4_t * s4_num)
+
+        # --- S6: round, saturate, apply -------------------------------------------------------
+        sh = s5_p + 9
+        rounded = Signal(signed(52))
+        v_raw = Signal(signed(WORD))
+        m.d.comb += rounded.eq((s5_w + ((C(1, 52) << sh) >> 1)) >> sh)
+        with m.If(rounded > WORD_MAX):
+            m.d.comb += v_raw.eq(WORD_MAX)
+        with m.Elif(rounded < WORD_MIN):
+            m.d.comb += v_raw.eq(WORD_MIN)
+        with m.Else():
+            m.d.comb += v_raw.eq(rounded)
+        v = self.velocity
+        with m.If(s5_ok):
+            with m.Switch(s5_case):
+                with m.Case(_MEASURE):
+                    m.d.sync += v.eq(v_raw)
+                with m.Case(_STOP):
+                    m.d.sync += v.eq(0)
+                with m.Case(_BOUND):
+                    with m.If((v > 0) & (v > v_raw)):
+                        m.d.sync += v.eq(v_raw)
+                    with m.Elif((v < 0) & (-v > v_raw)):
+                        m.d.sync += v.eq(-v_raw)
+        return m
