@@ -24,7 +24,8 @@ from mrm.errors import InputError, require_finite
 
 __all__ = ["WORD", "WORD_MIN", "WORD_MAX", "Fmt", "round_shift", "saturate", "wrap",
            "VEL", "ACC", "TRIG", "FORCE", "GAIN", "THETA", "RHOT", "SIG", "INVT", "POS",
-           "TIME", "FORMATS", "theta_group"]
+           "TIME", "CNT", "TS", "CT", "ANG", "KC", "LAMC", "LAM", "IVS", "IVLC", "SGN", "IM",
+           "VISC", "KP", "KI", "IHI", "FORMATS", "theta_group"]
 
 WORD = 24
 WORD_MIN = -(1 << (WORD - 1))
@@ -104,8 +105,25 @@ FORCE = Fmt("FORCE", -13, "N or N·m")          # ±1024, 1.2e-4: F_r, τ_Lr, to
 GAIN  = Fmt("GAIN",  -12, "N·s/m or N·m·s/rad")  # ±2048, 2.4e-4: K, k_j
 SIG   = Fmt("SIG",   -20, "θ-rate/ρ")          # ±8, 9.5e-7: adaptation signal s = Yᵀ(V_r − V)
 INVT  = Fmt("INVT",  -8,  "1/s")               # ±32768, 3.9e-3: 1/T of the backward difference
-POS   = Fmt("POS",   -2,  "counts")            # ±2.1e6 counts: joint positions in counts
+POS   = Fmt("POS",   -4,  "counts")            # ±524288 counts (±235°): joint positions
 TIME  = Fmt("TIME",  0,   "cycles")            # clock cycles
+CNT   = Fmt("CNT",   0,   "counts")            # ±8.4e6: the encoder count as an engine word
+
+# Joint controller (docs/node.md "Joint controller").
+TS    = Fmt("TS",    -26, "s")                 # ±0.125: time since the period start
+CT    = Fmt("CT",    -48, "s")                 # ±3e-8: one clock period (and half of it)
+ANG   = Fmt("ANG",   -26, "rad")               # ±0.125: position increment of the interpolation
+KC    = Fmt("KC",    -6,  "counts/rad")        # ±131072: counts per radian
+LAMC  = Fmt("LAMC",  -30, "rad/(s·count)")     # ±7.8e-3: λ times radians per count
+LAM   = Fmt("LAM",   -12, "1/s")               # ±2048: λ
+IVS   = Fmt("IVS",   -8,  "s/rad")             # ±32768: 1 / Stribeck-like smoothing speed
+IVLC  = Fmt("IVLC",  -20, "1/count")           # ±8: IVS times LAMC
+SGN   = Fmt("SGN",   -23, "1")                 # [−1, 1): smooth sign, saturation is the clip
+IM    = Fmt("IM",    -20, "kg·m²")             # ±8: reflected rotor inertia estimate
+VISC  = Fmt("VISC",  -16, "N·m·s/rad")         # ±128: viscous friction estimate
+KP    = Fmt("KP",    -24, "N·m/count")         # ±0.5: PID proportional gain
+KI    = Fmt("KI",    -32, "N·m/(count·tick)")  # ±2e-3: PID integral gain
+IHI   = Fmt("IHI",   10,  "counts·ticks")      # ±8.6e9: coarse part of the PID integral
 
 # The 13 parameters in three groups of units: mass, first moments, second moments.
 THETA = (Fmt("THETA_M", -18, "kg"),            # ±32, 3.8e-6
@@ -124,4 +142,6 @@ def theta_group(j: int) -> int:
     return 0 if j == 0 else 1 if j < 4 else 2
 
 
-FORMATS = {f.name: f for f in (VEL, ACC, TRIG, FORCE, GAIN, SIG, INVT, POS, TIME, *THETA, *RHOT)}
+FORMATS = {f.name: f for f in (VEL, ACC, TRIG, FORCE, GAIN, SIG, INVT, POS, TIME, CNT, TS, CT,
+                               ANG, KC, LAMC, LAM, IVS, IVLC, SGN, IM, VISC, KP, KI, IHI, *THETA,
+                               *RHOT)}
