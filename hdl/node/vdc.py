@@ -10,8 +10,9 @@ module for the equations and rounding points). Entry points:
   can go); adapt both links' estimates; keep ``V_rC, q̇_r`` for the next period; END.
 
 Register names (host side): Comm B ``qdr, VC0..5, VrC0..5``; snapshot ``qd, cq, sq``; gravity
-``gC0..2``; results ``FA0..5, FB0..5``; estimates ``thA0..12, thB0..12``; uploads ``KA0..5,
-KB0..5, rA0..12, rB0..12, loA0..12, hiA0..12, loB0..12, hiB0..12, invT``.
+``gC0..2``; results ``FA0..5, FB0..5`` (output registers 0..11, read for Comm C); estimates
+``thA0..12, thB0..12``; uploads ``KA0..5, KB0..5, rA0..12, rB0..12, loA0..12, hiA0..12,
+loB0..12, hiB0..12, invT``.
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ def build_vdc_program() -> Program:
             r(f"D{L}{j}", THETA[g])
             r(f"t{L}{j}", THETA[g])
         for k in range(6):
-            r(f"F{L}{k}", FORCE, "host")
+            r(f"F{L}{k}", FORCE, "output")
             r(f"e{L}{k}", VEL)
         for k in range(3):
             r(f"a{L}{k}", ACC)

@@ -1,0 +1,487 @@
+"""The node compute core: packets in, replies out, encoder in, torque out.
+
+::
+
+    rx beats ──► packet decoder ──┬─ Comm B words ──► VDC engine ─ F_a, F_b ─┐
+    (LinkNode)                    ├─ Comm D ─ g_C ──►   (regfile)            │
+                                  │        └ τ_D, q_d0, q̇_d0, q̈_d0 ─► D regs ┼─► joint engine
+                                  ├─ PARAM ──► VDC / joint register files    │   every tick
+                                  └─ CONFIG ─► mode, tick, limits, arm, …    │       │ τ
+    period_start ─► snapshot (count, q̇) ─► CORDIC ─► q̇, cos q, sin q ─► VDC  │       ▼
+    encoder A/B ──► decoder, velocity ──────────────────────────────────────►  limits, watchdog
+    tx beats ◄── reply: Comm A (snapshot, status) / Comm C (F_a, F_b once ready) ─► torque
+
+Behaviour (the transaction-level reference is :class:`~hdl.node.core_ref.NodeModel`):
+
+* ``period_start`` (the time-code) snapshots the encoder count and velocity, restarts the
+  period timer and runs the CORDIC; its result and the velocity go into the VDC's registers.
+* A Comm B of 40 bytes writes its 13 words into the VDC's registers as they arrive, then starts
+  the VDC (from ``"first"`` after reset, arming, a trip, a PRIME config or flag; else
+  ``"main"``). A Comm C request is answered as soon as the VDC has its forces (MARK).
+* A Comm D of 40 bytes writes ``g_C`` into the VDC's registers and commits ``τ_D, q_d0, q̇_d0,
+  q̈_d0`` to the joint engine's inputs at its last byte (all four at once).
+* Every ``tick`` cycles the encoder velocity is sampled and the joint engine runs with the
+  latched count, velocity, Comm D values and ``t_next``; its torque goes through the
+  :class:`~hdl.node.watchdog.Watchdog`. A tick that finds the joint engine busy is skipped
+  and counted (``overruns``).
+* Words arrive over the byte stream; a word for a busy engine waits (``rx.ready`` low).
+"""
+
+from amaranth import *
+from amaranth.lib import stream, wiring
+from amaranth.lib.wiring import In, Out
+
+from hdl.link.packet import Beat, PacketType
+
+from .encoder import QuadratureEncoder
+from .encoder_ref import EncoderParams
+from .fixed import WORD
+from .isa import IO_BASE
+from .joint import INPUTS as JOINT_INPUTS
+from .joint import JointUnit
+from .regs import COMM_B_WORDS, CONFIG_DEFAULTS, MODES, PAYLOAD, Bank, Config
+from .trig import SinCos
+from .vdc import VdcUnit
+from .watchdog import Watchdog
+
+__all__ = ["NodeCore"]
+
+_TIME_MAX = (1 << 23) - 1
+
+
+class NodeCore(wiring.Component):
+    """One module's compute core (see the module docstring).
+
+    Parameters
+    ----------
+    encoder : EncoderParams
+        Encoder interface parameters (resolution, clock, filter, windows).
+
+    Attributes
+    ----------
+    rx : In(stream.Signature(Beat))
+        Packets for this node (from :class:`~hdl.link.node.LinkNode` ``rx``).
+    tx : Out(stream.Signature(Beat))
+        Replies (to ``LinkNode.tx``).
+    period_start : In(1)
+        Period start (the time-code strobe).
+    period : In(8)
+        The time-code value, echoed in the replies.
+    enc_a, enc_b : In(1)
+        Encoder lines.
+    torque : Out(signed(24))
+        Torque command (FORCE word: N·m · 2^13).
+    status : Out(16)
+        :class:`~hdl.node.regs.Status` bits.
+    count : Out(signed(32))
+        Live encoder count.
+    velocity : Out(signed(24))
+        Live velocity estimate (VEL word).
+    """
+
+    rx:           In(stream.Signature(Beat))
+    tx:           Out(stream.Signature(Beat))
+    period_start: In(1)
+    period:       In(8)
+    enc_a:        In(1)
+    enc_b:        In(1)
+    torque:       Out(signed(WORD))
+    status:       Out(16)
+    count:        Out(signed(32))
+    velocity:     Out(signed(WORD))
+
+    def __init__(self, *, encoder: EncoderParams | None = None):
+        self._enc = encoder or EncoderParams()
+        super().__init__()
+
+    @property
+    def encoder_params(self) -> EncoderParams:
+        return self._enc
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.encoder = enc = QuadratureEncoder(self._enc)
+        m.submodules.trig = trig = SinCos(counts_per_rev=self._enc.counts_per_rev)
+        m.submodules.vdc = vdc = VdcUnit()
+        m.submodules.joint = joint = JointUnit()
+        m.submodules.watchdog = wd = Watchdog()
+        vmc, jmc = vdc.microcode, joint.microcode
+
+        m.d.comb += [
+            enc.a.eq(self.enc_a),
+            enc.b.eq(self.enc_b),
+            self.count.eq(enc.count),
+            self.velocity.eq(enc.velocity),
+        ]
+
+        # --- configuration ------------------------------------------------------------------
+        cfg_mode    = Signal(2, init=CONFIG_DEFAULTS[Config.MODE])
+        cfg_tick    = Signal(16, init=CONFIG_DEFAULTS[Config.TICK])
+        cfg_timeout = Signal(32, init=CONFIG_DEFAULTS[Config.TIMEOUT])
+        cfg_ramp    = Signal(WORD, init=CONFIG_DEFAULTS[Config.RAMP])
+        cfg_tmin    = Signal(signed(WORD), init=CONFIG_DEFAULTS[Config.TAU_MIN])
+        cfg_tmax    = Signal(signed(WORD), init=CONFIG_DEFAULTS[Config.TAU_MAX])
+        prime       = Signal(init=1)
+        arm         = Signal()
+        disarm      = Signal()
+        m.d.comb += [
+            wd.timeout.eq(cfg_timeout),
+            wd.ramp.eq(cfg_ramp),
+            wd.tau_min.eq(cfg_tmin),
+            wd.tau_max.eq(cfg_tmax),
+            wd.arm.eq(arm),
+            wd.disarm.eq(disarm),
+            self.torque.eq(wd.torque),
+        ]
+
+        # --- period start: snapshot, timer, CORDIC, snapshot words into the VDC ---------------
+        snap_count = Signal(signed(32))
+        snap_qd    = Signal(signed(WORD))
+        tt         = Signal(23)
+        vdc_fresh  = Signal()
+        with m.If(self.period_start):
+            m.d.sync += [
+                snap_count.eq(enc.count),
+                snap_qd.eq(enc.velocity),
+                tt.eq(0),
+                vdc_fresh.eq(0),
+            ]
+        with m.Elif(tt != _TIME_MAX):
+            m.d.sync += tt.eq(tt + 1)
+        m.d.comb += [
+            trig.start.eq(self.period_start),
+            trig.count.eq(enc.count),
+        ]
+        sw_pending = Signal()
+        sw_idx     = Signal(2)
+        sw_cos     = Signal(signed(WORD))
+        sw_sin     = Signal(signed(WORD))
+        with m.If(trig.done):
+            m.d.sync += [
+                sw_pending.eq(1),
+                sw_idx.eq(0),
+                sw_cos.eq(trig.cos),
+                sw_sin.eq(trig.sin),
+            ]
+
+        # --- host ports: snapshot writer first, then the packet decoder's pending word --------
+        pw_valid = Signal()
+        pw_bank  = Signal()
+        pw_addr  = Signal(9)
+        pw_data  = Signal(signed(WORD))
+        sw_addr  = Array([C(vmc.addr("qd"), 9), C(vmc.addr("cq"), 9), C(vmc.addr("sq"), 9),
+                          C(0, 9)])
+        sw_data  = Array([snap_qd, sw_cos, sw_sin, C(0, WORD)])
+        with m.If(sw_pending & ~vdc.busy):
+            m.d.comb += [
+                vdc.host_addr.eq(sw_addr[sw_idx]),
+                vdc.host_wdata.eq(sw_data[sw_idx]),
+                vdc.host_we.eq(1),
+            ]
+            m.d.sync += sw_idx.eq(sw_idx + 1)
+            with m.If(sw_idx == 2):
+                m.d.sync += sw_pending.eq(0)
+        with m.Elif(pw_valid & (pw_bank == Bank.VDC) & ~vdc.busy):
+            m.d.comb += [
+                vdc.host_addr.eq(pw_addr),
+                vdc.host_wdata.eq(pw_data),
+                vdc.host_we.eq(1),
+            ]
+            m.d.sync += pw_valid.eq(0)
+        with m.If(pw_valid & (pw_bank == Bank.JOINT) & ~joint.busy):
+            m.d.comb += [
+                joint.host_addr.eq(pw_addr),
+                joint.host_wdata.eq(pw_data),
+                joint.host_we.eq(1),
+            ]
+            m.d.sync += pw_valid.eq(0)
+
+        # --- packet decoder ------------------------------------------------------------------
+        vdc_go    = Signal()
+        vdc_wait  = Signal()
+        reply_a   = Signal()
+        reply_c   = Signal()
+        seq_a     = Signal(8)
+        seq_c     = Signal(8)
+        beat   = self.rx.p
+        ptype  = beat.header.type
+        taken  = Signal()
+        pos    = Signal(range(256))
+        wacc   = Signal(WORD)
+        wj     = Signal(range(3))
+        wk     = Signal(range(256))
+        word   = Signal(signed(WORD))
+        wdone  = Signal()
+        cfg_j  = Signal(range(5))
+        cfg_id = Signal(8)
+        cfg_v  = Signal(24)
+        par_bank = Signal()
+        par_addr = Signal(16)
+        packet_event = Signal()
+        d_words  = [Signal(signed(WORD), name=f"d_{n}") for n in ("tau", "qd0", "vd0", "ad0")]
+        d_shadow = [Signal(signed(WORD), name=f"ds_{n}") for n in ("tau", "qd0", "vd0", "ad0")]
+        b_addr = Array(C(vmc.addr(n), 9) for n in COMM_B_WORDS)
+        g_addr = Array(C(vmc.addr(f"gC{k}"), 9) for k in range(3))
+
+        m.d.comb += [
+            self.rx.ready.eq(~pw_valid),
+            taken.eq(self.rx.valid & self.rx.ready),
+            word.eq(Cat(wacc[8:], beat.data)),
+        ]
+        is_b = ptype == PacketType.COMM_B
+        is_d = ptype == PacketType.COMM_D
+        is_p = ptype == PacketType.PARAM
+        is_c = ptype == PacketType.CONFIG
+        in_words = (is_b | is_d | (is_p & (pos >= 3)))
+        m.d.comb += wdone.eq(taken & in_words & (wj == 2))
+        with m.If(taken):
+            m.d.sync += [
+                pos.eq(Mux(beat.last, 0, pos + 1)),
+                wacc.eq(Cat(wacc[8:], beat.data)),
+            ]
+            with m.If(beat.last):
+                m.d.sync += [
+                    wj.eq(0),
+                    wk.eq(0),
+                    cfg_j.eq(0),
+                ]
+            with m.Elif(in_words):
+                m.d.sync += wj.eq(Mux(wj == 2, 0, wj + 1))
+                with m.If(wj == 2):
+                    m.d.sync += wk.eq(wk + 1)
+            with m.If(is_p):
+                with m.Switch(pos):
+                    with m.Case(0):
+                        m.d.sync += par_bank.eq(beat.data[0])
+                    with m.Case(1):
+                        m.d.sync += par_addr[:8].eq(beat.data)
+                    with m.Case(2):
+                        m.d.sync += par_addr[8:].eq(beat.data)
+
+        # Words: to a register file (through the pending write) or a D shadow.
+        with m.If(wdone):
+            with m.If(is_b & (wk < len(COMM_B_WORDS))):
+                m.d.sync += [
+                    pw_valid.eq(1),
+                    pw_bank.eq(Bank.VDC),
+                    pw_addr.eq(b_addr[wk]),
+                    pw_data.eq(word),
+                ]
+            with m.If(is_d):
+                with m.Switch(wk):
+                    with m.Case(0):
+                        m.d.sync += d_shadow[0].eq(word)
+                    with m.Case(1, 2, 3):
+                        m.d.sync += [
+                            pw_valid.eq(1),
+                            pw_bank.eq(Bank.VDC),
+                            pw_addr.eq(g_addr[(wk - 1)[:2]]),
+                            pw_data.eq(word),
+                        ]
+                    with m.Case(4):
+                        m.d.sync += d_shadow[1].eq(word)
+                    with m.Case(5):
+                        m.d.sync += d_shadow[2].eq(word)
+                    with m.Case(6):
+                        m.d.sync += d_shadow[3].eq(word)
+            with m.If(is_p & (wk < 12)):
+                m.d.sync += [
+                    pw_valid.eq(1),
+                    pw_bank.eq(par_bank),
+                    pw_addr.eq((par_addr + wk)[:9]),
+                    pw_data.eq(word),
+                ]
+
+        # CONFIG records: id, then a 32-bit value (the low 24 bits and the sign are used).
+        cfg_apply = Signal()
+        cfg_value = Signal(32)
+        m.d.comb += cfg_value.eq(Cat(cfg_v, beat.data))
+        with m.If(taken & is_c):
+            with m.If(cfg_j == 0):
+                m.d.sync += cfg_id.eq(beat.data)
+            with m.Else():
+                m.d.sync += cfg_v.eq(Cat(cfg_v[8:], beat.data))
+            m.d.sync += cfg_j.eq(Mux((cfg_j == 4) | beat.last, 0, cfg_j + 1))
+            m.d.comb += cfg_apply.eq(cfg_j == 4)
+        with m.If(cfg_apply):
+            with m.Switch(cfg_id):
+                with m.Case(Config.MODE):
+                    with m.If(cfg_value < len(MODES)):
+                        m.d.sync += cfg_mode.eq(cfg_value)
+                with m.Case(Config.TICK):
+                    with m.If((cfg_value != 0) & (cfg_value < (1 << 16))):
+                        m.d.sync += cfg_tick.eq(cfg_value)
+                with m.Case(Config.TIMEOUT):
+                    m.d.sync += cfg_timeout.eq(cfg_value)
+                with m.Case(Config.RAMP):
+                    m.d.sync += cfg_ramp.eq(cfg_value)
+                with m.Case(Config.TAU_MIN):
+                    m.d.sync += cfg_tmin.eq(cfg_value)
+                with m.Case(Config.TAU_MAX):
+                    m.d.sync += cfg_tmax.eq(cfg_value)
+                with m.Case(Config.ARM):
+                    m.d.comb += [
+                        arm.eq(cfg_value != 0),
+                        disarm.eq(cfg_value == 0),
+                    ]
+                with m.Case(Config.PRESET):
+                    m.d.comb += [
+                        enc.preset.eq(1),
+                        enc.preset_count.eq(cfg_value),
+                    ]
+                with m.Case(Config.PRIME):
+                    m.d.sync += prime.eq(1)
+
+        # The run starts once the snapshot and the last word are in; its entry was chosen at
+        # the end of the Comm B (PRIME pending, or bit 0 of the B flag byte).
+        vdc_first = Signal()
+        with m.If(vdc_go & ~vdc.busy & ~sw_pending & ~pw_valid):
+            m.d.comb += [
+                vdc.start.eq(1),
+                vdc.entry.eq(Mux(vdc_first, vmc.entries["first"], vmc.entries["main"])),
+            ]
+            m.d.sync += [
+                vdc_go.eq(0),
+                vdc_wait.eq(1),
+                vdc_fresh.eq(0),
+            ]
+        with m.If(vdc.mark):
+            m.d.sync += [
+                vdc_wait.eq(0),
+                vdc_fresh.eq(1),
+            ]
+        tripped_prev = Signal()
+        m.d.sync += tripped_prev.eq(wd.tripped)
+        with m.If((wd.tripped & ~tripped_prev) | arm):
+            m.d.sync += prime.eq(1)
+
+        # --- control ticks -------------------------------------------------------------------
+        tick_cnt = Signal(16)
+        tick     = Signal()
+        overruns = Signal(16)
+        m.d.comb += tick.eq(tick_cnt == 0)
+        m.d.sync += tick_cnt.eq(Mux(tick, cfg_tick - 1, tick_cnt - 1))
+        j_in = {n: Signal(signed(WORD), name=f"jin_{n}") for n in JOINT_INPUTS}
+        tn = Signal(24)
+        m.d.comb += [
+            tn.eq(tt + cfg_tick),
+            enc.sample.eq(tick),
+            wd.tick.eq(tick),
+        ]
+        for n in JOINT_INPUTS:
+            m.d.comb += joint.inputs[jmc.addr(n) - IO_BASE].eq(j_in[n])
+        entries = Array(C(jmc.entries[mode], range(len(jmc.instrs))) for mode in MODES)
+        with m.If(tick):
+            with m.If(joint.busy):
+                with m.If(overruns != 0xFFFF):
+                    m.d.sync += overruns.eq(overruns + 1)
+            with m.Else():
+                count24 = Signal(signed(WORD))
+                m.d.comb += count24.eq(Mux(enc.count > (1 << 23) - 1, (1 << 23) - 1,
+                                           Mux(enc.count < -(1 << 23), -(1 << 23), enc.count)))
+                m.d.sync += [
+                    j_in["q"].eq(count24),
+                    j_in["qd"].eq(enc.velocity),
+                    j_in["tn"].eq(Mux(tn > _TIME_MAX, _TIME_MAX, tn)),
+                    j_in["tauD"].eq(d_words[0]),
+                    j_in["qd0"].eq(d_words[1]),
+                    j_in["vd0"].eq(d_words[2]),
+                    j_in["ad0"].eq(d_words[3]),
+                ]
+                m.d.comb += [
+                    joint.start.eq(1),
+                    joint.entry.eq(entries[cfg_mode]),
+                ]
+        m.d.comb += [
+            wd.cmd_valid.eq(joint.done),
+            wd.cmd.eq(joint.outputs[jmc.addr("tau") - IO_BASE]),
+        ]
+
+        # --- status and replies --------------------------------------------------------------
+        status = Signal(16)
+        m.d.comb += [
+            status.eq(Cat(wd.armed, wd.tripped, wd.safe, vdc_fresh, prime, cfg_mode)),
+            self.status.eq(status),
+        ]
+        r_type   = Signal(8)
+        r_seq    = Signal(8)
+        r_idx    = Signal(range(PAYLOAD))
+        c_status = Signal(16)            # Comm C: captured with the request
+        c_period = Signal(8)
+        a_status = Signal(16)            # Comm A: captured with the request
+        a_torque = Signal(signed(WORD))
+        a_errors = Signal(16)
+        a_period = Signal(8)
+        forces   = Cat(*(vdc.outputs[vmc.addr(f"F{L}{k}") - IO_BASE]
+                         for L in "AB" for k in range(6)))
+        payload_a = Cat(snap_count, snap_qd, a_torque, a_status, a_errors, a_period, overruns,
+                        C(0, 8 * PAYLOAD - 136))
+        payload_c = Cat(forces, c_status, c_period, C(0, 8))
+        m.d.comb += [
+            self.tx.p.header.dest.eq(0),
+            self.tx.p.header.type.eq(r_type),
+            self.tx.p.header.seq.eq(r_seq),
+            self.tx.p.data.eq(Mux(r_type == PacketType.COMM_A,
+                                  payload_a.word_select(r_idx, 8),
+                                  payload_c.word_select(r_idx, 8))),
+            self.tx.p.last.eq(r_idx == PAYLOAD - 1),
+        ]
+        with m.FSM(name="reply"):
+            with m.State("Idle"):
+                with m.If(reply_a):
+                    m.d.sync += [
+                        r_idx.eq(0),
+                        r_type.eq(PacketType.COMM_A),
+                        r_seq.eq(seq_a),
+                        reply_a.eq(0),
+                    ]
+                    m.next = "Send"
+                with m.Elif(reply_c & ~vdc_go & ~vdc_wait):
+                    m.d.sync += [
+                        r_idx.eq(0),
+                        r_type.eq(PacketType.COMM_C),
+                        r_seq.eq(seq_c),
+                        reply_c.eq(0),
+                    ]
+                    m.next = "Send"
+            with m.State("Send"):
+                m.d.comb += self.tx.valid.eq(1)
+                with m.If(self.tx.ready):
+                    m.d.sync += r_idx.eq(r_idx + 1)
+                    with m.If(r_idx == PAYLOAD - 1):
+                        m.next = "Idle"
+
+        # End of packet (after the reply FSM, so a request arriving as the previous one is taken
+        # is not lost): start the VDC, commit Comm D, queue replies.
+        full      = pos == PAYLOAD - 1
+        with m.If(taken & beat.last):
+            m.d.comb += packet_event.eq(1)
+            with m.If(is_b & full):
+                m.d.sync += [
+                    vdc_go.eq(1),
+                    vdc_first.eq(prime | beat.data[0]),
+                    prime.eq(0),
+                ]
+            with m.If(is_d & full):
+                m.d.sync += [dw.eq(ds) for dw, ds in zip(d_words, d_shadow, strict=True)]
+            with m.If(ptype == PacketType.COMM_A):
+                m.d.sync += [
+                    reply_a.eq(1),
+                    seq_a.eq(beat.header.seq),
+                    a_status.eq(status),
+                    a_torque.eq(wd.torque),
+                    a_errors.eq(enc.errors),
+                    a_period.eq(self.period),
+                ]
+            with m.If(ptype == PacketType.COMM_C):
+                # FRESH: the forces the reply will carry (it waits for a running VDC) come
+                # from this period's Comm B.
+                m.d.sync += [
+                    reply_c.eq(1),
+                    seq_c.eq(beat.header.seq),
+                    c_status.eq(status | ((vdc_go | vdc_wait) << 3)),
+                    c_period.eq(self.period),
+                ]
+        m.d.comb += wd.packet.eq(packet_event)
+
+        return m

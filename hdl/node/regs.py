@@ -1,0 +1,217 @@
+"""The node's registers and packet payloads, as the master sees them (docs/node.md "Packets").
+
+All multi-byte fields are little-endian; 24-bit words are signed fixed point (:mod:`.fixed`).
+Every Comm payload is the paper's 40 bytes.
+
+======== =====  ==============================================================================
+packet   dir    payload
+======== =====  ==============================================================================
+COMM_A   m→s    request (any payload); the node answers with a COMM_A packet:
+         s→m    ``count`` int32 (encoder count at the period start) · ``q̇`` VEL · ``τ`` FORCE
+                (torque applied now) · ``status`` u16 (:class:`Status`) · ``errors`` u16
+                (illegal encoder transitions) · ``period`` u8 (last time-code) · ``overruns``
+                u16 (control ticks skipped) · zeros
+COMM_B   m→s    ``q̇_r`` · ``V_C[6]`` · ``V_rC[6]`` (13 VEL words, 39 bytes) · flags u8 (bit 0:
+                restart the derivative history)
+COMM_C   m→s    request; the node answers once its VDC run for the last Comm B has its forces:
+         s→m    ``F_a[6]`` · ``F_b[6]`` (FORCE, 36 bytes) · ``status`` u16 · ``period`` u8 · 0
+COMM_D   m→s    ``τ_D`` FORCE (τ_Lr in VDC mode, feedforward in PID mode, the torque in
+                torque mode) · ``g_C[3]`` ACC (upward gravity in {C}, used by the next VDC
+                run) · ``q_d0`` POS · ``q̇_d0`` VEL · ``q̈_d0`` ACC (references at the period
+                start) · zeros
+CONFIG   m→s    up to 8 records ``id`` u8 · ``value`` int32 (:class:`Config`)
+PARAM    m→s    ``bank`` u8 (0 VDC, 1 joint) · ``address`` u16 · up to 12 words (24-bit)
+======== =====  ==============================================================================
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+import numpy as np
+
+from mrm.errors import InputError
+
+from .fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, WORD, saturate, theta_group
+from .joint_ref import JointParams
+from .vdc_ref import VdcModel, VdcParams
+
+__all__ = ["PAYLOAD", "COMM_B_WORDS", "COMM_D_WORDS", "Config", "Bank", "Status", "MODES",
+           "pack_words", "unpack_words", "pack_comm_b", "pack_comm_d", "parse_comm_a",
+           "parse_comm_c", "config_payloads", "param_payloads", "vdc_upload", "joint_upload",
+           "CONFIG_DEFAULTS"]
+
+PAYLOAD = 40
+COMM_B_WORDS = ("qdr",) + tuple(f"VC{k}" for k in range(6)) + tuple(f"VrC{k}" for k in range(6))
+COMM_D_WORDS = ("tauD", "gC0", "gC1", "gC2", "qd0", "vd0", "ad0")
+MODES = {"vdc": 0, "pid": 1, "torque": 2}
+MAX_PARAM_WORDS = 12
+MAX_CONFIG_RECORDS = 8
+
+
+class Config(enum.IntEnum):
+    """CONFIG register ids."""
+
+    MODE       = 1   # 0 VDC, 1 PID, 2 torque-only
+    TICK       = 2   # cycles per control tick (≥ 50 at 50 MHz, see docs/node.md)
+    TIMEOUT    = 3   # watchdog: cycles of silence before the safe state
+    RAMP       = 4   # torque decrement per tick in the safe state, FORCE LSBs
+    TAU_MIN    = 5   # command limits, FORCE words
+    TAU_MAX    = 6
+    ARM        = 7   # 1 arms (and clears a trip), 0 disarms
+    PRESET     = 8   # load the encoder count (homing)
+    PRIME      = 9   # restart the VDC derivative history at the next Comm B
+
+
+CONFIG_DEFAULTS = {Config.MODE: 0, Config.TICK: 50, Config.TIMEOUT: 100_000, Config.RAMP: 0,
+                   Config.TAU_MIN: 0, Config.TAU_MAX: 0}
+
+
+class Bank(enum.IntEnum):
+    VDC = 0
+    JOINT = 1
+
+
+class Status(enum.IntFlag):
+    """Status bits (Comm A and Comm C)."""
+
+    ARMED   = 1 << 0
+    TRIPPED = 1 << 1   # watchdog fired: torque ramping to / at zero until re-armed
+    SAFE    = 1 << 2   # tripped and torque zero
+    FRESH   = 1 << 3   # Comm C: forces from this period's Comm B
+    PRIME   = 1 << 4   # next VDC run restarts its derivative history
+    MODE0   = 1 << 5   # mode, 2 bits
+    MODE1   = 1 << 6
+
+
+def pack_words(words) -> bytes:
+    """24-bit words, little-endian, two's complement."""
+    out = bytearray()
+    for w in words:
+        out += (int(w) & 0xFFFFFF).to_bytes(3, "little")
+    return bytes(out)
+
+
+def unpack_words(data: bytes, n: int, offset: int = 0) -> list[int]:
+    out = []
+    for k in range(n):
+        v = int.from_bytes(data[offset + 3 * k: offset + 3 * k + 3], "little")
+        out.append(v - (1 << WORD) if v >> (WORD - 1) else v)
+    return out
+
+
+def _pad(data: bytes) -> bytes:
+    return data + bytes(PAYLOAD - len(data))
+
+
+def pack_comm_b(qd_r: float, V_C, V_rC, prime: bool = False) -> bytes:
+    """Comm B payload from floats (rad/s, m/s; saturating at the VEL range)."""
+    words = [VEL.encode(qd_r)] + [VEL.encode(x) for x in V_C] + [VEL.encode(x) for x in V_rC]
+    return pack_words(words) + bytes([int(bool(prime))])
+
+
+def pack_comm_d(tau: float, g_C, q_d0: float, qd_d0: float, qdd_d0: float,
+                counts_per_rev: int = 800_000) -> bytes:
+    """Comm D payload from floats (N·m, m/s², rad, rad/s, rad/s²)."""
+    counts = q_d0 * counts_per_rev / (2 * math.pi)
+    words = [FORCE.encode(tau)] + [ACC.encode(x) for x in g_C] + \
+        [POS.encode(counts), VEL.encode(qd_d0), ACC.encode(qdd_d0)]
+    return _pad(pack_words(words))
+
+
+def parse_comm_a(data: bytes) -> dict:
+    """Fields of a Comm A reply (words left as integers; see the module docstring)."""
+    if len(data) != PAYLOAD:
+        raise ValueError(f"Comm A payload must be {PAYLOAD} bytes, not {len(data)}")
+    qd, tau = unpack_words(data, 2, 4)
+    return {"count": int.from_bytes(data[0:4], "little", signed=True), "qd": qd, "torque": tau,
+            "status": Status(int.from_bytes(data[10:12], "little")),
+            "errors": int.from_bytes(data[12:14], "little"), "period": data[14],
+            "overruns": int.from_bytes(data[15:17], "little")}
+
+
+def parse_comm_c(data: bytes) -> tuple[list[int], list[int], Status, int]:
+    """``(F_a, F_b, status, period)`` of a Comm C reply (FORCE words)."""
+    if len(data) != PAYLOAD:
+        raise ValueError(f"Comm C payload must be {PAYLOAD} bytes, not {len(data)}")
+    w = unpack_words(data, 12)
+    return w[:6], w[6:], Status(int.from_bytes(data[36:38], "little")), data[38]
+
+
+def config_payloads(values: dict) -> list[bytes]:
+    """CONFIG payloads writing ``{Config: int}``, at most 8 records each."""
+    records = []
+    for key, value in values.items():
+        reg = Config(key)
+        v = int(value)
+        if not -(1 << 31) <= v < (1 << 32):
+            raise InputError(f"config.{reg.name.lower()}", f"{value!r} does not fit 32 bits")
+        records.append(bytes([reg]) + (v & 0xFFFFFFFF).to_bytes(4, "little"))
+    return [b"".join(records[i:i + MAX_CONFIG_RECORDS])
+            for i in range(0, len(records), MAX_CONFIG_RECORDS)]
+
+
+def param_payloads(bank: Bank, words: dict[int, int]) -> list[bytes]:
+    """PARAM payloads writing ``{address: word}`` of a bank, contiguous runs of ≤ 12 words."""
+    out = []
+    addrs = sorted(words)
+    i = 0
+    while i < len(addrs):
+        start = addrs[i]
+        run = [words[start]]
+        while (i + len(run) < len(addrs) and addrs[i + len(run)] == start + len(run)
+               and len(run) < MAX_PARAM_WORDS):
+            run.append(words[start + len(run)])
+        out.append(bytes([Bank(bank)]) + start.to_bytes(2, "little") +
+                   pack_words(saturate(w) for w in run))
+        i += len(run)
+    return out
+
+
+def vdc_upload(theta, K, rho, lower, upper, period: float = 1e-3) -> list[bytes]:
+    """PARAM payloads for the VDC unit from floats, checked (:class:`InputError`).
+
+    Parameters
+    ----------
+    theta, lower, upper : array_like, shape (2, 13)
+        Initial estimates and projection bounds (Link a, Link b).
+    K : array_like, shape (2, 6)
+    rho : array_like, shape (2, 13)
+        Adaptation gains (zero: no adaptation).
+    period : float, s
+    """
+    from .vdc import vdc_microcode, vdc_param_words
+
+    theta = np.asarray(theta, dtype=float).reshape(2, 13)
+    lower = np.asarray(lower, dtype=float).reshape(2, 13)
+    upper = np.asarray(upper, dtype=float).reshape(2, 13)
+    K = np.asarray(K, dtype=float).reshape(2, 6)
+    rho = np.asarray(rho, dtype=float).reshape(2, 13)
+    if np.any(lower > upper) or np.any(theta < lower) or np.any(theta > upper):
+        raise InputError("vdc.theta", "estimates must lie within lower ≤ theta ≤ upper")
+    if np.any(K < 0) or np.any(rho < 0):
+        raise InputError("vdc.gains", "K and rho must be non-negative")
+    for i in range(2):
+        for k in range(6):
+            GAIN.encode_checked(K[i, k], f"vdc.K[{i}][{k}]")
+        for j in range(13):
+            fmt = THETA[theta_group(j)]
+            for name, arr in (("theta", theta), ("lower", lower), ("upper", upper)):
+                fmt.encode_checked(arr[i, j], f"vdc.{name}[{i}][{j}]")
+            RHOT[theta_group(j)].encode_checked(rho[i, j] * period, f"vdc.rho[{i}][{j}]")
+    model = VdcModel(VdcParams.from_float(K, rho, lower, upper, period),
+                     VdcModel.theta_words(theta))
+    mc = vdc_microcode()
+    words = {mc.addr(n): v for n, v in vdc_param_words(model).items()}
+    words.update({mc.addr(f"th{L}{j}"): model.theta[i][j]
+                  for i, L in enumerate("AB") for j in range(13)})
+    return param_payloads(Bank.VDC, words)
+
+
+def joint_upload(params: JointParams) -> list[bytes]:
+    """PARAM payloads for the joint engine."""
+    from .joint import joint_microcode
+
+    mc = joint_microcode()
+    return param_payloads(Bank.JOINT, {mc.addr(n): v for n, v in params.words().items()})

@@ -1,0 +1,199 @@
+# amaranth: UnusedElaboratable=no
+"""Node core: uploads, the A/B/C/D exchange, joint ticks and the watchdog, against the
+transaction-level reference (NodeModel) fed with the same events at the same cycles."""
+
+import math
+
+import numpy as np
+import pytest
+from amaranth.sim import Simulator
+
+from hdl.link.chain import get_packet, put_packet
+from hdl.link.packet_ref import Header, PacketType
+from hdl.node.core import NodeCore
+from hdl.node.core_ref import NodeModel
+from hdl.node.encoder_ref import EncoderParams
+from hdl.node.fixed import FORCE
+from hdl.node.joint_ref import JointParams
+from hdl.node.regs import (Config, Status, config_payloads, joint_upload, pack_comm_b,
+                           pack_comm_d, parse_comm_a, parse_comm_c, vdc_upload)
+from models.encoder import counts_per_rad, quadrature_levels
+from models.robot import load_robot
+
+from .sim_helpers import run_simulation
+
+TICK = 50
+K_RAD = float(counts_per_rad(800_000))
+ENC = EncoderParams(min_window=256, stop_cycles=1 << 20)
+
+
+def joint_angle(cycle):
+    """A slow joint motion (rad) the encoder lines follow."""
+    t = cycle * 20e-9
+    return 0.2 + 0.3 * t + 40.0 * t * t
+
+
+def uploads(mode=0):
+    theta = load_robot("mrm3").nominal_theta[1]
+    K = np.full((2, 6), 40.0)
+    rho = np.zeros((2, 13))
+    rho[:, 0] = 20.0
+    lower, upper = theta * 0.7 - 1e-3, theta * 1.3 + 1e-3
+    lower, upper = np.minimum(lower, upper), np.maximum(lower, upper)
+    jp = JointParams.from_float(lam=50.0, k_j=3.0, inertia=0.2, viscous=0.16, coulomb=1.0,
+                                offset=0.0, v_smooth=2e-3, k_p=800.0, k_i=4000.0, k_d=20.0,
+                                i_max=2e-4)
+    cfg = {Config.MODE: mode, Config.TICK: TICK, Config.TIMEOUT: 3000,
+           Config.RAMP: FORCE.encode(1.5), Config.TAU_MIN: FORCE.encode(-8.0),
+           Config.TAU_MAX: FORCE.encode(8.0)}
+    packets = [(PacketType.CONFIG, p) for p in config_payloads(cfg)]
+    packets += [(PacketType.PARAM, p) for p in vdc_upload(theta, K, rho, lower, upper)]
+    packets += [(PacketType.PARAM, p) for p in joint_upload(jp)]
+    packets += [(PacketType.CONFIG, p) for p in config_payloads({Config.ARM: 1})]
+    return packets
+
+
+def period_packets(rng, n):
+    g = rng.normal(size=3)
+    g *= 9.81 / np.linalg.norm(g)
+    V = rng.normal(size=6) * 0.3
+    b = pack_comm_b(0.31 + 0.01 * n, V, V + rng.normal(size=6) * 1e-3, prime=False)
+    d = pack_comm_d(rng.uniform(-3, 3), g, joint_angle(2000 * (n + 1)) - 1e-4, 0.31, 0.8)
+    return b, d
+
+
+@pytest.mark.parametrize("mode, n_periods, end", [(0, 3, 14_000), (1, 1, 8_000),
+                                                  (2, 1, 8_000)])
+def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
+    """mode 0 VDC, 1 PID, 2 torque-only."""
+    dut = NodeCore(encoder=ENC)
+    rng = np.random.default_rng(0)
+    trace = {}              # cycle -> (count, velocity, torque, status)
+    events = []             # (cycle, kind, data)
+    replies = []            # (request type, header, payload)
+    period_starts = []
+
+    async def encoder_lines(ctx):
+        for c in range(end + 10):
+            cnt = math.floor(joint_angle(c + 1) * K_RAD)
+            a, b = quadrature_levels(np.array([cnt]))
+            ctx.set(dut.enc_a, int(a[0]))
+            ctx.set(dut.enc_b, int(b[0]))
+            await ctx.tick()
+
+    async def monitor(ctx):
+        for c in range(end):
+            _, _, cnt, vel, tq, st, valid, ready, last, ps = await ctx.tick().sample(
+                dut.count, dut.velocity, dut.torque, dut.status, dut.rx.valid, dut.rx.ready,
+                dut.rx.p.last, dut.period_start)
+            trace[c] = (cnt, vel, tq, st)
+            if valid and ready and last:
+                events.append((c, "packet", None))
+            if ps:
+                events.append((c, "period", None))
+
+    sent = []
+
+    async def send(ctx, ptype, payload, seq=0):
+        header = Header(dest=1, src=0, type=int(ptype), seq=seq)
+        await put_packet(ctx, dut.rx, header, payload)
+        sent.append((int(ptype), bytes(payload)))
+
+    async def master(ctx):
+        ctx.set(dut.period, 0)
+        for ptype, payload in uploads(mode):
+            await send(ctx, ptype, payload)
+        first = ctx.get(dut_cycle) + 100
+        for n in range(n_periods):
+            start = first + 2000 * n
+            period_starts.append(start)
+            while ctx.get(dut_cycle) < start:
+                await ctx.tick()
+            ctx.set(dut.period, n + 1)
+            ctx.set(dut.period_start, 1)
+            await ctx.tick()
+            ctx.set(dut.period_start, 0)
+            await ctx.tick().repeat(60)
+            await send(ctx, PacketType.COMM_A, b"\0", seq=3 * n)
+            replies.append((PacketType.COMM_A, *await get_packet(ctx, dut.tx)))
+            b, d = period_packets(rng, n)
+            await send(ctx, PacketType.COMM_B, b)
+            await send(ctx, PacketType.COMM_C, b"\0", seq=3 * n + 1)
+            replies.append((PacketType.COMM_C, *await get_packet(ctx, dut.tx)))
+            await send(ctx, PacketType.COMM_D, d)
+
+    from amaranth import Signal
+    dut_cycle = Signal(32)
+
+    async def counter(ctx):
+        for c in range(end + 10):
+            ctx.set(dut_cycle, c + 1)
+            await ctx.tick()
+
+    sim = Simulator(dut)
+    sim.add_clock(20e-9)
+    sim.add_process(encoder_lines)
+    sim.add_process(counter)
+    sim.add_testbench(monitor)
+    sim.add_testbench(master, background=True)
+    run_simulation(sim, "node_core")
+
+    # --- replay on the reference ----------------------------------------------------------
+    model = NodeModel(encoder=ENC)
+    packets = iter(sent)
+    timeline = sorted([(c, 1 if k == "period" else 2, k) for c, k, _ in events] +
+                      [(t, 0, "tick") for t in range(0, end - TICK, TICK)])
+    ref_replies = []
+    torque_checks = 0
+    period = 0
+    for c, _, kind in timeline:
+        cnt, vel, _, _ = trace[c]
+        if kind == "tick":
+            tau = model.tick(c, cnt, vel)
+            if model.armed:
+                assert trace[c + TICK - 1][2] == tau, f"torque after the tick at cycle {c}"
+                torque_checks += 1
+        elif kind == "period":
+            period += 1
+            model.period_start(c, cnt, vel)
+        else:
+            ptype, payload = next(packets)
+            reply = model.packet(c, ptype, payload, period=period)
+            if reply is not None:
+                ref_replies.append(reply)
+    assert [r[2] for r in replies] == ref_replies
+    assert torque_checks > 60
+
+    # The exchange made sense: Comm A reports the snapshot, Comm C fresh forces.
+    a = parse_comm_a(replies[0][2])
+    assert a["count"] == trace[period_starts[0]][0]
+    assert a["status"] & Status.ARMED
+    F_a, F_b, status, per = parse_comm_c(replies[1][2])
+    assert status & Status.FRESH and per == 1
+    assert replies[1][1].seq == 1 and replies[1][1].type == PacketType.COMM_C
+    # Master silent after the last period: the watchdog trips and the torque ramps to zero.
+    st_end = trace[end - 1][3]
+    assert st_end & Status.TRIPPED and st_end & Status.SAFE
+    assert trace[end - 1][2] == 0
+    trip = min(c for c in trace if trace[c][3] & Status.TRIPPED)
+    assert trip > period_starts[-1]
+    assert not any(trace[c][3] & Status.TRIPPED for c in range(period_starts[0], trip))
+
+
+def test_payload_helpers_round_trip_and_refuse_bad_uploads():
+    from hdl.node.fixed import VEL
+    from hdl.node.regs import Bank, param_payloads, unpack_words
+    from mrm.errors import InputError
+
+    b = pack_comm_b(0.5, [1, 2, 3, 4, 5, 6], [-1, -2, -3, -4, -5, -6], prime=True)
+    assert len(b) == 40 and b[-1] == 1
+    w = unpack_words(b, 13)
+    assert w[0] == VEL.encode(0.5) and w[7] == VEL.encode(-1) and w[12] == VEL.encode(-6)
+    runs = param_payloads(Bank.VDC, {5: 1, 6: -1, 7: 2, 100: 3})
+    assert [p[:3] for p in runs] == [bytes([0, 5, 0]), bytes([0, 100, 0])]
+    assert unpack_words(runs[0], 3, 3) == [1, -1, 2]
+    theta = load_robot("mrm3").nominal_theta[0]
+    with pytest.raises(InputError, match="lower ≤ theta"):
+        vdc_upload(theta, np.ones((2, 6)), np.zeros((2, 13)), theta * 1.1 + 1, theta * 1.2 + 2)
+    with pytest.raises(InputError, match=r"vdc.K\[0\]\[0\]"):
+        vdc_upload(theta, np.full((2, 6), 1e5), np.zeros((2, 13)), theta - 1, theta + 1)
