@@ -20,10 +20,12 @@ class MacDemo(wiring.Component):
     acc:    Out(signed(40))
     prod:   Out(signed(24))
     parity: Out(1)
+    big:    Out(100)
 
     def elaborate(self, platform):
         m = Module()
-        m.d.comb += [self.prod.eq(self.a * self.b), self.parity.eq(self.acc.xor())]
+        m.d.comb += [self.prod.eq(self.a * self.b), self.parity.eq(self.acc.xor()),
+                     self.big.eq(Cat(self.acc, self.prod, self.a, self.b, C(0b101, 3)))]
         with m.If(self.clear):
             m.d.sync += self.acc.eq(0)
         with m.Else():
@@ -95,6 +97,12 @@ def test_set_get_tick(model):
     assert model.get("prod") == -15
     model.tick(4)
     assert model.get("acc") == -60
+    big = model.get("big")  # a port wider than 64 bits, read in 32-bit words
+    assert big >> 88 == 0b101  # acc 40 + prod 24 + a 12 + b 12 bits below it
+    assert big & ((1 << 40) - 1) == (-60) & ((1 << 40) - 1)
+    assert (big >> 64) & 0xFFF == (-3) & 0xFFF
+    with pytest.raises(ValueError, match="64 bits"):
+        model.run(1, outputs=["big"])
 
 
 def test_unknown_port_is_named(model):
