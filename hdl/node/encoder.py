@@ -5,12 +5,14 @@ one Newton–Raphson step, since there is no divider) are in :mod:`.encoder_ref`
 gateware equals bit for bit. Velocity pipeline, one stage per cycle after a ``sample`` strobe::
 
     S0  case (measure / bound / stop), numerator, denominator latched
-    S1  leading-one normalization of the denominator to 18 bits; table address
+    S1  leading-one normalization of the denominator to 17 bits; table address
     S2  u  = m · y0                         (table word y0 arrives)
-    S3  y1 = y0 · (2 − u)                   (Newton–Raphson)
-    S4  t  = y1 · K_v
-    S5  w  = t · numerator
-    S6  velocity ← round(w / 2^(p+9)) per case   → visible VEL_LATENCY cycles after the strobe
+    S3  y1 = y0 + y0 · (1 − u)              (Newton–Raphson)
+    S4  n  = numerator · y1
+    S5  w  = n · K_v
+    S6  velocity ← round(w / 2^(p+6)) per case   → visible VEL_LATENCY cycles after the strobe
+
+Each product but the last fits one MULT18X18 (17-bit unsigned operands, or a small signed one).
 """
 
 from amaranth import *
@@ -181,7 +183,7 @@ class QuadratureEncoder(wiring.Component):
             shift.eq(AGE_BITS - 1 - lead),
             norm.eq(den << shift),
         ]
-        m.submodules.table = table = Memory(shape=18, depth=256, init=RECIP_TABLE)
+        m.submodules.table = table = Memory(shape=17, depth=256, init=RECIP_TABLE)
         rd = table.read_port()
         m.d.comb += rd.addr.eq(norm[AGE_BITS - 9:AGE_BITS - 1])
 
@@ -193,38 +195,39 @@ class QuadratureEncoder(wiring.Component):
         s1_ok, s1_case, s1_num = (stage("s1_ok", 1, s0_ok), stage("s1_case", 2, s0_case),
                                   stage("s1_num", signed(11), s0_num))
         s1_p = stage("s1_p", range(AGE_BITS), lead)
-        s1_m = stage("s1_m", 18, norm[AGE_BITS - 18:])
+        s1_m = stage("s1_m", 17, norm[AGE_BITS - 17:])
 
         # --- S2: u = m · y0 -------------------------------------------------------------------
         y0 = rd.data
         s2_ok, s2_case, s2_num, s2_p = (stage("s2_ok", 1, s1_ok), stage("s2_case", 2, s1_case),
                                         stage("s2_num", signed(11), s1_num),
                                         stage("s2_p", range(AGE_BITS), s1_p))
-        s2_y0 = stage("s2_y0", 18, y0)
-        s2_u  = stage("s2_u", 20, (s1_m * y0) >> 17)
+        s2_y0 = stage("s2_y0", 17, y0)
+        s2_u  = stage("s2_u", 19, (s1_m * y0) >> 16)
 
-        # --- S3: y1 = y0 (2 − u) --------------------------------------------------------------
+        # --- S3: y1 = y0 + y0 · (1 − u) -------------------------------------------------------
         s3_ok, s3_case, s3_num, s3_p = (stage("s3_ok", 1, s2_ok), stage("s3_case", 2, s2_case),
                                         stage("s3_num", signed(11), s2_num),
                                         stage("s3_p", range(AGE_BITS), s2_p))
-        s3_y1 = stage("s3_y1", 20, (s2_y0 * ((1 << 19) - s2_u)) >> 18)
+        d = Signal(signed(20))
+        m.d.comb += d.eq((1 << 17) - s2_u)
+        s3_y1 = stage("s3_y1", 18, s2_y0 + ((s2_y0 * d) >> 17))
 
-        # --- S4: t = y1 · K_v -----------------------------------------------------------------
-        s4_ok, s4_case, s4_num, s4_p = (stage("s4_ok", 1, s3_ok), stage("s4_case", 2, s3_case),
-                                        stage("s4_num", signed(11), s3_num),
-                                        stage("s4_p", range(AGE_BITS), s3_p))
-        s4_t = stage("s4_t", 40, s3_y1 * p.kv)
+        # --- S4: n = numerator · y1 -----------------------------------------------------------
+        s4_ok, s4_case, s4_p = (stage("s4_ok", 1, s3_ok), stage("s4_case", 2, s3_case),
+                                stage("s4_p", range(AGE_BITS), s3_p))
+        s4_n = stage("s4_n", signed(30), s3_num * s3_y1)
 
-        # --- S5: w = t · numerator ------------------------------------------------------------
+        # --- S5: w = n · K_v ------------------------------------------------------------------
         s5_ok, s5_case, s5_p = (stage("s5_ok", 1, s4_ok), stage("s5_case", 2, s4_case),
                                 stage("s5_p", range(AGE_BITS), s4_p))
-        s5_w = stage("s5_w", signed(52), s4_t * s4_num)
+        s5_w = stage("s5_w", signed(48), s4_n * p.kv)
 
         # --- S6: round, saturate, apply -------------------------------------------------------
-        sh = s5_p + 9
-        rounded = Signal(signed(52))
+        sh = s5_p + 6
+        rounded = Signal(signed(48))
         v_raw = Signal(signed(WORD))
-        m.d.comb += rounded.eq((s5_w + ((C(1, 52) << sh) >> 1)) >> sh)
+        m.d.comb += rounded.eq((s5_w + ((C(1, 48) << sh) >> 1)) >> sh)
         with m.If(rounded > WORD_MAX):
             m.d.comb += v_raw.eq(WORD_MAX)
         with m.Elif(rounded < WORD_MIN):

@@ -22,10 +22,10 @@ encoder; the master presets it after homing). Per cycle, in this order:
      ``|v| ≤ (|dc| + 1) / age_ref``; ``|v|`` is clipped to that (sign kept). This is what
      makes the estimate decay to zero when the joint stops, instead of holding its last value.
 
-   The division is a reciprocal: normalize ``den`` to ``m ∈ [1, 2)`` (18 bits), 256-entry
+   The division is a reciprocal: normalize ``den`` to ``m ∈ [1, 2)`` (17 bits), 256-entry
    table ``y0 ≈ 1/m``, one Newton–Raphson step ``y1 = y0 (2 − m y0)`` (relative error
-   < 2^-16), then ``v = num · y1 · K_v`` scaled by a shift, ``K_v = f_clk · 2π / CPR``
-   (rad/s per count/cycle) as a Q10 constant. The result, a VEL word, is visible
+   < 2.5e-5, mostly from truncating ``den`` to 17 bits), then ``v = num · y1 · K_v`` scaled by a shift, ``K_v = f_clk · 2π / CPR``
+   (rad/s per count/cycle) as a Q8 constant. The result, a VEL word, is visible
    :data:`VEL_LATENCY` cycles after the strobe's cycle.
 
 Model attributes after :meth:`EncoderModel.cycle` for cycle ``k`` are the register values
@@ -46,7 +46,7 @@ AGE_BITS = 26
 AGE_MAX = (1 << AGE_BITS) - 1
 DC_MAX = 511
 VEL_LATENCY = 7
-RECIP_TABLE = [round(2**18 / (1 + (i + 0.5) / 256)) for i in range(256)]
+RECIP_TABLE = [round(2**17 / (1 + (i + 0.5) / 256)) for i in range(256)]
 
 
 @dataclass(frozen=True)
@@ -85,25 +85,34 @@ class EncoderParams:
 
     @property
     def kv(self) -> int:
-        """``K_v`` in Q10: rad/s per count/cycle times 2^10."""
-        return round(self.clock_hz * 2 * math.pi / self.counts_per_rev * 1024)
+        """``K_v`` in Q8: rad/s per count/cycle times 2^8 (17 bits at 50 MHz, 800,000 cpr)."""
+        kv = round(self.clock_hz * 2 * math.pi / self.counts_per_rev * 256)
+        if not 0 < kv < (1 << 17):
+            raise ValueError(f"clock_hz / counts_per_rev gives K_v = {kv / 256!r} rad/s per "
+                             "count/cycle, outside the estimator's range")
+        return kv
 
 
 def reciprocal(den: int) -> tuple[int, int]:
-    """``(y1, p)`` with ``1/den ≈ y1 · 2^(−18−p)``, ``den`` in 1..AGE_MAX."""
+    """``(y1, p)`` with ``1/den ≈ y1 · 2^(−17−p)``, ``den`` in 1..AGE_MAX.
+
+    Every product fits one 18×18 multiplier: ``m`` (17 bits, the normalized ``den``) times the
+    table word ``y0`` (17 bits); the Newton–Raphson correction ``y0 · (1 − m y0)`` uses the small
+    signed residue ``d`` (≈ ±300).
+    """
     den = max(1, min(den, AGE_MAX))
     p = den.bit_length() - 1
-    m18 = (den << (25 - p)) >> 8
-    y0 = RECIP_TABLE[(m18 >> 9) & 0xFF]
-    u = (m18 * y0) >> 17
-    y1 = (y0 * ((1 << 19) - u)) >> 18
+    m17 = (den << (25 - p)) >> 9
+    y0 = RECIP_TABLE[(m17 >> 8) & 0xFF]
+    d = (1 << 17) - ((m17 * y0) >> 16)
+    y1 = y0 + ((y0 * d) >> 17)
     return y1, p
 
 
 def velocity_word(num: int, den: int, kv: int) -> int:
     """VEL word of ``num / den`` counts per cycle (``kv`` from :attr:`EncoderParams.kv`)."""
     y1, p = reciprocal(den)
-    return saturate(round_shift(num * y1 * kv, p + 9))
+    return saturate(round_shift((num * y1) * kv, p + 6))
 
 
 _PHASE = {(0, 0): 0, (1, 0): 1, (1, 1): 2, (0, 1): 3}

@@ -7,14 +7,17 @@ design would (DESIGN.md "Slave node"): a program of multiply-accumulate statemen
     R   instruction from ROM; register-file (or input-port) read of operands a, b
     M   four partial products of the 24×24 signed product (17-bit unsigned / 7-bit signed
         halves: each fits one MULT18X18), or min/max of the operands
-    P   partial products summed, negated if asked, shifted left by ``pshift``
-    A   accumulate (``first`` restarts the sum), ACC_WIDTH bits, exact
-    W1  round half up by ``oshift``, saturate (or wrap) to 24 bits
+    P   partial products summed, shifted left by ``pshift``
+    A   accumulate or subtract (``first`` restarts the sum from the rounding constant
+        ``2^(oshift-1)``), ACC_WIDTH bits, exact
+    W1  take bits ``oshift .. oshift+23`` (the sum rounded half up), saturate (or wrap)
     W2  write the register file or an output register; MARK / END pulse ``mark`` / ``done``
 
 A result is readable by a term issued :data:`~hdl.node.isa.LATENCY` cycles after the last term
-that produced it; the scheduler guarantees that. The host port reads the register file at any
-time (one cycle of latency) and writes it while the engine is idle. Timing: a ``start`` strobe
+that produced it; the scheduler guarantees that. The product and output shifters are built for
+the shift amounts the program uses only (a handful), not as full barrel shifters. The host port
+reads the register file at any time (one cycle of latency) and writes it while the engine is
+idle. Timing: a ``start`` strobe
 in cycle 0 gives ``done`` in cycle :meth:`Microcode.cycles <hdl.node.isa.Microcode.cycles>`.
 """
 
@@ -71,6 +74,9 @@ class MacEngine(wiring.Component):
         self._rom_depth = max(2, len(microcode.instrs))
         self._n_in = max(1, sum(r.kind == "input" for r in microcode.regs.values()))
         self._n_out = max(1, sum(r.kind == "output" for r in microcode.regs.values()))
+        macs = [i for i in microcode.instrs if i.op == Op.MAC]
+        self._pshifts = sorted({i.pshift for i in macs} | {0})
+        self._oshifts = sorted({i.oshift for i in macs if i.last} | {0})
         super().__init__({
             "start":      In(1),
             "entry":      In(range(self._rom_depth)),
@@ -177,7 +183,7 @@ class MacEngine(wiring.Component):
             sel.eq(Mux((opa < opb) ^ (c1.ins.op == _MAX), opa, opb)),
         ]
 
-        # --- P: product, sign, alignment -----------------------------------------------------
+        # --- P: product, alignment -----------------------------------------------------------
         prod = Signal(signed(2 * WORD))
         term = Signal(signed(ACC_WIDTH))
         c3 = Signal(ctl_layout())
@@ -185,31 +191,47 @@ class MacEngine(wiring.Component):
         m.d.comb += prod.eq(Mux(is_mac2,
                                 (pp_hh << 34) + ((pp_lh + pp_hl) << 17) + pp_ll,
                                 sel))
-        m.d.sync += [
-            c3.eq(c2),
-            term.eq(Mux(c2.ins.neg, -prod, prod) << c2.ins.pshift),
-        ]
+        m.d.sync += c3.eq(c2)
+        # Only the shifts the program uses are built (a few cases instead of a barrel shifter).
+        with m.Switch(c2.ins.pshift):
+            for v in self._pshifts:
+                with m.Case(v):
+                    m.d.sync += term.eq(prod << v)
 
-        # --- A: accumulate -------------------------------------------------------------------
-        acc = Signal(signed(ACC_WIDTH))
+        # --- A: accumulate; a statement starts from its rounding constant ------------------
+        # (the compiler repeats a statement's oshift on all its terms), so W1 only slices.
+        acc  = Signal(signed(ACC_WIDTH))
+        half = Signal(ACC_WIDTH)
+        base = Signal(signed(ACC_WIDTH))
         c4 = Signal(ctl_layout())
+        with m.Switch(c3.ins.oshift):
+            for v in self._oshifts:
+                with m.Case(v):
+                    m.d.comb += half.eq((1 << v) >> 1)
+        m.d.comb += base.eq(Mux(c3.ins.first, half, acc))
+        flip = Signal(signed(ACC_WIDTH))
+        m.d.comb += flip.eq(term ^ c3.ins.neg.replicate(ACC_WIDTH))
         m.d.sync += c4.eq(c3)
         with m.If(c3.valid & ((c3.ins.op == _MAC) | (c3.ins.op == _MIN) | (c3.ins.op == _MAX))):
-            m.d.sync += acc.eq(Mux(c3.ins.first, term, acc + term))
+            m.d.sync += acc.eq(base + flip + c3.ins.neg)
 
-        # --- W1: round and saturate ----------------------------------------------------------
-        half    = Signal(ACC_WIDTH)
-        rounded = Signal(signed(ACC_WIDTH + 1))
+        # --- W1: shift (a slice per used oshift) and saturate --------------------------------
         wb_data = Signal(signed(WORD))
+        window  = Signal(WORD)
+        fits    = Signal()
         c5 = Signal(ctl_layout())
-        m.d.comb += [
-            half.eq((C(1, ACC_WIDTH) << c4.ins.oshift) >> 1),
-            rounded.eq((acc + half) >> c4.ins.oshift),
-        ]
+        with m.Switch(c4.ins.oshift):
+            for v in self._oshifts:
+                with m.Case(v):
+                    upper = acc[v + WORD - 1:]
+                    m.d.comb += [
+                        window.eq(acc[v:v + WORD]),
+                        fits.eq((upper == 0) | (upper == (1 << len(upper)) - 1)),
+                    ]
         m.d.sync += c5.eq(c4)
-        with m.If(c4.ins.wrap | ((rounded >= WORD_MIN) & (rounded <= WORD_MAX))):
-            m.d.sync += wb_data.eq(rounded[:WORD])
-        with m.Elif(rounded < 0):
+        with m.If(c4.ins.wrap | fits):
+            m.d.sync += wb_data.eq(window)
+        with m.Elif(acc[-1]):
             m.d.sync += wb_data.eq(WORD_MIN)
         with m.Else():
             m.d.sync += wb_data.eq(WORD_MAX)

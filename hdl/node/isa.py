@@ -12,8 +12,10 @@ A statement's exact sum is rounded once, half up, onto the destination's LSB and
 24 bits (or wrapped). The compiler turns it into one instruction per term: the product of term
 ``k`` is shifted left by ``pshift_k`` so that all terms share the finest LSB ``L`` of the
 statement, the accumulator adds them exactly, and the last term carries the write-back: round
-by ``oshift = lsb(dst) − L`` and saturate. A term ``x`` without a second factor multiplies by a
-unit constant ``2^k · 2^-k`` (k in :data:`UNIT_SHIFTS`) chosen so its shift stays small.
+by ``oshift = lsb(dst) − L`` and saturate. Every term of a statement carries its ``oshift``
+(the first one starts the sum from the rounding constant). A term ``x`` without a second
+factor multiplies by a unit constant ``2^k · 2^-k`` (k in :data:`UNIT_SHIFTS`) chosen so its
+shift stays small.
 
 The scheduler orders statements (respecting read-after-write with the pipeline's
 :data:`LATENCY`, and keeping write-after-read and write-after-write pairs in program order) and
@@ -412,7 +414,7 @@ class Program:
                     last = k == len(tis) - 1
                     instrs.append(Instr(Op.MAC, ins.a, ins.b, ins.neg, first=(k == 0), last=last,
                                         pshift=ins.pshift, dst=dst if last else 0,
-                                        oshift=oshift if last else 0, wrap=s.wrap and last))
+                                        oshift=oshift, wrap=s.wrap and last))
                 avail[s.dst] = len(instrs) - 1 + LATENCY
             else:
                 op = Op.MIN if s.kind == "min" else Op.MAX
