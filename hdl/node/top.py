@@ -1,0 +1,125 @@
+"""The slave node: the chain endpoint of the link with the node compute core behind it.
+
+::
+
+    up line ═══ LinkNode ═══ down line        (codecs, router, packet layer, time-codes)
+                  │ rx/tx beats, tc_strobe
+               NodeCore ── enc_a, enc_b (encoder lines)
+                  └──────── torque, status
+
+This is the ``node`` top of ``mrm hdl verilog`` / ``mrm hdl synth``; ``node_core`` is the
+compute core alone (for its resource figures without the link).
+"""
+
+from amaranth import *
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+
+from hdl.link.node import LinkNode, line_signature
+from hdl.link.params import rejecting
+
+from .core import NodeCore
+from .encoder_ref import EncoderParams
+from .fixed import WORD
+
+__all__ = ["SlaveNode", "slave_node_top", "node_core_top"]
+
+
+class SlaveNode(wiring.Component):
+    """One module's FPGA: link endpoint plus compute core.
+
+    Parameters
+    ----------
+    codec : dict
+        :class:`~hdl.link.codec.Codec` parameters of both link ports.
+    encoder : EncoderParams
+
+    Attributes
+    ----------
+    address : In(8)
+        Node address on the chain (1..254).
+    up, down : Out(line_signature(slots))
+        Data-strobe line ports towards the master and towards the next node.
+    enc_a, enc_b : In(1)
+        Encoder lines.
+    torque : Out(signed(24))
+        Torque command, FORCE word (N·m · 2^13).
+    status : Out(16)
+        :class:`~hdl.node.regs.Status` bits.
+    count : Out(signed(32))
+        Live encoder count.
+    """
+
+    def __init__(self, *, codec: dict | None = None, encoder: EncoderParams | None = None):
+        with rejecting(self):
+            self._link = LinkNode(codec=codec)
+        self._core = NodeCore(encoder=encoder)
+        slots = self._link.up_codec.slots
+        super().__init__({
+            "address": In(8),
+            "up":      Out(line_signature(slots)),
+            "down":    Out(line_signature(slots)),
+            "enc_a":   In(1),
+            "enc_b":   In(1),
+            "torque":  Out(signed(WORD)),
+            "status":  Out(16),
+            "count":   Out(signed(32)),
+        })
+
+    @property
+    def link(self) -> LinkNode:
+        return self._link
+
+    @property
+    def core(self) -> NodeCore:
+        return self._core
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.link = link = self._link
+        m.submodules.core = core = self._core
+        wiring.connect(m, link_rx=link.rx, core_rx=core.rx)
+        wiring.connect(m, core_tx=core.tx, link_tx=link.tx)
+        for port in ("up", "down"):
+            ours, theirs = getattr(self, port), getattr(link, port)
+            m.d.comb += [
+                theirs.d_in.eq(ours.d_in),
+                theirs.s_in.eq(ours.s_in),
+                ours.d_out.eq(theirs.d_out),
+                ours.s_out.eq(theirs.s_out),
+            ]
+        m.d.comb += [
+            link.address.eq(self.address),
+            core.period_start.eq(link.tc_strobe),
+            core.period.eq(link.tc_time),
+            core.enc_a.eq(self.enc_a),
+            core.enc_b.eq(self.enc_b),
+            self.torque.eq(core.torque),
+            self.status.eq(core.status),
+            self.count.eq(core.count),
+        ]
+        return m
+
+
+def slave_node_top(*, slots: int = 3, start_div: int | None = None, run_div: int = 1,
+                   reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
+                   rx_fifo_depth: int = 64, counts_per_rev: int = 800_000,
+                   filter_cycles: int = 2, min_window: int = 2048,
+                   stop_cycles: int = 1 << 24) -> SlaveNode:
+    """Factory for the ``node`` top: link parameters as ``link_node``, encoder parameters as
+    :class:`~hdl.node.encoder_ref.EncoderParams` (50 MHz clock)."""
+    return SlaveNode(codec=dict(slots=slots, start_div=start_div, run_div=run_div,
+                                reset_cycles=reset_cycles, wait_cycles=wait_cycles,
+                                disconnect_cycles=disconnect_cycles,
+                                rx_fifo_depth=rx_fifo_depth),
+                     encoder=EncoderParams(counts_per_rev=counts_per_rev,
+                                           filter_cycles=filter_cycles, min_window=min_window,
+                                           stop_cycles=stop_cycles))
+
+
+def node_core_top(*, counts_per_rev: int = 800_000, filter_cycles: int = 2,
+                  min_window: int = 2048, stop_cycles: int = 1 << 24) -> NodeCore:
+    """Factory for the ``node_core`` top (the compute core without the link)."""
+    return NodeCore(encoder=EncoderParams(counts_per_rev=counts_per_rev,
+                                          filter_cycles=filter_cycles, min_window=min_window,
+                                          stop_cycles=stop_cycles))
