@@ -15,6 +15,7 @@ from amaranth.back import verilog
 from amaranth.lib import wiring
 
 from .link.node import link_node_top
+from .node.top import node_core_top, slave_node_top
 
 __all__ = ["Top", "TOPS", "build_top", "component_verilog", "verilog_text"]
 
@@ -46,6 +47,10 @@ TOPS: dict[str, Top] = {
                                  "s_out; N-char streams, time-codes, link control/status)"),
     "link_node": Top(link_node_top, "daisy-chain endpoint: up/down codecs, router, packet layer "
                                     "(host beat streams), time-code capture"),
+    "node": Top(slave_node_top, "slave node: link endpoint + compute core (VDC, joint control, "
+                                "encoder, watchdog); encoder lines in, torque word out"),
+    "node_core": Top(node_core_top, "node compute core alone (packet beat streams, encoder "
+                                    "lines, torque word)"),
 }
 
 
