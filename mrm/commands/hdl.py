@@ -2,7 +2,8 @@
 
 ``mrm hdl verilog --top spw_codec --out DIR [--param slots=1 ...]`` writes ``DIR/<top>.v``
 atomically (a temporary file renamed into place), so a failed run leaves no partial file.
-``mrm hdl tops`` lists the tops and their parameters.
+``mrm hdl tops`` lists the tops and their parameters. ``mrm hdl synth --top node --family xc2v
+--json`` reports LUTs, flip-flops, multipliers and block RAMs (:mod:`hdl.synth`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,12 @@ def register(subparsers) -> None:
     p_verilog.set_defaults(func=_verilog)
     p_tops = sub.add_parser("tops", help="list the tops and their parameters")
     p_tops.set_defaults(func=_tops)
+    p_synth = sub.add_parser("synth", help="resource report of a top (Debian yosys)")
+    p_synth.add_argument("--top", required=True, help="top name (see `mrm hdl tops`)")
+    p_synth.add_argument("--family", default="xc2v", help="xc2v (Virtex-II) or ecp5")
+    p_synth.add_argument("--param", action="append", default=[], metavar="NAME=INT")
+    p_synth.add_argument("--json", action="store_true", help="print the report as JSON")
+    p_synth.set_defaults(func=_synth)
 
 
 def parse_params(items: list[str]) -> dict[str, int]:
@@ -79,3 +86,9 @@ def _tops(args) -> int:
         params = ", ".join(f"{k}={v}" for k, v in top.parameters().items())
         print(f"{name}: {top.help}\n    parameters: {params}")
     return 0
+
+
+def _synth(args) -> int:
+    from hdl.synth import cli_report
+
+    return cli_report(args.top, args.family, parse_params(args.param), args.json)
