@@ -5,6 +5,10 @@
 ``k`` at address ``k``; the last node's downstream port is left unconnected). The async helpers
 below drive and check its streams from Amaranth testbenches (``sim.add_testbench``); characters
 and packets are in the integer form of :mod:`hdl.link.packet_ref`.
+
+With ``line_faults=True`` every line of the chain passes through a fault injector the testbench
+controls (cut, stuck, flipped line samples; see :func:`line_fault_layout`). It exists for
+simulation only: ``Chain`` is no Verilog top, and the exported ``link_node`` has no such ports.
 """
 
 from __future__ import annotations
@@ -21,8 +25,8 @@ from .packet import Beat, Header
 from .packet_ref import DEFAULT_MAX_PAYLOAD
 from .params import rejecting
 
-__all__ = ["Chain", "char_value", "char_int", "beat_value", "beat_fields", "put_chars",
-           "get_chars", "put_packet", "get_packet", "master_send", "master_receive",
+__all__ = ["Chain", "line_fault_layout", "char_value", "char_int", "beat_value", "beat_fields",
+           "put_chars", "get_chars", "put_packet", "get_packet", "master_send", "master_receive",
            "node_send", "node_receive", "read_stats"]
 
 
@@ -136,6 +140,24 @@ async def get_packet(ctx, stream, *, rng=None, p_stall: float = 0.0
                 return header, bytes(payload)
 
 
+def line_fault_layout(slots: int) -> data.StructLayout:
+    """Fault controls for one direction of one line, ``slots`` bits per field (bit 0 = the
+    earliest slot of the cycle).
+
+    Each line sample is ``((x & ~clear) | set) ^ flip``, per line (D, S) and slot: clear both
+    lines to cut the wire, set or clear one to make it stuck, flip a slot for a bit error (both
+    D and S in one slot: one bit's value inverted, framing kept). All zero: a good wire.
+    """
+    return data.StructLayout({name: slots for name in
+                              ("clear_d", "set_d", "flip_d", "clear_s", "set_s", "flip_s")})
+
+
+def _faulty(src, fault, line):
+    """Drive ``src`` (a line word) through the ``fault`` controls of line ``"d"`` or ``"s"``."""
+    clear, set_, flip = (getattr(fault, f"{op}_{line}") for op in ("clear", "set", "flip"))
+    return ((src & ~clear) | set_) ^ flip
+
+
 class Chain(wiring.Component):
     """Master-side codec plus ``n_nodes`` link nodes in a daisy chain, for simulation.
 
@@ -148,6 +170,8 @@ class Chain(wiring.Component):
         e.g. shortened ``reset_cycles``/``wait_cycles`` for fast tests.
     max_payload : int
         Largest payload the nodes accept.
+    line_faults : bool
+        Add the fault-injection ports ``fault_down`` and ``fault_up`` (testbench only).
 
     Attributes
     ----------
@@ -164,10 +188,15 @@ class Chain(wiring.Component):
         streams and read their time-code and status outputs directly.
     cycle : Out(32)
         Free-running cycle counter (the same count every node captures time-codes with).
+    fault_down, fault_up : In(data.ArrayLayout(line_fault_layout(slots), n_nodes))
+        Only with ``line_faults``. Element ``k - 1`` acts on the line above node ``k``:
+        ``fault_down`` on the direction towards node ``k`` (from the master or node ``k - 1``),
+        ``fault_up`` on the direction from node ``k`` up. The faulted samples reach the receiving
+        codec in the same cycle (no extra register).
     """
 
     def __init__(self, n_nodes: int = 3, *, codec: dict | None = None,
-                 max_payload: int = DEFAULT_MAX_PAYLOAD):
+                 max_payload: int = DEFAULT_MAX_PAYLOAD, line_faults: bool = False):
         parts = []
         with rejecting(self):
             if (not isinstance(n_nodes, int) or isinstance(n_nodes, bool) or
@@ -182,14 +211,20 @@ class Chain(wiring.Component):
                     part._MustUse__silence = True
                 raise
         self.master, *self.nodes = parts
-        super().__init__({
+        self._line_faults = bool(line_faults)
+        ports = {
             "master_tx":      In(stream.Signature(Char)),
             "master_rx":      Out(stream.Signature(Char)),
             "tick_in":        In(1),
             "time_in":        In(8),
             "master_running": Out(1),
             "cycle":          Out(32),
-        })
+        }
+        if self._line_faults:
+            faults = data.ArrayLayout(line_fault_layout(self.master.slots), n_nodes)
+            ports["fault_down"] = In(faults)
+            ports["fault_up"]   = In(faults)
+        super().__init__(ports)
 
     @property
     def n_nodes(self) -> int:
@@ -211,12 +246,18 @@ class Chain(wiring.Component):
         upper = master  # the line port above the next node: the master codec, then `down`s
         for k, node in enumerate(self.nodes, start=1):
             m.submodules[f"node{k}"] = node
+            down_d, down_s = upper.d_out, upper.s_out
+            up_d, up_s = node.up.d_out, node.up.s_out
+            if self._line_faults:
+                down, up = self.fault_down[k - 1], self.fault_up[k - 1]
+                down_d, down_s = _faulty(down_d, down, "d"), _faulty(down_s, down, "s")
+                up_d, up_s = _faulty(up_d, up, "d"), _faulty(up_s, up, "s")
             m.d.comb += [
                 node.address.eq(k),
-                node.up.d_in.eq(upper.d_out),
-                node.up.s_in.eq(upper.s_out),
-                upper.d_in.eq(node.up.d_out),
-                upper.s_in.eq(node.up.s_out),
+                node.up.d_in.eq(down_d),
+                node.up.s_in.eq(down_s),
+                upper.d_in.eq(up_d),
+                upper.s_in.eq(up_s),
             ]
             upper = node.down
         return m
