@@ -11,7 +11,7 @@ from amaranth.sim import Simulator
 from hdl.link.chars import LinkState
 from hdl.link.codec import Codec
 
-from .sim_helpers import ERROR_CLASSES, CodecPair, LineMonitor, run_simulation
+from .sim_helpers import ERROR_CLASSES, CodecPair, LineMonitor, PeerBench, run_simulation
 
 ER, EW, READY, STARTED, CONNECTING, RUN = LinkState
 SHORT = {"reset_cycles": 60, "wait_cycles": 150}
@@ -134,6 +134,36 @@ def test_started_times_out_after_12_8_us_without_null():
     # disconnect, which is an error in Ready.
     assert any(s == ER for t, s in trace["b"][1:])
     assert CONNECTING not in [s for _, s in a]
+
+
+def test_connecting_times_out_after_12_8_us_without_fct():
+    """The peer sends NULLs but never an FCT: Connecting ends in Error-Reset after exactly
+    the wait time (12.8 µs, §8.5.2), the link never reaches Run, and a timeout is no error."""
+    bench = PeerBench(reset_cycles=60, wait_cycles=640)
+    trace = []
+    result = {}
+
+    async def testbench(ctx):
+        ctx.set(bench.dut.link_start, 1)
+        bench.peer.silent = False               # NULLs only, from the start
+        for cycle in range(1600):
+            state = ctx.get(bench.dut.state)
+            if not trace or trace[-1][1] != state:
+                trace.append((cycle, state))
+            await bench.cycle(ctx)
+        result["errors"] = bench.errors(ctx)
+
+    sim = Simulator(bench.dut)
+    sim.add_clock(20e-9)
+    sim.add_testbench(testbench)
+    run_simulation(sim, "connecting_timeout")
+    states = [s for _, s in trace]
+    assert states[:6] == [ER, EW, READY, STARTED, CONNECTING, ER], trace
+    t_conn, t_after = trace[4][0], trace[5][0]
+    assert (t_after - t_conn) * 20 == 12800
+    assert RUN not in states
+    assert any(tok == ("FCT",) for _, tok in bench.monitor.tokens), "Connecting sends FCTs"
+    assert all(n == 0 for n in result["errors"].values()), result["errors"]
 
 
 def test_link_disable_in_run_resets_and_peer_sees_disconnect():
