@@ -1,0 +1,271 @@
+"""Closed loop: the master, the gateware (``hdl.system.System``) and the plant, cycle by cycle.
+
+Time grid. The gateware runs at 50 MHz; the plant advances in fixed steps of ``plant.dt``
+(10 µs = 500 cycles). Every step: the torque words the nodes output at the step's first cycle
+drive the plant for the step (zero-order hold, the amplifier lag is in the plant); the plant's
+encoder lines for each cycle of the step go into the nodes; the master is polled and its
+packets are written into the master port's transmit FIFO (so the master acts on the 10 µs grid,
+its modelled compute time rounded up to it); received characters are assembled into frames and
+checked (CRC, length) with their arrival cycle. The same loop drives every backend that offers
+``run(n, inputs, outputs)`` with Amaranth-testbench semantics (``cosim.compiled.CompiledModel``).
+
+Start-up. Links come up from reset (about 21.4 µs at standard timers), the master uploads
+configuration and parameters, then period 0 starts at cycle ``start_cycle``. Until then the
+plant's brakes hold it at its home posture (it is not stepped); the brakes release at period 0.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hdl.link import packet_ref as ref
+from hdl.link.chain import char_int, char_value
+from hdl.node.fixed import FORCE
+from hdl.node.joint_ref import JointParams
+from hdl.node.regs import MODES, Config, config_payloads, joint_upload, vdc_upload
+from master.cycle import Master, Send
+from models.actuators import ACTUATORS
+from models.encoder import quadrature_levels
+from models.plant import Plant
+from models.robot import Robot
+from mrm.errors import InputError
+
+__all__ = ["Gains", "ClosedLoop", "LoopResult", "node_uploads", "EEP", "EOP"]
+
+EOP, EEP = ref.EOP, ref.EEP
+_RX_CHUNK_OUTPUTS = ("rx_valid", "rx_char")
+
+
+@dataclass(frozen=True)
+class Gains:
+    """Controller settings uploaded to the nodes or used by the master (SI units).
+
+    Attributes
+    ----------
+    lam : float, 1/s
+        λ of the required joint velocity (master and node alike).
+    k_j : float, N·m·s/rad
+        VDC joint velocity-error gain.
+    K : float
+        VDC link velocity-error gain (same for the six axes, N·s/m and N·m·s/rad).
+    adapt : float
+        Adaptation gain ρ of every parameter (0: no adaptation), with bounds 0.7×/1.3×.
+    pid_fpga_hz, pid_1khz_hz : float
+        Closed-loop pole frequency of the node's PID and of the master's 1 kHz PID.
+    """
+
+    lam: float = 50.0
+    k_j: float = 30.0
+    K: float = 0.0
+    adapt: float = 0.0
+    pid_fpga_hz: float = 15.0
+    pid_1khz_hz: float = 5.0
+
+
+def _joint_inertia(robot: Robot) -> np.ndarray:
+    import pinocchio as pin
+
+    model = robot.pinocchio_model()
+    M = pin.crba(model, model.createData(), robot.home)
+    return np.diag(M) + np.array([ACTUATORS[m.type.actuator].output_inertia
+                                  for m in robot.modules])
+
+
+def pid_gains(robot: Robot, hz: float) -> dict:
+    """PID gains placing a triple pole at ``−2π·hz`` for each joint's nominal inertia."""
+    J = _joint_inertia(robot)
+    w = 2 * np.pi * hz
+    return {"kp": 3 * J * w * w, "ki": J * w**3, "kd": 3 * J * w}
+
+
+def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int = 50,
+                 timeout_cycles: int = 100_000) -> list[tuple[int, int, bytes]]:
+    """``(dest, type, payload)`` packets that configure every node before the run."""
+    mode = {"vdc": MODES["vdc"], "pid-fpga": MODES["pid"], "pid-1khz": MODES["torque"]}
+    out = []
+    pid = pid_gains(robot, gains.pid_fpga_hz)
+    for k, mod in enumerate(robot.modules):
+        dest = k + 1
+        peak = FORCE.encode(mod.type.peak_torque)
+        cfg = {Config.MODE: mode[controller], Config.TICK: tick_cycles,
+               Config.TIMEOUT: timeout_cycles, Config.RAMP: FORCE.encode(0.01),
+               Config.TAU_MIN: -peak, Config.TAU_MAX: peak}
+        out += [(dest, ref.PacketType.CONFIG, p) for p in config_payloads(cfg)]
+        theta = robot.nominal_theta[k]
+        lo = np.minimum(0.7 * theta, 1.3 * theta)
+        hi = np.maximum(0.7 * theta, 1.3 * theta)
+        out += [(dest, ref.PacketType.PARAM, p) for p in
+                vdc_upload(theta, np.full((2, 6), gains.K), np.full((2, 13), gains.adapt),
+                           lo, hi)]
+        joint = JointParams.from_float(
+            counts_per_rev=mod.type.counts_per_rev, tick_cycles=tick_cycles, lam=gains.lam,
+            k_j=gains.k_j, inertia=ACTUATORS[mod.type.actuator].output_inertia,
+            k_p=pid["kp"][k], k_i=pid["ki"][k], k_d=pid["kd"][k], i_max=0.05,
+            field=f"joint{dest}")
+        out += [(dest, ref.PacketType.PARAM, p) for p in joint_upload(joint)]
+        out += [(dest, ref.PacketType.CONFIG, p) for p in config_payloads({Config.ARM: 1})]
+    return out
+
+
+@dataclass
+class LoopResult:
+    """Trace of a closed-loop run, one row per plant step after the brakes released."""
+
+    t: np.ndarray                 # (steps,) s since period 0
+    q: np.ndarray                 # (steps, n) true joint angles, rad
+    tau: np.ndarray               # (steps, n) torque commands applied, N·m
+    master: Master
+    link_errors: int
+    crc_errors: int
+    frames: list = field(default_factory=list)   # (cycle, src, type) of every good frame
+    trace_sha256: str = ""
+
+
+class ClosedLoop:
+    """The closed loop on one backend.
+
+    Parameters
+    ----------
+    robot : Robot
+    backend : object with ``run(n, inputs, outputs)``
+        A compiled or simulated :class:`hdl.system.System` of ``robot.n`` nodes.
+    master : Master
+    plant : Plant
+    start_cycle : int
+        Cycle of period 0 (after link start-up and uploads).
+    uploads : list of (dest, type, payload)
+    """
+
+    def __init__(self, robot: Robot, backend, master: Master, plant: Plant,
+                 start_cycle: int, uploads):
+        self.robot = robot
+        self.n = robot.n
+        self.backend = backend
+        self.master = master
+        self.plant = plant
+        self.step_cycles = round(plant.dt * 50e6)
+        if start_cycle % self.step_cycles:
+            raise InputError("start_cycle", "must be a multiple of the plant step")
+        self.start_cycle = start_cycle
+        self.cycle = 0
+        self._tx: list[int] = []          # raw Char values waiting for the FIFO
+        self._tx_level = 0
+        self._rx: list[int] = []
+        self._timecode: int | None = None
+        self.crc_errors = 0
+        self.frames = []
+        self._uploads = list(uploads)
+        self._torque = np.zeros(self.n)
+        self._enc_a = np.zeros(self.step_cycles, dtype=np.int64)
+        self._enc_b = np.zeros(self.step_cycles, dtype=np.int64)
+        self._link_up = False
+        self._seq = 0
+        counts = plant.encoder_counts()
+        self._set_static_encoder(counts)
+
+    # --- encoder lines ---------------------------------------------------------------------
+    def _set_static_encoder(self, counts) -> None:
+        a, b = quadrature_levels(np.asarray(counts))
+        self._enc_a[:] = int(sum(int(x) << k for k, x in enumerate(a)))
+        self._enc_b[:] = int(sum(int(x) << k for k, x in enumerate(b)))
+
+    def _encoder_from_plant(self) -> None:
+        cyc = self.plant.encoder_cycles()
+        weights = 1 << np.arange(self.n, dtype=np.int64)
+        self._enc_a[:] = cyc.a.astype(np.int64) @ weights
+        self._enc_b[:] = cyc.b.astype(np.int64) @ weights
+
+    # --- link I/O --------------------------------------------------------------------------
+    def _queue(self, action: Send) -> None:
+        if action.kind == "timecode":
+            self._timecode = action.time
+            return
+        chars = ref.encode(ref.Header(action.dest, ref.MASTER_ADDRESS, action.ptype,
+                                      action.seq), action.payload)
+        self._tx += [char_value(c) for c in chars]
+
+    def _take_rx(self, cycles: np.ndarray, chars: np.ndarray) -> None:
+        for cyc, raw in zip(cycles.tolist(), chars.tolist(), strict=True):
+            c = char_int(raw)
+            self._rx.append(c)
+            if c in (EOP, EEP):
+                verdict, header, payload = ref.check_frame(self._rx)
+                self._rx = []
+                if verdict != ref.Verdict.GOOD:
+                    self.crc_errors += 1
+                    continue
+                self.frames.append((cyc, header.src, header.type))
+                self.master.on_packet(cyc, header.src, header.type, bytes(payload))
+
+    async def _chunk(self, n: int) -> dict:
+        inputs = {"enc_a": self._enc_a[:n], "enc_b": self._enc_b[:n]}
+        room = max(0, 192 - self._tx_level)
+        k = min(len(self._tx), room, n)
+        tx_valid = np.zeros(n, dtype=np.int64)
+        tx_char = np.zeros(n, dtype=np.int64)
+        if k:
+            tx_valid[:k] = 1
+            tx_char[:k] = self._tx[:k]
+            del self._tx[:k]
+        inputs["tx_valid"] = tx_valid
+        inputs["tx_char"] = tx_char
+        tick = np.zeros(n, dtype=np.int64)
+        if self._timecode is not None:
+            tick[0] = 1
+            inputs["time_in"] = np.full(n, self._timecode, dtype=np.int64)
+            self._timecode = None
+        inputs["tick_in"] = tick
+        names = [*_RX_CHUNK_OUTPUTS, "tx_level", "running"] + \
+            [f"torque{k + 1}" for k in range(self.n)]
+        out = await self.backend.run(n, inputs, names)
+        valid = np.nonzero(out["rx_valid"])[0]
+        if len(valid):
+            self._take_rx(self.cycle + valid, out["rx_char"][valid])
+        self._tx_level = int(out["tx_level"][-1])
+        self._link_up = bool(out["running"][-1])
+        # torque words at the next cycle's edge are the ones sampled last in this chunk
+        self._torque = np.array([FORCE.decode(int(out[f"torque{j + 1}"][-1]))
+                                 for j in range(self.n)])
+        self.cycle += n
+        return out
+
+    # --- the run ----------------------------------------------------------------------------
+    async def run(self, duration_cycles: int) -> LoopResult:
+        """Run start-up and ``duration_cycles`` of closed loop; return the trace."""
+        s = self.step_cycles
+        uploads_sent = False
+        steps = duration_cycles // s
+        t_rec = np.zeros(steps)
+        q_rec = np.zeros((steps, self.n))
+        tau_rec = np.zeros((steps, self.n))
+        while self.cycle < self.start_cycle:
+            if self._link_up and not uploads_sent:
+                for dest, ptype, payload in self._uploads:
+                    self._seq = (self._seq + 1) & 0xFF
+                    self._queue(Send("packet", dest, int(ptype), payload, self._seq))
+                for a in self.master.initial_packets(self.plant.q):
+                    self._queue(a)
+                uploads_sent = True
+            await self._chunk(s)
+        if not uploads_sent:
+            raise InputError("start_cycle", "the link did not come up before period 0")
+        self.master.begin(self.start_cycle)
+        for i in range(steps):
+            for action in self.master.poll(self.cycle):
+                self._queue(action)
+            tau = self._torque
+            self.plant.step(tau)
+            self._encoder_from_plant()
+            t_rec[i] = (self.cycle - self.start_cycle) / 50e6
+            q_rec[i] = self.plant.q
+            tau_rec[i] = tau
+            await self._chunk(s)
+        digest = hashlib.sha256()
+        digest.update(q_rec.tobytes())
+        digest.update(tau_rec.tobytes())
+        return LoopResult(t_rec, q_rec, tau_rec, self.master, 0, self.crc_errors,
+                          self.frames, digest.hexdigest())
+

@@ -1,0 +1,105 @@
+"""The whole robot's gateware: the master's link port and N slave nodes in a daisy chain.
+
+::
+
+    master software ⇄ MasterPort ═══ node 1 ═══ node 2 ═══ … ═══ node N
+                                      │ enc, τ    │ enc, τ         │ enc, τ
+                                      ▼           ▼                ▼
+                                        joints of the plant (outside the gateware)
+
+This is the design the co-simulation runs (``cosim``) and the ``system`` top of
+``mrm hdl verilog``. Node k has address k (1-based). The last node's downstream port is left
+idle (its codec stays in Error-Wait/Ready: nothing is connected there).
+"""
+
+from amaranth import *
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+
+from .link.chars import Char, ErrorCounts, LinkState
+from .master_port import MasterPort
+from .node.fixed import WORD
+from .node.top import SlaveNode
+
+__all__ = ["System"]
+
+
+class System(wiring.Component):
+    """Master link port plus ``n_nodes`` slave nodes.
+
+    Parameters
+    ----------
+    n_nodes : int
+        Number of modules (1..16).
+    codec : dict
+        :class:`~hdl.link.codec.Codec` parameters of every link port.
+    encoder : EncoderParams, optional
+        Encoder interface parameters of every node.
+
+    Attributes
+    ----------
+    tx_valid, tx_char, tx_level, tx_overflow, rx_valid, rx_char, tick_in, time_in,
+    running, state, errors :
+        The master port's (see :class:`~hdl.master_port.MasterPort`).
+    enc_a, enc_b : In(n_nodes)
+        Encoder lines, bit k for node k+1.
+    torque1 … torqueN : Out(signed(24))
+        Torque commands (FORCE words, N·m · 2^13).
+    status1 … statusN : Out(16)
+    count1 … countN : Out(signed(32))
+        Live encoder counts of the nodes.
+    """
+
+    def __init__(self, n_nodes: int, *, codec: dict | None = None, encoder=None):
+        if not isinstance(n_nodes, int) or not 1 <= n_nodes <= 16:
+            raise ValueError(f"n_nodes must be an integer from 1 to 16, not {n_nodes!r}")
+        self.n_nodes = n_nodes
+        self.master = MasterPort(codec=codec)
+        self.nodes = [SlaveNode(codec=codec, encoder=encoder) for _ in range(n_nodes)]
+        members = {
+            "tx_valid":    In(1),
+            "tx_char":     In(Char),
+            "tx_level":    Out(range(self.master.tx_depth + 1)),
+            "tx_overflow": Out(16),
+            "rx_valid":    Out(1),
+            "rx_char":     Out(Char),
+            "tick_in":     In(1),
+            "time_in":     In(8),
+            "running":     Out(1),
+            "state":       Out(LinkState),
+            "errors":      Out(ErrorCounts),
+            "enc_a":       In(n_nodes),
+            "enc_b":       In(n_nodes),
+        }
+        for k in range(1, n_nodes + 1):
+            members[f"torque{k}"] = Out(signed(WORD))
+            members[f"status{k}"] = Out(16)
+            members[f"count{k}"] = Out(signed(32))
+        super().__init__(members)
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.master = master = self.master
+        for name in ("tx_valid", "tx_char", "tick_in", "time_in"):
+            m.d.comb += getattr(master, name).eq(getattr(self, name))
+        for name in ("tx_level", "tx_overflow", "rx_valid", "rx_char", "running", "state",
+                     "errors"):
+            m.d.comb += getattr(self, name).eq(getattr(master, name))
+        upstream = master.line
+        for k, node in enumerate(self.nodes):
+            m.submodules[f"node{k + 1}"] = node
+            m.d.comb += [
+                node.address.eq(k + 1),
+                node.enc_a.eq(self.enc_a[k]),
+                node.enc_b.eq(self.enc_b[k]),
+                getattr(self, f"torque{k + 1}").eq(node.torque),
+                getattr(self, f"status{k + 1}").eq(node.status),
+                getattr(self, f"count{k + 1}").eq(node.count),
+                # upstream port's outputs drive the node's inputs and vice versa
+                node.up.d_in.eq(upstream.d_out),
+                node.up.s_in.eq(upstream.s_out),
+                upstream.d_in.eq(node.up.d_out),
+                upstream.s_in.eq(node.up.s_out),
+            ]
+            upstream = node.down
+        return m

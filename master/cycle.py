@@ -1,0 +1,262 @@
+"""The master's 1 ms communication cycle (MRM paper §4, Fig. 3): time-code, A, B, C, D.
+
+The master is event-driven and knows nothing of how packets travel: the harness (``cosim``)
+calls :meth:`Master.poll` at its time grid and :meth:`Master.on_packet` for every good packet
+received, and sends what the master returns. Per period p, starting at cycle
+``P = start + p·period_cycles``:
+
+1. time-code ``p mod 64`` and a broadcast Comm A request (nodes snapshot at the time-code);
+2. when every node's Comm A is in, after ``kinematics_cycles`` of modelled master compute:
+   VDC — required joint velocities and the actual and required 6-D velocities of every {C_k}
+   base → tip, one Comm B per node, then a broadcast Comm C request;
+3. when every Comm C is in, after ``force_cycles``: required forces tip → base, one Comm D per
+   node with the projection ``τ_Lr``, gravity in {C_k} for the next period and the references
+   at the period start (PID modes skip B and C: Comm D follows Comm A directly).
+
+Everything the master knows about the robot is nominal: Table 1 parameters, the kinematics,
+encoder counts and the nodes' velocity words. Replies that are missing at the period's end,
+late or malformed are counted (``overruns``, ``missing``), never silently absorbed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hdl.link.packet_ref import BROADCAST, PacketType
+from hdl.node.fixed import FORCE, VEL
+from hdl.node.regs import Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c
+from master.vdc import propagate_forces, propagate_velocities
+from models.robot import Robot
+
+__all__ = ["Send", "Master", "MasterTiming", "PeriodRecord", "CONTROLLERS"]
+
+CONTROLLERS = ("vdc", "pid-fpga", "pid-1khz")
+
+
+@dataclass(frozen=True)
+class Send:
+    """An action for the link: a packet (``dest``, ``ptype``, ``payload``) or a time-code."""
+
+    kind: str                     # "packet" or "timecode"
+    dest: int = 0
+    ptype: int = 0
+    payload: bytes = b""
+    seq: int = 0
+    time: int = 0
+
+
+@dataclass(frozen=True)
+class MasterTiming:
+    """Timing of the cycle, in 20 ns FPGA cycles.
+
+    Attributes
+    ----------
+    period_cycles : int
+        1 ms = 50,000 cycles.
+    kinematics_cycles, force_cycles : int
+        Modelled compute time of the master's two steps (the paper's master is a 300 MHz
+        PowerPC; 20 µs each by default).
+    """
+
+    period_cycles: int = 50_000
+    kinematics_cycles: int = 1_000
+    force_cycles: int = 1_000
+
+
+@dataclass
+class PeriodRecord:
+    """What happened in one period (cycles are absolute)."""
+
+    index: int
+    start: int
+    q: np.ndarray | None = None          # joint angles from Comm A (rad)
+    qd: np.ndarray | None = None         # joint velocities from Comm A (rad/s)
+    tau: np.ndarray | None = None        # torques the nodes applied at the snapshot (N·m)
+    events: dict = field(default_factory=dict)   # name -> cycle, e.g. "A_done", "B_sent"
+    arrivals: dict = field(default_factory=dict)  # (phase, node) -> cycle
+    complete: bool = False
+
+
+class Master:
+    """The master node.
+
+    Parameters
+    ----------
+    robot : Robot
+    controller : str
+        ``"vdc"``, ``"pid-fpga"`` or ``"pid-1khz"``.
+    trajectory : callable
+        ``trajectory(t) -> (q_d, q̇_d, q̈_d)`` arrays of shape (n,) at time ``t`` (s) from the
+        first period's start.
+    counts_per_rev : ndarray of int, shape (n,)
+    timing : MasterTiming
+    lam : float, 1/s
+        λ of the required joint velocity.
+    pid : dict, optional
+        ``kp``, ``ki``, ``kd`` arrays (N·m/rad, N·m/(rad·s), N·m·s/rad) of the 1 kHz PID.
+    clock_hz : float
+    """
+
+    def __init__(self, robot: Robot, controller: str, trajectory, counts_per_rev,
+                 timing: MasterTiming | None = None, lam: float = 50.0, pid=None,
+                 clock_hz: float = 50e6):
+        if controller not in CONTROLLERS:
+            raise ValueError(f"controller must be one of {CONTROLLERS}, not {controller!r}")
+        self.robot = robot
+        self.n = robot.n
+        self.controller = controller
+        self.trajectory = trajectory
+        self.counts_per_rev = np.asarray(counts_per_rev, dtype=float)
+        self.timing = timing = timing or MasterTiming()
+        self.lam = lam
+        self.pid = pid
+        self.dt = timing.period_cycles / clock_hz
+        self.start = None
+        self.records: list[PeriodRecord] = []
+        self.overruns = 0        # periods whose exchange did not finish within the period
+        self.missing = 0         # replies that never came
+        self.unexpected = 0      # replies that were not asked for, or malformed
+        self._seq = 0
+        self._pending: list[tuple[int, list[Send]]] = []   # (cycle, actions)
+        self._integral = np.zeros(self.n)
+        self._rec: PeriodRecord | None = None
+        self._a = {}
+        self._c = {}
+
+    # --- scheduling ------------------------------------------------------------------------
+    def begin(self, start_cycle: int) -> None:
+        """Start the cycle: period 0 begins at ``start_cycle``."""
+        self.start = start_cycle
+
+    def poll(self, now: int) -> list[Send]:
+        """Actions due at cycle ``now`` (called by the harness on its time grid)."""
+        out = []
+        if self.start is not None and now >= self.start:
+            index = (now - self.start) // self.timing.period_cycles
+            if self._rec is None or index > self._rec.index:
+                out += self._new_period(index, self.start + index * self.timing.period_cycles)
+        due = [a for c, a in self._pending if c <= now]
+        self._pending = [(c, a) for c, a in self._pending if c > now]
+        for actions in due:
+            out += actions
+        return out
+
+    def _later(self, cycle: int, actions: list[Send]) -> None:
+        self._pending.append((cycle, actions))
+
+    def _packet(self, dest: int, ptype: PacketType, payload: bytes) -> Send:
+        self._seq = (self._seq + 1) & 0xFF
+        return Send("packet", dest, int(ptype), bytes(payload), self._seq)
+
+    def _new_period(self, index: int, start: int) -> list[Send]:
+        if self._rec is not None and not self._rec.complete:
+            self.overruns += 1
+            self.missing += (self.n - len(self._a)) + (
+                0 if self.controller != "vdc" else self.n - len(self._c))
+        self._rec = PeriodRecord(index, start)
+        self.records.append(self._rec)
+        self._a, self._c = {}, {}
+        self._pending = []
+        return [Send("timecode", time=index & 0x3F),
+                self._packet(BROADCAST, PacketType.COMM_A, b"\0")]
+
+    # --- replies ---------------------------------------------------------------------------
+    def on_packet(self, now: int, src: int, ptype: int, payload: bytes) -> None:
+        """A good packet from node ``src`` (1-based) arrived complete at cycle ``now``."""
+        rec = self._rec
+        if rec is None or not 1 <= src <= self.n:
+            self.unexpected += 1
+            return
+        try:
+            if ptype == PacketType.COMM_A and src not in self._a:
+                self._a[src] = parse_comm_a(payload)
+                rec.arrivals[("A", src)] = now
+                if len(self._a) == self.n:
+                    rec.events["A_done"] = now
+                    self._after_a(now)
+            elif ptype == PacketType.COMM_C and src not in self._c and self.controller == "vdc":
+                self._c[src] = parse_comm_c(payload)
+                rec.arrivals[("C", src)] = now
+                if len(self._c) == self.n:
+                    rec.events["C_done"] = now
+                    self._after_c(now)
+            else:
+                self.unexpected += 1
+        except ValueError:
+            self.unexpected += 1
+
+    def _references(self, t: float):
+        q_d, qd_d, qdd_d = self.trajectory(t)
+        return np.asarray(q_d, float), np.asarray(qd_d, float), np.asarray(qdd_d, float)
+
+    def _after_a(self, now: int) -> None:
+        rec = self._rec
+        a = [self._a[k + 1] for k in range(self.n)]
+        rec.q = np.array([x["count"] for x in a]) * (2 * math.pi) / self.counts_per_rev
+        rec.qd = np.array([VEL.decode(x["qd"]) for x in a])
+        rec.tau = np.array([FORCE.decode(x["torque"]) for x in a])
+        t = rec.index * self.dt
+        q_d, qd_d, qdd_d = self._references(t)
+        send_at = now + self.timing.kinematics_cycles
+        if self.controller == "vdc":
+            qd_r = qd_d + self.lam * (q_d - rec.q)
+            qdd_r = qdd_d + self.lam * (qd_d - rec.qd)
+            kin = propagate_velocities(self.robot, rec.q, rec.qd, qd_r, qdd_r)
+            prime = rec.index == 0
+            actions = [self._packet(k + 1, PacketType.COMM_B,
+                                    pack_comm_b(qd_r[k], kin[k].V_C, kin[k].Vr_C, prime))
+                       for k in range(self.n)]
+            actions.append(self._packet(BROADCAST, PacketType.COMM_C, b"\0"))
+            rec.events["B_sent"] = send_at
+            self._later(send_at, actions)
+            return
+        if self.controller == "pid-1khz":
+            e = q_d - rec.q
+            self._integral += e * self.dt
+            tau = (self.pid["kp"] * e + self.pid["ki"] * self._integral
+                   + self.pid["kd"] * (qd_d - rec.qd))
+            tau = np.clip(tau, -self.robot.peak_torques, self.robot.peak_torques)
+        else:                                    # pid-fpga: the node closes the loop
+            tau = np.zeros(self.n)
+        rec.events["D_sent"] = send_at
+        self._later(send_at, self._comm_d(tau, rec.q, q_d, qd_d, qdd_d))
+        rec.complete = True
+
+    def _after_c(self, now: int) -> None:
+        rec = self._rec
+        F = np.array([[FORCE.decode(w) for w in self._c[k + 1][0] + self._c[k + 1][1]]
+                      for k in range(self.n)])
+        for k in range(self.n):
+            if not self._c[k + 1][2] & Status.FRESH:
+                self.unexpected += 1       # forces not computed from this period's Comm B
+        _, tau_lr = propagate_forces(self.robot, rec.q, F[:, :6], F[:, 6:])
+        # The counterbalance springs of Type II modules are part of the joint: their nominal
+        # torque is known, so the joint needs τ_Lr less what the spring already gives.
+        tau_lr = tau_lr - self.robot.spring_torque(rec.q)
+        t = rec.index * self.dt
+        q_d, qd_d, qdd_d = self._references(t)
+        send_at = now + self.timing.force_cycles
+        rec.events["D_sent"] = send_at
+        self._later(send_at, self._comm_d(tau_lr, rec.q, q_d, qd_d, qdd_d))
+        rec.complete = True
+
+    def gravity_in_C(self, q) -> np.ndarray:
+        """Upward gravity ``[0, 0, 9.81]`` expressed in every {C_k} at joint angles ``q``."""
+        frames = self.robot.link_frames(q)
+        return np.array([T_C[:3, :3].T @ np.array([0.0, 0.0, 9.81]) for T_C, _ in frames])
+
+    def _comm_d(self, tau, q, q_d, qd_d, qdd_d) -> list[Send]:
+        # Gravity for the next period's VDC run, at the angles expected then.
+        g = self.gravity_in_C(q + self.dt * (qd_d + self.lam * (q_d - q)))
+        return [self._packet(k + 1, PacketType.COMM_D,
+                             pack_comm_d(tau[k], g[k], q_d[k], qd_d[k], qdd_d[k],
+                                         int(self.counts_per_rev[k])))
+                for k in range(self.n)]
+
+    def initial_packets(self, q0) -> list[Send]:
+        """Comm D before period 0: gravity for the first VDC run, zero torque, rest."""
+        z = np.zeros(self.n)
+        return self._comm_d(z, np.asarray(q0, float), np.asarray(q0, float), z, z)
