@@ -9,7 +9,41 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CompiledBackend", "PysimBackend", "drive"]
+__all__ = ["CompiledBackend", "PysimBackend", "Recorder", "drive", "system_verilog"]
+
+
+def _hdl_fingerprint() -> str:
+    """Hash of every gateware source file: the Verilog of a design depends on nothing else."""
+    import hashlib
+    from pathlib import Path
+
+    import amaranth
+
+    import hdl
+
+    digest = hashlib.sha256(amaranth.__version__.encode())
+    root = Path(hdl.__file__).parent
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def system_verilog(system, key: str) -> str:
+    """Verilog of ``system``, cached under ``key`` plus the gateware sources' fingerprint
+    (converting the three-node system takes ~15 s; reading it back, milliseconds)."""
+    from amaranth.back import verilog
+
+    from cosim.compiled import cache_dir
+    from mrm.output import atomic_write_text
+
+    path = cache_dir() / "verilog" / f"{key}-{_hdl_fingerprint()[:20]}.v"
+    if path.exists():
+        return path.read_text()
+    text = verilog.convert(system, name="system", emit_src=False)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, text)
+    return text
 
 
 class CompiledBackend:
@@ -17,13 +51,34 @@ class CompiledBackend:
 
     name = "compiled"
 
-    def __init__(self, system, quiet: bool = True):
+    def __init__(self, system, key: str, quiet: bool = True):
         from cosim.compiled import CompiledModel
 
-        self.model = CompiledModel(system, "system", quiet=quiet)
+        self.model = CompiledModel(system, "system", quiet=quiet,
+                                   verilog_text=system_verilog(system, key))
 
     async def run(self, n, inputs, outputs):
         return self.model.run(n, inputs, outputs)
+
+
+class Recorder:
+    """Wraps a backend and keeps every per-cycle output sample it returns (for comparisons)."""
+
+    def __init__(self, backend):
+        self.backend = backend
+        self.samples: dict[str, list] = {}
+
+    def bind(self, ctx) -> None:
+        self.backend.bind(ctx)
+
+    async def run(self, n, inputs, outputs):
+        out = await self.backend.run(n, inputs, outputs)
+        for k, v in out.items():
+            self.samples.setdefault(k, []).append(np.array(v))
+        return out
+
+    def trace(self, name: str) -> np.ndarray:
+        return np.concatenate(self.samples[name])
 
 
 class PysimBackend:

@@ -189,6 +189,7 @@ class CompiledModel:
             from amaranth.back import verilog
 
             verilog_text = verilog.convert(component, name=name, emit_src=False)
+        # (a component given with its Verilog still supplies the ports' signedness)
         self.name = name
         self.verilog = verilog_text
         ports = _parse_ports(verilog_text, name)

@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from cosim.backends import CompiledBackend, PysimBackend, drive
+from cosim.backends import CompiledBackend, PysimBackend, Recorder, drive
 from cosim.closed_loop import ClosedLoop, Gains, node_uploads, pid_gains
 from cosim.preview import paper_test_profile
 from master.cycle import Master, MasterTiming
@@ -30,8 +30,6 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     -------
     (LoopResult, summary dict)
     """
-    from hdl.system import System
-
     robot = load_robot(robot)
     gains = gains or Gains()
     timing = timing or MasterTiming()
@@ -47,30 +45,11 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
                     pid=pid_gains(robot, gains.pid_1khz_hz))
     plant = Plant(robot, plant_config or PlantConfig(), seed=seed)
     plant.reset(robot.home)
-    system = System(robot.n)
     uploads = node_uploads(robot, controller, gains)
     duration_cycles = int(round(duration * 50e6))
     t0 = time.perf_counter()
-    if backend == "compiled":
-        be = CompiledBackend(system, quiet=progress is None)
-        loop = ClosedLoop(robot, be, master, plant, START_CYCLE, uploads)
-        result = drive(loop.run(duration_cycles))
-    else:
-        from amaranth.sim import Simulator
-
-        be = PysimBackend(system)
-        loop = ClosedLoop(robot, be, master, plant, START_CYCLE, uploads)
-        box = {}
-
-        async def bench(ctx):
-            be.bind(ctx)
-            box["result"] = await loop.run(duration_cycles)
-
-        sim = Simulator(system)
-        sim.add_clock(20e-9)
-        sim.add_testbench(bench)
-        sim.run()
-        result = box["result"]
+    result, _ = run_loop(robot, backend, master, plant, START_CYCLE, uploads, duration_cycles,
+                         quiet=progress is None)
     wall = time.perf_counter() - t0
     q_d, qd_d, _, _ = profile.evaluate(result.t)
     tip_d = np.array([robot.tip_pose(q)[:3, 3] for q in q_d[::10]])
@@ -95,6 +74,43 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         "rtf": wall / (duration + START_CYCLE / 50e6),
     }
     return result, summary
+
+
+def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
+             duration_cycles: int, record: bool = False, quiet: bool = True):
+    """Build :class:`hdl.system.System` for ``robot`` on ``backend`` and run the closed loop.
+
+    Returns
+    -------
+    (LoopResult, Recorder or None)
+        With ``record``, the recorder holds every per-cycle output the loop sampled.
+    """
+    from hdl.system import System
+
+    system = System(robot.n)
+    if backend == "compiled":
+        be = CompiledBackend(system, f"system{robot.n}", quiet=quiet)
+    elif backend == "pysim":
+        be = PysimBackend(system)
+    else:
+        raise InputError("--backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")
+    rec = Recorder(be) if record else None
+    loop = ClosedLoop(robot, rec or be, master, plant, start_cycle, uploads)
+    if backend == "compiled":
+        return drive(loop.run(duration_cycles)), rec
+    from amaranth.sim import Simulator
+
+    box = {}
+
+    async def bench(ctx):
+        be.bind(ctx)
+        box["result"] = await loop.run(duration_cycles)
+
+    sim = Simulator(system)
+    sim.add_clock(20e-9)
+    sim.add_testbench(bench)
+    sim.run()
+    return box["result"], rec
 
 
 def _phases_us(master) -> dict:
