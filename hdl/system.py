@@ -21,7 +21,13 @@ from .master_port import MasterPort
 from .node.fixed import WORD
 from .node.top import SlaveNode
 
-__all__ = ["System"]
+__all__ = ["System", "check_n_nodes"]
+
+
+def check_n_nodes(n_nodes) -> None:
+    """``ValueError`` unless ``n_nodes`` is an integer from 1 to 16."""
+    if isinstance(n_nodes, bool) or not isinstance(n_nodes, int) or not 1 <= n_nodes <= 16:
+        raise ValueError(f"n_nodes must be an integer from 1 to 16, not {n_nodes!r}")
 
 
 class System(wiring.Component):
@@ -51,8 +57,7 @@ class System(wiring.Component):
     """
 
     def __init__(self, n_nodes: int, *, codec: dict | None = None, encoder=None):
-        if not isinstance(n_nodes, int) or not 1 <= n_nodes <= 16:
-            raise ValueError(f"n_nodes must be an integer from 1 to 16, not {n_nodes!r}")
+        check_n_nodes(n_nodes)
         self.n_nodes = n_nodes
         self.master = MasterPort(codec=codec)
         self.nodes = [SlaveNode(codec=codec, encoder=encoder) for _ in range(n_nodes)]

@@ -42,6 +42,12 @@ def _spw_codec(*, slots: int = 3, start_div: int | None = None, run_div: int = 1
                  rx_fifo_depth=rx_fifo_depth)
 
 
+def _system(*, n_nodes: int = 3) -> wiring.Component:
+    from .system import System, check_n_nodes
+    check_n_nodes(n_nodes)  # before construction: a half-built component would be "unused"
+    return System(n_nodes)
+
+
 TOPS: dict[str, Top] = {
     "spw_codec": Top(_spw_codec, "standalone SpaceWire codec (wire ports d_in, s_in, d_out, "
                                  "s_out; N-char streams, time-codes, link control/status)"),
@@ -51,6 +57,8 @@ TOPS: dict[str, Top] = {
                                 "encoder, watchdog); encoder lines in, torque word out"),
     "node_core": Top(node_core_top, "node compute core alone (packet beat streams, encoder "
                                     "lines, torque word)"),
+    "system": Top(_system, "the whole robot's gateware: master link port and n_nodes slave "
+                           "nodes in a daisy chain (what the co-simulation runs)"),
 }
 
 
