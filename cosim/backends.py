@@ -29,33 +29,41 @@ def _hdl_fingerprint() -> str:
     return digest.hexdigest()
 
 
-def system_verilog(system, key: str) -> str:
-    """Verilog of ``system``, cached under ``key`` plus the gateware sources' fingerprint
-    (converting the three-node system takes ~15 s; reading it back, milliseconds)."""
+def system_verilog(factory, key: str) -> tuple[str, dict]:
+    """Verilog of the design ``factory()`` builds and its ports' signedness, cached under
+    ``key`` plus the gateware sources' fingerprint (converting the three-node system takes
+    ~15 s; reading it back, milliseconds). On a cache hit the design is not even built."""
+    import json
+
     from amaranth.back import verilog
 
-    from cosim.compiled import cache_dir
+    from cosim.compiled import cache_dir, signed_port_map
     from mrm.output import atomic_write_text
 
     path = cache_dir() / "verilog" / f"{key}-{_hdl_fingerprint()[:20]}.v"
-    if path.exists():
-        return path.read_text()
-    text = verilog.convert(system, name="system", emit_src=False)
+    side = path.with_suffix(".json")
+    if path.exists() and side.exists():
+        return path.read_text(), json.loads(side.read_text())
+    design = factory()
+    text = verilog.convert(design, name="system", emit_src=False)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, text)
-    return text
+    signed = signed_port_map(design)
+    atomic_write_text(side, json.dumps(signed))
+    return text, signed
 
 
 class CompiledBackend:
-    """Verilator build of the system (cached by a hash of its Verilog)."""
+    """Verilator build of the system (Verilog and binary cached by content hashes)."""
 
     name = "compiled"
 
-    def __init__(self, system, key: str, quiet: bool = True):
+    def __init__(self, factory, key: str, quiet: bool = True):
         from cosim.compiled import CompiledModel
 
-        self.model = CompiledModel(system, "system", quiet=quiet,
-                                   verilog_text=system_verilog(system, key))
+        text, signed = system_verilog(factory, key)
+        self.model = CompiledModel(None, "system", quiet=quiet, verilog_text=text,
+                                   signed_ports=signed)
 
     async def run(self, n, inputs, outputs):
         return self.model.run(n, inputs, outputs)

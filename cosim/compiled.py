@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CompiledModel", "Port", "verilator_path", "cache_dir", "BuildError"]
+__all__ = ["CompiledModel", "Port", "verilator_path", "cache_dir", "BuildError",
+           "signed_port_map"]
 
 _WRAPPER_VERSION = "1"
 _PORT_RE = re.compile(r"^\s*(input|output)\s+(signed\s+)?(?:\[(\d+):0\]\s+)?(\w+)\s*;", re.M)
@@ -181,10 +182,13 @@ class CompiledModel:
         C++ optimization level for the model (``-O2`` is 1.3–2× faster than Verilator's ``-Os``).
     verilog_text : str, optional
         Already generated Verilog (skips the conversion).
+    signed_ports : dict of str to bool, optional
+        Signedness of the ports when no component is given (:func:`signed_port_map`).
     """
 
     def __init__(self, component=None, name: str = "top", *, opt: str = "-O2",
-                 verilog_text: str | None = None, quiet: bool = True):
+                 verilog_text: str | None = None, signed_ports: dict | None = None,
+                 quiet: bool = True):
         if verilog_text is None:
             from amaranth.back import verilog
 
@@ -193,9 +197,9 @@ class CompiledModel:
         self.name = name
         self.verilog = verilog_text
         ports = _parse_ports(verilog_text, name)
-        if component is not None:
+        if component is not None or signed_ports is not None:
             # Verilog ports carry no sign; take it from the Amaranth signature.
-            signed = _signed_ports(component)
+            signed = signed_ports if signed_ports is not None else signed_port_map(component)
             ports = [Port(p.name, p.index, p.width, signed.get(p.name, p.signed), p.direction)
                      for p in ports]
         if not any(p.name == "clk" for p in ports):
@@ -344,7 +348,8 @@ class CompiledModel:
             pass
 
 
-def _signed_ports(component) -> dict[str, bool]:
+def signed_port_map(component) -> dict[str, bool]:
+    """``{port name: signed}`` of a component, from its signature (Verilog has no sign)."""
     out = {}
     for path, _member, value in component.signature.flatten(component):
         try:

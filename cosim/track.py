@@ -87,10 +87,10 @@ def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
     """
     from hdl.system import System
 
-    system = System(robot.n)
     if backend == "compiled":
-        be = CompiledBackend(system, f"system{robot.n}", quiet=quiet)
+        be = CompiledBackend(lambda: System(robot.n), f"system{robot.n}", quiet=quiet)
     elif backend == "pysim":
+        system = System(robot.n)
         be = PysimBackend(system)
     else:
         raise InputError("--backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")

@@ -16,7 +16,7 @@ from mrm import __version__
 from mrm.errors import InputError
 
 # Subcommand modules, in the order they appear in ``mrm --help``.
-COMMANDS = ("robot", "plan", "run", "hdl")
+COMMANDS = ("robot", "plan", "run", "hdl", "bench")
 
 EXIT_USAGE = 2
 
