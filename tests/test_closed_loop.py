@@ -74,3 +74,15 @@ def test_bench_reports_speed_of_the_compiled_loop():
     r = bench_backend("compiled", "mrm3", cycles=20_000)
     assert r["cycles"] == 20_000 and r["cycles_per_s"] > 0
     assert r["rtf"] == pytest.approx(r["wall_s"] / (20_000 / 50e6))
+
+
+@pytest.mark.parametrize("controller", ["pid-fpga", "pid-1khz"])
+def test_pid_controllers_run_their_exchange(controller):
+    """PID modes skip Comm B/C: A then D every period, the joints held near the reference."""
+    result, summary = run_track("mrm3", controller, "compiled", duration=0.003, seed=2)
+    assert summary["overruns"] == 0 and summary["unexpected_replies"] == 0
+    for rec in result.master.records[:-1]:
+        assert rec.complete and "B_sent" not in rec.events and "C_done" not in rec.events
+        assert rec.start < rec.events["A_done"] < rec.events["D_sent"]
+    assert summary["max_joint_error_rad"] < 2e-3
+    assert np.any(result.tau != 0.0)
