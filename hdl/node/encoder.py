@@ -9,8 +9,10 @@ gateware equals bit for bit. Velocity pipeline, one stage per cycle after a ``sa
     S2  u  = m · y0                         (table word y0 arrives)
     S3  y1 = y0 + y0 · (1 − u)              (Newton–Raphson)
     S4  n  = numerator · y1
-    S5  w  = n · K_v
-    S6  velocity ← round(w / 2^(p+6)) per case   → visible VEL_LATENCY cycles after the strobe
+    S5  w  = n · K_v                        (and the rounding constant for S6)
+    S6  r  = round(w / 2^(p+6))
+    S7  saturate to a VEL word
+    S8  velocity ← r per case               → visible VEL_LATENCY cycles after the strobe
 
 Each product but the last fits one MULT18X18 (17-bit unsigned operands, or a small signed one).
 """
@@ -218,32 +220,34 @@ class QuadratureEncoder(wiring.Component):
                                 stage("s4_p", range(AGE_BITS), s3_p))
         s4_n = stage("s4_n", signed(30), s3_num * s3_y1)
 
-        # --- S5: w = n · K_v ------------------------------------------------------------------
-        s5_ok, s5_case, s5_p = (stage("s5_ok", 1, s4_ok), stage("s5_case", 2, s4_case),
-                                stage("s5_p", range(AGE_BITS), s4_p))
+        # --- S5: w = n · K_v; the rounding constant and shift for S6 ------------------------
+        s5_ok, s5_case = stage("s5_ok", 1, s4_ok), stage("s5_case", 2, s4_case)
         s5_w = stage("s5_w", signed(48), s4_n * p.kv)
+        sh4 = Signal(range(AGE_BITS + 6))
+        m.d.comb += sh4.eq(s4_p + 6)
+        s5_sh = stage("s5_sh", range(AGE_BITS + 6), sh4)
+        s5_half = stage("s5_half", 48, (C(1, 48) << sh4) >> 1)
 
-        # --- S6: round, saturate, apply -------------------------------------------------------
-        sh = s5_p + 6
-        rounded = Signal(signed(48))
-        v_raw = Signal(signed(WORD))
-        m.d.comb += rounded.eq((s5_w + ((C(1, 48) << sh) >> 1)) >> sh)
-        with m.If(rounded > WORD_MAX):
-            m.d.comb += v_raw.eq(WORD_MAX)
-        with m.Elif(rounded < WORD_MIN):
-            m.d.comb += v_raw.eq(WORD_MIN)
-        with m.Else():
-            m.d.comb += v_raw.eq(rounded)
+        # --- S6: round and shift --------------------------------------------------------------
+        s6_ok, s6_case = stage("s6_ok", 1, s5_ok), stage("s6_case", 2, s5_case)
+        s6_r = stage("s6_r", signed(48), (s5_w + s5_half) >> s5_sh)
+
+        # --- S7: saturate ---------------------------------------------------------------------
+        s7_ok, s7_case = stage("s7_ok", 1, s6_ok), stage("s7_case", 2, s6_case)
+        s7_v = stage("s7_v", signed(WORD), Mux(s6_r > WORD_MAX, WORD_MAX,
+                                               Mux(s6_r < WORD_MIN, WORD_MIN, s6_r)))
+
+        # --- S8: apply ------------------------------------------------------------------------
         v = self.velocity
-        with m.If(s5_ok):
-            with m.Switch(s5_case):
+        with m.If(s7_ok):
+            with m.Switch(s7_case):
                 with m.Case(_MEASURE):
-                    m.d.sync += v.eq(v_raw)
+                    m.d.sync += v.eq(s7_v)
                 with m.Case(_STOP):
                     m.d.sync += v.eq(0)
                 with m.Case(_BOUND):
-                    with m.If((v > 0) & (v > v_raw)):
-                        m.d.sync += v.eq(v_raw)
-                    with m.Elif((v < 0) & (-v > v_raw)):
-                        m.d.sync += v.eq(-v_raw)
+                    with m.If((v > 0) & (v > s7_v)):
+                        m.d.sync += v.eq(s7_v)
+                    with m.Elif((v < 0) & (-v > s7_v)):
+                        m.d.sync += v.eq(-s7_v)
         return m

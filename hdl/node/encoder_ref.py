@@ -24,9 +24,9 @@ encoder; the master presets it after homing). Per cycle, in this order:
 
    The division is a reciprocal: normalize ``den`` to ``m ∈ [1, 2)`` (17 bits), 256-entry
    table ``y0 ≈ 1/m``, one Newton–Raphson step ``y1 = y0 (2 − m y0)`` (relative error
-   < 2.5e-5, mostly from truncating ``den`` to 17 bits), then ``v = num · y1 · K_v`` scaled by a shift, ``K_v = f_clk · 2π / CPR``
-   (rad/s per count/cycle) as a Q8 constant. The result, a VEL word, is visible
-   :data:`VEL_LATENCY` cycles after the strobe's cycle.
+   < 2.5e-5, mostly from truncating ``den`` to 17 bits), then ``v = num · y1 · K_v`` scaled
+   by a shift, ``K_v = f_clk · 2π / CPR`` (rad/s per count/cycle) as a Q8 constant. The
+   result, a VEL word, is visible :data:`VEL_LATENCY` cycles after the strobe's cycle.
 
 Model attributes after :meth:`EncoderModel.cycle` for cycle ``k`` are the register values
 visible during cycle ``k + 1``.
@@ -45,7 +45,7 @@ __all__ = ["AGE_BITS", "AGE_MAX", "DC_MAX", "VEL_LATENCY", "RECIP_TABLE", "Encod
 AGE_BITS = 26
 AGE_MAX = (1 << AGE_BITS) - 1
 DC_MAX = 511
-VEL_LATENCY = 7
+VEL_LATENCY = 9
 RECIP_TABLE = [round(2**17 / (1 + (i + 0.5) / 256)) for i in range(256)]
 
 
