@@ -4,7 +4,9 @@ Cycle-exact behaviour, the reasons for the M/T velocity method and the reciproca
 one Newton–Raphson step, since there is no divider) are in :mod:`.encoder_ref`, which this
 gateware equals bit for bit. Velocity pipeline, one stage per cycle after a ``sample`` strobe::
 
-    S0  case (measure / bound / stop), numerator, denominator latched
+    SA  the strobe's cycle: count − c_ref and the window latched (strobes one cycle apart:
+        the second is ignored)
+    SB  case (measure / bound / stop), numerator, denominator; the reference moves
     S1  leading-one normalization of the denominator to 17 bits; table address
     S2  u  = m · y0                         (table word y0 arrives)
     S3  y1 = y0 + y0 · (1 − u)              (Newton–Raphson)
@@ -131,43 +133,59 @@ class QuadratureEncoder(wiring.Component):
         with m.Elif(age_edge != AGE_MAX):
             m.d.sync += age_edge.eq(age_edge + 1)
 
-        dc_full = Signal(signed(33))
-        dc      = Signal(signed(11))
-        window  = Signal(signed(AGE_BITS + 1))
-        m.d.comb += [
-            dc_full.eq(self.count - c_ref),
-            dc.eq(Mux(dc_full > DC_MAX, DC_MAX, Mux(dc_full < -DC_MAX, -DC_MAX, dc_full))),
-            window.eq(age_ref - age_edge),
+        # SA (the strobe's cycle): snapshot the differences; SB: decide. A strobe in the cycle
+        # right after a strobe is ignored; the reference moves at the end of SB.
+        a_ok     = Signal()
+        a_cancel = Signal()
+        a_dc     = Signal(signed(33))
+        a_window = Signal(signed(AGE_BITS + 1))
+        a_count  = Signal(signed(32))
+        a_edge   = Signal(AGE_BITS)
+        a_ref    = Signal(AGE_BITS)
+        take = Signal()
+        m.d.comb += take.eq(self.sample & ~a_ok)
+        m.d.sync += [
+            a_ok.eq(take),
+            a_cancel.eq(self.preset),
+            a_dc.eq(self.count - c_ref),
+            a_window.eq(age_ref - age_edge),
+            a_count.eq(self.count),
+            a_edge.eq(age_edge),
+            a_ref.eq(age_ref),
         ]
+        dc = Signal(signed(11))
+        m.d.comb += dc.eq(Mux(a_dc > DC_MAX, DC_MAX, Mux(a_dc < -DC_MAX, -DC_MAX, a_dc)))
         s0_case = Signal(2)
         s0_num  = Signal(signed(11))
         s0_den  = Signal(AGE_BITS)
         s0_ok   = Signal()
-        m.d.sync += s0_ok.eq(self.sample)
-        measure = (dc != 0) & (window >= p.min_window)
-        with m.If(self.sample & measure):
+        m.d.sync += s0_ok.eq(a_ok)
+        measure = (dc != 0) & (a_window >= p.min_window)
+        with m.If(age_ref != AGE_MAX):
+            m.d.sync += age_ref.eq(age_ref + 1)
+        with m.If(a_ok & measure):
             m.d.sync += [
                 s0_case.eq(_MEASURE),
                 s0_num.eq(dc),
-                s0_den.eq(window),
-                c_ref.eq(self.count),
-                age_ref.eq(Mux(age_edge == AGE_MAX, AGE_MAX, age_edge + 1)),
+                s0_den.eq(a_window),
             ]
-        with m.Else():
-            with m.If(age_ref != AGE_MAX):
-                m.d.sync += age_ref.eq(age_ref + 1)
-            with m.If(self.sample & (age_edge >= p.stop_cycles)):
+            with m.If(~a_cancel):
                 m.d.sync += [
-                    s0_case.eq(_STOP),
-                    s0_num.eq(0),
-                    s0_den.eq(1),
+                    c_ref.eq(a_count),
+                    age_ref.eq(Mux(a_edge >= AGE_MAX - 1, AGE_MAX, a_edge + 2)),
                 ]
-            with m.Elif(self.sample):
-                m.d.sync += [
-                    s0_case.eq(_BOUND),
-                    s0_num.eq(Mux(dc < 0, -dc, dc) + 1),
-                    s0_den.eq(age_ref),
-                ]
+        with m.Elif(a_ok & (a_edge >= p.stop_cycles)):
+            m.d.sync += [
+                s0_case.eq(_STOP),
+                s0_num.eq(0),
+                s0_den.eq(1),
+            ]
+        with m.Elif(a_ok):
+            m.d.sync += [
+                s0_case.eq(_BOUND),
+                s0_num.eq(Mux(dc < 0, -dc, dc) + 1),
+                s0_den.eq(a_ref),
+            ]
 
         with m.If(self.preset):
             m.d.sync += c_ref.eq(self.preset_count)

@@ -12,11 +12,13 @@ encoder; the master presets it after homing). Per cycle, in this order:
    lines changing at once is an illegal transition — counted (saturating at 0xFFFF), no move.
 4. Ages (cycles since the last edge, and since the reference edge) count up, saturating at
    :data:`AGE_MAX`; an edge sets the edge age to 0.
-5. On a ``sample`` strobe, with ``dc = count − c_ref`` (saturated to ±:data:`DC_MAX`) and
-   ``window = age_ref − age_edge`` (reference edge to last edge):
+5. On a ``sample`` strobe (not in the cycle right after a taken one), with
+   ``dc = count − c_ref`` (saturated to ±:data:`DC_MAX`) and ``window = age_ref − age_edge``
+   (reference edge to last edge), all as in the strobe's cycle:
 
    * MEASURE if ``dc ≠ 0`` and ``window ≥ min_window``: ``v = dc / window``, the M/T method
-     (counts over the exact time between edges), and the last edge becomes the reference;
+     (counts over the exact time between edges), and the last edge becomes the reference
+     (at the end of the next cycle, unless a preset comes in the strobe's cycle);
    * STOP if ``age_edge ≥ stop_cycles``: ``v = 0``;
    * BOUND otherwise: no new edge pair yet, but the next edge has not come either, so
      ``|v| ≤ (|dc| + 1) / age_ref``; ``|v|`` is clipped to that (sign kept). This is what
@@ -45,7 +47,7 @@ __all__ = ["AGE_BITS", "AGE_MAX", "DC_MAX", "VEL_LATENCY", "RECIP_TABLE", "Encod
 AGE_BITS = 26
 AGE_MAX = (1 << AGE_BITS) - 1
 DC_MAX = 511
-VEL_LATENCY = 9
+VEL_LATENCY = 10
 RECIP_TABLE = [round(2**17 / (1 + (i + 0.5) / 256)) for i in range(256)]
 
 
@@ -145,6 +147,8 @@ class EncoderModel:
         self.c_ref = 0
         self.velocity = 0
         self._pipe: list[tuple[int, str, int, int]] = []   # (due cycle, case, num, den)
+        self._pending_ref: tuple[int, int, int] | None = None
+        self._last_taken = -2
         self.now = 0
 
     def cycle(self, a: int, b: int, sample: bool = False, preset: int | None = None) -> None:
@@ -165,13 +169,19 @@ class EncoderModel:
                     self.velocity = v
                 elif abs(self.velocity) > v:
                     self.velocity = v if self.velocity > 0 else -v
-        # Sample strobe: decide on the current state.
-        if sample:
+        # Sample strobe: decide on the current state (a strobe in the cycle right after a
+        # taken one is ignored: the decision takes two cycles).
+        if sample and self._last_taken != self.now - 1:
+            self._last_taken = self.now
             dc = max(-DC_MAX, min(DC_MAX, self.count - self.c_ref))
             window = self.age_ref - self.age_edge
             if dc != 0 and window >= p.min_window:
                 self._pipe.append((self.now + VEL_LATENCY - 1, "measure", dc, window))
-                new_ref = (self.count, min(self.age_edge + 1, AGE_MAX))
+                # The reference moves one cycle later, unless a preset comes in this cycle.
+                if preset is None:
+                    self._pending_ref = (self.now + 1, self.count,
+                                         min(self.age_edge + 2, AGE_MAX))
+                new_ref = None
             elif self.age_edge >= p.stop_cycles:
                 self._pipe.append((self.now + VEL_LATENCY - 1, "stop", 0, 1))
                 new_ref = None
@@ -213,6 +223,9 @@ class EncoderModel:
         self.age_ref = min(self.age_ref + 1, AGE_MAX)
         if new_ref is not None:
             self.c_ref, self.age_ref = new_ref
+        if self._pending_ref is not None and self._pending_ref[0] == self.now:
+            _, self.c_ref, self.age_ref = self._pending_ref
+            self._pending_ref = None
         if preset is not None:
             self.count = self.c_ref = ((preset + 2**31) % 2**32) - 2**31
         self.s2 = list(self.s1)
