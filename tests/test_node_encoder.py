@@ -83,6 +83,15 @@ def test_rtl_equals_reference(name, q_of_t, n):
     assert out == run_ref(params, a, b, 50, presets)
 
 
+def test_rtl_equals_reference_when_the_count_difference_saturates():
+    """0.38 counts per cycle over a 2048-cycle window: more than 512 counts between samples."""
+    params = EncoderParams(min_window=2048, stop_cycles=3_000)
+    a, b, _ = lines_for(lambda t: 150.0 * t, 7_000)
+    out = run_rtl(params, a, b, 2500, "encoder_saturating")
+    assert out == run_ref(params, a, b, 2500)
+    assert any(o[1] != 0 for o in out)
+
+
 @settings(max_examples=8, deadline=None)
 @given(seq=st.lists(st.tuples(st.integers(0, 1), st.integers(0, 1), st.integers(1, 40)),
                     min_size=5, max_size=60),

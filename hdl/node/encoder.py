@@ -154,7 +154,10 @@ class QuadratureEncoder(wiring.Component):
             a_ref.eq(age_ref),
         ]
         dc = Signal(signed(11))
-        m.d.comb += dc.eq(Mux(a_dc > DC_MAX, DC_MAX, Mux(a_dc < -DC_MAX, -DC_MAX, a_dc)))
+        # Saturation to 10 bits by a sign-extension check (no magnitude comparators).
+        high = a_dc[9:]
+        fits = (high == 0) | (high == (1 << len(high)) - 1)
+        m.d.comb += dc.eq(Mux(fits, a_dc[:10].as_signed(), Mux(a_dc[-1], -DC_MAX - 1, DC_MAX)))
         s0_case = Signal(2)
         s0_num  = Signal(signed(11))
         s0_den  = Signal(AGE_BITS)

@@ -13,8 +13,8 @@ encoder; the master presets it after homing). Per cycle, in this order:
 4. Ages (cycles since the last edge, and since the reference edge) count up, saturating at
    :data:`AGE_MAX`; an edge sets the edge age to 0.
 5. On a ``sample`` strobe (not in the cycle right after a taken one), with
-   ``dc = count − c_ref`` (saturated to ±:data:`DC_MAX`) and ``window = age_ref − age_edge``
-   (reference edge to last edge), all as in the strobe's cycle:
+   ``dc = count − c_ref`` (saturated to 10 bits, −512..:data:`DC_MAX`) and
+   ``window = age_ref − age_edge`` (reference edge to last edge), all as in the strobe's cycle:
 
    * MEASURE if ``dc ≠ 0`` and ``window ≥ min_window``: ``v = dc / window``, the M/T method
      (counts over the exact time between edges), and the last edge becomes the reference
@@ -173,7 +173,7 @@ class EncoderModel:
         # taken one is ignored: the decision takes two cycles).
         if sample and self._last_taken != self.now - 1:
             self._last_taken = self.now
-            dc = max(-DC_MAX, min(DC_MAX, self.count - self.c_ref))
+            dc = max(-DC_MAX - 1, min(DC_MAX, self.count - self.c_ref))
             window = self.age_ref - self.age_edge
             if dc != 0 and window >= p.min_window:
                 self._pipe.append((self.now + VEL_LATENCY - 1, "measure", dc, window))
