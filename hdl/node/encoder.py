@@ -7,13 +7,14 @@ gateware equals bit for bit. Velocity pipeline, one stage per cycle after a ``sa
     SA  the strobe's cycle: count − c_ref and the window latched (strobes one cycle apart:
         the second is ignored)
     SB  case (measure / bound / stop), numerator, denominator; the reference moves
-    S1  leading-one normalization of the denominator to 17 bits; table address
+    S1  leading one of the denominator (and |dc| + 1 for a bound)
+    S1b normalization of the denominator to 17 bits; table address
     S2  u  = m · y0                         (table word y0 arrives)
     S3  y1 = y0 + y0 · (1 − u)              (Newton–Raphson)
     S4  n  = numerator · y1
-    S5  w  = n · K_v                        (and the rounding constant for S6)
-    S6  r  = round(w / 2^(p+6))
-    S7  saturate to a VEL word
+    S5  w  = n · K_v
+    S6  t  = floor(w / 2^(p+5))
+    S7  r  = floor((t + 1) / 2) = round(w / 2^(p+6)), saturated to a VEL word
     S8  velocity ← r per case               → visible VEL_LATENCY cycles after the strobe
 
 Each product but the last fits one MULT18X18 (17-bit unsigned operands, or a small signed one).
@@ -186,47 +187,53 @@ class QuadratureEncoder(wiring.Component):
         with m.Elif(a_ok):
             m.d.sync += [
                 s0_case.eq(_BOUND),
-                s0_num.eq(Mux(dc < 0, -dc, dc) + 1),
+                s0_num.eq(dc),                  # |dc| + 1 is formed in S1
                 s0_den.eq(a_ref),
             ]
 
         with m.If(self.preset):
             m.d.sync += c_ref.eq(self.preset_count)
 
-        # --- S1: normalize --------------------------------------------------------------------
+        def stage(name, value_or_shape, src):
+            sig = Signal(value_or_shape, name=name)
+            m.d.sync += sig.eq(src)
+            return sig
+
+        # --- S1: leading one of the denominator; |dc| + 1 for a bound ------------------------
         den = Signal(AGE_BITS)
         m.d.comb += den.eq(Mux(s0_den == 0, 1, s0_den))
         lead = Signal(range(AGE_BITS))
         for i in range(AGE_BITS):
             with m.If(den[i]):
                 m.d.comb += lead.eq(i)
+        bound_num = Signal(signed(11))
+        m.d.comb += bound_num.eq(Mux(s0_num < 0, -s0_num, s0_num) + 1)
+        s1_ok, s1_case = stage("s1_ok", 1, s0_ok), stage("s1_case", 2, s0_case)
+        s1_num = stage("s1_num", signed(11), Mux(s0_case == _BOUND, bound_num, s0_num))
+        s1_p = stage("s1_p", range(AGE_BITS), lead)
+        s1_den = stage("s1_den", AGE_BITS, den)
+
+        # --- S1b: normalize to 17 bits; table address ------------------------------------------
         norm = Signal(AGE_BITS)
         shift = Signal(range(AGE_BITS))
         m.d.comb += [
-            shift.eq(AGE_BITS - 1 - lead),
-            norm.eq(den << shift),
+            shift.eq(AGE_BITS - 1 - s1_p),
+            norm.eq(s1_den << shift),
         ]
         m.submodules.table = table = Memory(shape=17, depth=256, init=RECIP_TABLE)
         rd = table.read_port()
         m.d.comb += rd.addr.eq(norm[AGE_BITS - 9:AGE_BITS - 1])
-
-        def stage(name, value_or_shape, src):
-            sig = Signal(value_or_shape, name=name)
-            m.d.sync += sig.eq(src)
-            return sig
-
-        s1_ok, s1_case, s1_num = (stage("s1_ok", 1, s0_ok), stage("s1_case", 2, s0_case),
-                                  stage("s1_num", signed(11), s0_num))
-        s1_p = stage("s1_p", range(AGE_BITS), lead)
-        s1_m = stage("s1_m", 17, norm[AGE_BITS - 17:])
+        s1b_ok, s1b_case = stage("s1b_ok", 1, s1_ok), stage("s1b_case", 2, s1_case)
+        s1b_num = stage("s1b_num", signed(11), s1_num)
+        s1b_p = stage("s1b_p", range(AGE_BITS), s1_p)
+        s1b_m = stage("s1b_m", 17, norm[AGE_BITS - 17:])
 
         # --- S2: u = m · y0 -------------------------------------------------------------------
         y0 = rd.data
-        s2_ok, s2_case, s2_num, s2_p = (stage("s2_ok", 1, s1_ok), stage("s2_case", 2, s1_case),
-                                        stage("s2_num", signed(11), s1_num),
-                                        stage("s2_p", range(AGE_BITS), s1_p))
+        s2_ok, s2_case = stage("s2_ok", 1, s1b_ok), stage("s2_case", 2, s1b_case)
+        s2_num, s2_p = stage("s2_num", signed(11), s1b_num), stage("s2_p", range(AGE_BITS), s1b_p)
         s2_y0 = stage("s2_y0", 17, y0)
-        s2_u  = stage("s2_u", 19, (s1_m * y0) >> 16)
+        s2_u  = stage("s2_u", 19, (s1b_m * y0) >> 16)
 
         # --- S3: y1 = y0 + y0 · (1 − u) -------------------------------------------------------
         s3_ok, s3_case, s3_num, s3_p = (stage("s3_ok", 1, s2_ok), stage("s3_case", 2, s2_case),
@@ -244,19 +251,19 @@ class QuadratureEncoder(wiring.Component):
         # --- S5: w = n · K_v; the rounding constant and shift for S6 ------------------------
         s5_ok, s5_case = stage("s5_ok", 1, s4_ok), stage("s5_case", 2, s4_case)
         s5_w = stage("s5_w", signed(48), s4_n * p.kv)
-        sh4 = Signal(range(AGE_BITS + 6))
-        m.d.comb += sh4.eq(s4_p + 6)
-        s5_sh = stage("s5_sh", range(AGE_BITS + 6), sh4)
-        s5_half = stage("s5_half", 48, (C(1, 48) << sh4) >> 1)
+        s5_sh = stage("s5_sh", range(AGE_BITS + 6), s4_p + 5)
 
-        # --- S6: round and shift --------------------------------------------------------------
+        # --- S6: shift by all but one bit (floor((w + 2^(s-1)) / 2^s) =
+        #         floor((floor(w / 2^(s-1)) + 1) / 2), s ≥ 6) ----------------------------------
         s6_ok, s6_case = stage("s6_ok", 1, s5_ok), stage("s6_case", 2, s5_case)
-        s6_r = stage("s6_r", signed(48), (s5_w + s5_half) >> s5_sh)
+        s6_t = stage("s6_t", signed(48), s5_w >> s5_sh)
 
-        # --- S7: saturate ---------------------------------------------------------------------
+        # --- S7: round, saturate ----------------------------------------------------------------
         s7_ok, s7_case = stage("s7_ok", 1, s6_ok), stage("s7_case", 2, s6_case)
-        s7_v = stage("s7_v", signed(WORD), Mux(s6_r > WORD_MAX, WORD_MAX,
-                                               Mux(s6_r < WORD_MIN, WORD_MIN, s6_r)))
+        r = Signal(signed(48))
+        m.d.comb += r.eq((s6_t + 1) >> 1)
+        s7_v = stage("s7_v", signed(WORD), Mux(r > WORD_MAX, WORD_MAX,
+                                               Mux(r < WORD_MIN, WORD_MIN, r)))
 
         # --- S8: apply ------------------------------------------------------------------------
         v = self.velocity

@@ -47,7 +47,7 @@ __all__ = ["AGE_BITS", "AGE_MAX", "DC_MAX", "VEL_LATENCY", "RECIP_TABLE", "Encod
 AGE_BITS = 26
 AGE_MAX = (1 << AGE_BITS) - 1
 DC_MAX = 511
-VEL_LATENCY = 10
+VEL_LATENCY = 11
 RECIP_TABLE = [round(2**17 / (1 + (i + 0.5) / 256)) for i in range(256)]
 
 
@@ -114,7 +114,7 @@ def reciprocal(den: int) -> tuple[int, int]:
 def velocity_word(num: int, den: int, kv: int) -> int:
     """VEL word of ``num / den`` counts per cycle (``kv`` from :attr:`EncoderParams.kv`)."""
     y1, p = reciprocal(den)
-    return saturate(round_shift((num * y1) * kv, p + 6))
+    return saturate(round_shift((num * y1) * kv, p + 6))   # p + 6 ≥ 1: see encoder.py S6
 
 
 _PHASE = {(0, 0): 0, (1, 0): 1, (1, 1): 2, (0, 1): 3}
