@@ -4,8 +4,8 @@
 # Computers EC-8(3), 1959 (rotation mode).
 
 No divider and no table: one constant multiplication turns the count into a 24-bit binary
-angle, then :data:`~hdl.node.trig_ref.ITERATIONS` shift-and-add steps, one per cycle. The
-arithmetic is specified, bit for bit, by :mod:`.trig_ref`.
+angle, then :data:`~hdl.node.trig_ref.ITERATIONS` shift-and-add steps, two cycles each (shift,
+then add: short paths). The arithmetic is specified, bit for bit, by :mod:`.trig_ref`.
 """
 
 from amaranth import *
@@ -17,7 +17,7 @@ from .trig_ref import ATAN, GUARD, ITERATIONS, WIDTH, X0, ZGUARD, bam_constant
 
 __all__ = ["SinCos", "LATENCY"]
 
-LATENCY = ITERATIONS + 3
+LATENCY = 2 * ITERATIONS + 5
 
 
 class SinCos(wiring.Component):
@@ -71,18 +71,26 @@ class SinCos(wiring.Component):
 
         folded = Signal(signed(24))
         m.d.sync += self.done.eq(0)
-        m.d.comb += bam.eq(((prod + (1 << 21)) >> 22)[:24])
         need_flip = (bam > (1 << 22)) | (bam < -(1 << 22))
         m.d.comb += folded.eq(Mux(need_flip, bam + (1 << 23), bam))
 
+        cnt = Signal(signed(24))
+        xs  = Signal(signed(WIDTH))
+        ys  = Signal(signed(WIDTH))
         with m.FSM():
             with m.State("Idle"):
                 with m.If(self.start):
                     m.d.sync += [
-                        prod.eq(self.count[:24].as_signed() * self._kb),
+                        cnt.eq(self.count[:24].as_signed()),
                         self.busy.eq(1),
                     ]
-                    m.next = "Fold"
+                    m.next = "Multiply"
+            with m.State("Multiply"):
+                m.d.sync += prod.eq(cnt * self._kb)
+                m.next = "Angle"
+            with m.State("Angle"):
+                m.d.sync += bam.eq(((prod + (1 << 21)) >> 22)[:24])
+                m.next = "Fold"
             with m.State("Fold"):
                 m.d.sync += [
                     flip.eq(need_flip),
@@ -91,10 +99,15 @@ class SinCos(wiring.Component):
                     z.eq(folded << ZGUARD),
                     i.eq(0),
                 ]
+                m.next = "Shift"
+            # Two cycles per iteration: the shifted operands are registered, then added.
+            with m.State("Shift"):
+                m.d.sync += [
+                    xs.eq(x >> i),
+                    ys.eq(y >> i),
+                ]
                 m.next = "Rotate"
             with m.State("Rotate"):
-                xs = x >> i
-                ys = y >> i
                 with m.If(z >= 0):
                     m.d.sync += [
                         x.eq(x - ys),
@@ -110,6 +123,8 @@ class SinCos(wiring.Component):
                 m.d.sync += i.eq(i + 1)
                 with m.If(i == ITERATIONS - 1):
                     m.next = "Output"
+                with m.Else():
+                    m.next = "Shift"
             with m.State("Output"):
                 c = (x + (1 << (GUARD - 1))) >> GUARD
                 s = (y + (1 << (GUARD - 1))) >> GUARD
