@@ -6,8 +6,8 @@ design would (DESIGN.md "Slave node"): a program of multiply-accumulate statemen
 
     R   instruction from ROM; register-file (or input-port) read of operands a, b
     M   four partial products of the 24×24 signed product (17-bit unsigned / 7-bit signed
-        halves: each fits one MULT18X18), or min/max of the operands
-    P   partial products summed, shifted left by ``pshift``
+        halves: each fits one MULT18X18); the operands kept for MIN/MAX
+    P   partial products summed (or min/max of the operands), shifted left by ``pshift``
     A   accumulate or subtract (``first`` restarts the sum from the rounding constant
         ``2^(oshift-1)``), ACC_WIDTH bits, exact
     W1  take bits ``oshift .. oshift+23`` (the sum rounded half up), saturate (or wrap)
@@ -170,7 +170,8 @@ class MacEngine(wiring.Component):
         pp_lh = Signal(signed(25))
         pp_hl = Signal(signed(25))
         pp_hh = Signal(signed(14))
-        sel   = Signal(signed(WORD))
+        opa2  = Signal(signed(WORD))
+        opb2  = Signal(signed(WORD))
         c2 = Signal(ctl_layout())
         a_lo, a_hi = opa[:17], opa[17:].as_signed()
         b_lo, b_hi = opb[:17], opb[17:].as_signed()
@@ -180,8 +181,11 @@ class MacEngine(wiring.Component):
             pp_lh.eq(a_lo * b_hi),
             pp_hl.eq(a_hi * b_lo),
             pp_hh.eq(a_hi * b_hi),
-            sel.eq(Mux((opa < opb) ^ (c1.ins.op == _MAX), opa, opb)),
+            opa2.eq(opa),               # MIN/MAX compare one stage later, off the RAM's output
+            opb2.eq(opb),
         ]
+        sel = Signal(signed(WORD))
+        m.d.comb += sel.eq(Mux((opa2 < opb2) ^ (c2.ins.op == _MAX), opa2, opb2))
 
         # --- P: product, alignment -----------------------------------------------------------
         prod = Signal(signed(2 * WORD))
