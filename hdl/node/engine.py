@@ -2,9 +2,10 @@
 
 This is how the node computes without a divider and with few multipliers, as a Virtex-II
 design would (DESIGN.md "Slave node"): a program of multiply-accumulate statements
-(:mod:`.isa`), scheduled at build time, runs one term per cycle through a six-stage pipeline::
+(:mod:`.isa`), scheduled at build time, runs one term per cycle through a seven-stage pipeline::
 
     R   instruction from ROM; register-file (or input-port) read of operands a, b
+    O   operands registered (off the block RAM's slow output)
     M   four partial products of the 24×24 signed product (17-bit unsigned / 7-bit signed
         halves: each fits one MULT18X18); the operands kept for MIN/MAX
     P   partial products summed (or min/max of the operands), shifted left by ``pshift``
@@ -159,13 +160,17 @@ class MacEngine(wiring.Component):
             io_b.eq(inputs[(ins.b - IO_BASE)[:4]]),
         ]
 
-        # --- M: partial products -------------------------------------------------------------
+        # --- O: operands registered (off the block RAM's slow output) ---------------------------
         opa = Signal(signed(WORD))
         opb = Signal(signed(WORD))
-        m.d.comb += [
+        c1o = Signal(ctl_layout())
+        m.d.sync += [
+            c1o.eq(c1),
             opa.eq(Mux(sel_a_io, io_a, rd_a.data)),
             opb.eq(Mux(sel_b_io, io_b, rd_b.data)),
         ]
+
+        # --- M: partial products -------------------------------------------------------------
         pp_ll = Signal(34)
         pp_lh = Signal(signed(25))
         pp_hl = Signal(signed(25))
@@ -176,7 +181,7 @@ class MacEngine(wiring.Component):
         a_lo, a_hi = opa[:17], opa[17:].as_signed()
         b_lo, b_hi = opb[:17], opb[17:].as_signed()
         m.d.sync += [
-            c2.eq(c1),
+            c2.eq(c1o),
             pp_ll.eq(a_lo * b_lo),
             pp_lh.eq(a_lo * b_hi),
             pp_hl.eq(a_hi * b_lo),

@@ -37,7 +37,7 @@ __all__ = ["LATENCY", "ADDR_BITS", "IO_BASE", "IO_PORTS", "PSHIFT_MAX", "OSHIFT_
            "MAX_TERMS", "UNIT_SHIFTS", "ACC_WIDTH", "Op", "Instr", "INSTR_FIELDS", "INSTR_BITS",
            "encode", "decode", "Term", "T", "Reg", "Program", "Microcode"]
 
-LATENCY = 6        # issue of a statement's last term → first issue that may read its result
+LATENCY = 7        # issue of a statement's last term → first issue that may read its result
 ADDR_BITS = 9
 IO_PORTS = 16
 IO_BASE = (1 << ADDR_BITS) - IO_PORTS
