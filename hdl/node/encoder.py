@@ -10,7 +10,8 @@ gateware equals bit for bit. Velocity pipeline, one stage per cycle after a ``sa
     S1  leading one of the denominator (and |dc| + 1 for a bound)
     S1b normalization of the denominator to 17 bits; table address
     S2  u  = m · y0                         (table word y0 arrives)
-    S3  y1 = y0 + y0 · (1 − u)              (Newton–Raphson)
+    S3a t  = y0 · (1 − u)
+    S3  y1 = y0 + t                         (Newton–Raphson)
     S4  n  = numerator · y1
     S5  w  = n · K_v
     S6  t  = floor(w / 2^(p+5))
@@ -235,13 +236,18 @@ class QuadratureEncoder(wiring.Component):
         s2_y0 = stage("s2_y0", 17, y0)
         s2_u  = stage("s2_u", 19, (s1b_m * y0) >> 16)
 
-        # --- S3: y1 = y0 + y0 · (1 − u) -------------------------------------------------------
-        s3_ok, s3_case, s3_num, s3_p = (stage("s3_ok", 1, s2_ok), stage("s3_case", 2, s2_case),
-                                        stage("s3_num", signed(11), s2_num),
-                                        stage("s3_p", range(AGE_BITS), s2_p))
+        # --- S3: y1 = y0 + y0 · (1 − u), the product then the sum -----------------------------
+        s3a_ok, s3a_case = stage("s3a_ok", 1, s2_ok), stage("s3a_case", 2, s2_case)
+        s3a_num, s3a_p = stage("s3a_num", signed(11), s2_num), stage("s3a_p", range(AGE_BITS),
+                                                                      s2_p)
         d = Signal(signed(20))
         m.d.comb += d.eq((1 << 17) - s2_u)
-        s3_y1 = stage("s3_y1", 18, s2_y0 + ((s2_y0 * d) >> 17))
+        s3a_y0 = stage("s3a_y0", 17, s2_y0)
+        s3a_t = stage("s3a_t", signed(38), s2_y0 * d)
+        s3_ok, s3_case, s3_num, s3_p = (stage("s3_ok", 1, s3a_ok), stage("s3_case", 2, s3a_case),
+                                        stage("s3_num", signed(11), s3a_num),
+                                        stage("s3_p", range(AGE_BITS), s3a_p))
+        s3_y1 = stage("s3_y1", 18, s3a_y0 + (s3a_t >> 17))
 
         # --- S4: n = numerator · y1 -----------------------------------------------------------
         s4_ok, s4_case, s4_p = (stage("s4_ok", 1, s3_ok), stage("s4_case", 2, s3_case),
