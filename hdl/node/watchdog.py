@@ -70,13 +70,14 @@ class Watchdog(wiring.Component):
             m.d.sync += self.tripped.eq(1)
 
         tau = self.torque
-        mag = Signal(WORD)
-        m.d.comb += mag.eq(Mux(tau < 0, -tau, tau))
+        # |τ| ≤ ramp without negating τ: τ ≤ ramp when positive, τ ≥ −ramp otherwise.
+        small = Signal()
+        m.d.comb += small.eq(Mux(tau > 0, tau <= self.ramp, tau >= -self.ramp))
         with m.If(~self.armed):
             m.d.sync += tau.eq(0)
         with m.Elif(self.tripped):
             with m.If(self.tick):
-                with m.If(mag <= self.ramp):
+                with m.If(small):
                     m.d.sync += tau.eq(0)
                 with m.Elif(tau > 0):
                     m.d.sync += tau.eq(tau - self.ramp)
