@@ -9,6 +9,7 @@ gateware equals bit for bit. Velocity pipeline, one stage per cycle after a ``sa
     SB  case (measure / bound / stop), numerator, denominator; the reference moves
     S1  leading one of the denominator (and |dc| + 1 for a bound)
     S1b normalization of the denominator to 17 bits; table address
+    S1c table word registered
     S2  u  = m · y0                         (table word y0 arrives)
     S3a t  = y0 · (1 − u)
     S3  y1 = y0 + t                         (Newton–Raphson)
@@ -229,12 +230,17 @@ class QuadratureEncoder(wiring.Component):
         s1b_p = stage("s1b_p", range(AGE_BITS), s1_p)
         s1b_m = stage("s1b_m", 17, norm[AGE_BITS - 17:])
 
+        # --- S1c: the table word, registered off the block RAM ------------------------------
+        s1c_ok, s1c_case = stage("s1c_ok", 1, s1b_ok), stage("s1c_case", 2, s1b_case)
+        s1c_num = stage("s1c_num", signed(11), s1b_num)
+        s1c_p, s1c_m = stage("s1c_p", range(AGE_BITS), s1b_p), stage("s1c_m", 17, s1b_m)
+        y0 = stage("s1c_y0", 17, rd.data)
+
         # --- S2: u = m · y0 -------------------------------------------------------------------
-        y0 = rd.data
-        s2_ok, s2_case = stage("s2_ok", 1, s1b_ok), stage("s2_case", 2, s1b_case)
-        s2_num, s2_p = stage("s2_num", signed(11), s1b_num), stage("s2_p", range(AGE_BITS), s1b_p)
+        s2_ok, s2_case = stage("s2_ok", 1, s1c_ok), stage("s2_case", 2, s1c_case)
+        s2_num, s2_p = stage("s2_num", signed(11), s1c_num), stage("s2_p", range(AGE_BITS), s1c_p)
         s2_y0 = stage("s2_y0", 17, y0)
-        s2_u  = stage("s2_u", 19, (s1b_m * y0) >> 16)
+        s2_u  = stage("s2_u", 19, (s1c_m * y0) >> 16)
 
         # --- S3: y1 = y0 + y0 · (1 − u), the product then the sum -----------------------------
         s3a_ok, s3a_case = stage("s3a_ok", 1, s2_ok), stage("s3a_case", 2, s2_case)

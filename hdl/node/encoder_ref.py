@@ -47,7 +47,7 @@ __all__ = ["AGE_BITS", "AGE_MAX", "DC_MAX", "VEL_LATENCY", "RECIP_TABLE", "Encod
 AGE_BITS = 26
 AGE_MAX = (1 << AGE_BITS) - 1
 DC_MAX = 511
-VEL_LATENCY = 12
+VEL_LATENCY = 13
 RECIP_TABLE = [round(2**17 / (1 + (i + 0.5) / 256)) for i in range(256)]
 
 
