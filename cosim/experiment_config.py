@@ -1,0 +1,376 @@
+"""Experiment configurations as TOML: load, validate, resolve, and write back exactly.
+
+A configuration names everything a closed-loop experiment depends on, so that a result
+folder plus its ``config.toml`` reproduces the run bit for bit::
+
+    [experiment]   name, robot, controllers, backend, seed, duration (s, optional)
+    [trajectory]   the paper's quintic test: amplitude (rad, joint 1; joint i moves i times
+                   as far), duration (s, t_f), hold (s, after t_f)
+    [plant]        models.plant.PlantConfig: dt, friction, springs, current_loop,
+                   current_bandwidth (Hz, optional), [plant.perturbation] links,
+                   rotor_inertia, friction, spring (relative half-widths)
+    [gains]        cosim.closed_loop.Gains: lam, k_j, K, adapt, pid_fpga_hz, pid_1khz_hz
+    [timing]       master.cycle.MasterTiming: period_cycles, kinematics_cycles, force_cycles
+
+Every key is optional (defaults are the dataclasses' own); an unknown key, a wrong type or an
+out-of-range value raises :class:`mrm.errors.InputError` naming the dotted field
+(``gains.lam``). :meth:`ExperimentConfig.to_toml` writes the resolved configuration (every
+default filled in) and :func:`loads` of that text gives back an equal configuration.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+
+from cosim.closed_loop import Gains
+from master.cycle import CONTROLLERS, MasterTiming
+from models.plant import Perturbation, PlantConfig
+from mrm.errors import InputError, require_finite, require_nonnegative, require_positive
+
+__all__ = ["ExperimentConfig", "TrajectoryConfig", "load", "loads", "DEFAULT_CONFIG",
+           "PAPER_AMPLITUDE", "PAPER_DURATION"]
+
+DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "table2.toml"
+PAPER_AMPLITUDE = 0.1571      # rad, p_f − p_0 of the MRM paper's eq. (4) (20,000 counts)
+PAPER_DURATION = 1.0          # s, t_f of eq. (4)
+MAX_DURATION = 60.0           # s of simulated time per controller
+
+
+@dataclass(frozen=True)
+class TrajectoryConfig:
+    """The quintic test q_i = i·q_d(t) (paper eqs. 1–4), then a hold at the goal.
+
+    Attributes
+    ----------
+    amplitude : float, rad
+        p_f − p_0 of joint 1.
+    duration : float, s
+        t_f, the time of the quintic.
+    hold : float, s
+        Time simulated after t_f (the goal is held).
+    """
+
+    amplitude: float = PAPER_AMPLITUDE
+    duration: float = PAPER_DURATION
+    hold: float = 0.2
+
+
+@dataclass(frozen=True)
+class ExperimentConfig:
+    """A resolved experiment: every field has its value, validated.
+
+    Attributes
+    ----------
+    name : str
+    robot : str
+        Built-in robot name or a path to an assembly TOML (absolute once resolved).
+    controllers : tuple of str
+        Subset of ``master.cycle.CONTROLLERS`` in the order they are run.
+    backend : str
+        A name ``cosim.track.run_track`` accepts (``cosim.track.BACKENDS``).
+    seed : int
+        Seed of the plant's true-versus-nominal perturbation (same plant for every controller).
+    duration : float, s
+        Simulated time per controller, from period 0.
+    trajectory : TrajectoryConfig
+    plant : models.plant.PlantConfig
+    gains : cosim.closed_loop.Gains
+    timing : master.cycle.MasterTiming
+    """
+
+    name: str = "table2"
+    robot: str = "mrm3"
+    controllers: tuple[str, ...] = ("pid-1khz", "pid-fpga", "vdc")
+    backend: str = "compiled"
+    seed: int = 0
+    duration: float = 1.2
+    trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+    plant: PlantConfig = field(default_factory=PlantConfig)
+    gains: Gains = field(default_factory=Gains)
+    timing: MasterTiming = field(default_factory=MasterTiming)
+
+    def with_overrides(self, *, backend: str | None = None, seed: int | None = None,
+                       duration: float | None = None, field_prefix: str = "--"
+                       ) -> ExperimentConfig:
+        """A copy with command-line overrides applied and validated (errors name the flag)."""
+        cfg = self
+        if backend is not None:
+            cfg = replace(cfg, backend=_backend(backend, f"{field_prefix}backend"))
+        if seed is not None:
+            cfg = replace(cfg, seed=_seed(seed, f"{field_prefix}seed"))
+        if duration is not None:
+            cfg = replace(cfg, duration=_duration(duration, f"{field_prefix}duration"))
+        return cfg
+
+    def to_dict(self) -> dict:
+        """The resolved configuration as plain data (the TOML layout; JSON-ready)."""
+        plant = {k: v for k, v in asdict(self.plant).items() if k != "cycle"}
+        if plant["current_bandwidth"] is None:
+            del plant["current_bandwidth"]
+        return {
+            "experiment": {"name": self.name, "robot": self.robot,
+                           "controllers": list(self.controllers), "backend": self.backend,
+                           "seed": self.seed, "duration": self.duration},
+            "trajectory": asdict(self.trajectory),
+            "plant": plant,
+            "gains": asdict(self.gains),
+            "timing": asdict(self.timing),
+        }
+
+    def to_toml(self) -> str:
+        """The resolved configuration as TOML text that :func:`loads` reads back equal."""
+        return _dump_toml(self.to_dict())
+
+
+# --- loading ---------------------------------------------------------------------------------
+def load(path=None) -> ExperimentConfig:
+    """Read and validate an experiment TOML (default: ``configs/table2.toml``).
+
+    Raises
+    ------
+    InputError
+        The file cannot be read or parsed (field ``--config``), or a value is bad (its
+        dotted field).
+    """
+    path = Path(DEFAULT_CONFIG if path is None else path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise InputError("--config", f"cannot read {str(path)!r}: {exc.strerror}") from None
+    return loads(text, base_dir=path.resolve().parent)
+
+
+def loads(text: str, base_dir=None) -> ExperimentConfig:
+    """Validate TOML text; relative robot paths are taken from ``base_dir``."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError("--config", f"not valid TOML: {exc}") from None
+    return from_dict(data, base_dir=base_dir)
+
+
+def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
+    """Validate a parsed configuration (the TOML layout)."""
+    _keys(data, "", {"experiment", "trajectory", "plant", "gains", "timing"})
+    exp = _table(data, "experiment")
+    _keys(exp, "experiment.", {"name", "robot", "controllers", "backend", "seed", "duration"})
+    d = ExperimentConfig()
+    name = _string(exp.get("name", d.name), "experiment.name")
+    robot = _robot(exp.get("robot", d.robot), base_dir)
+    controllers = _controllers(exp.get("controllers", list(d.controllers)))
+    backend = _backend(exp.get("backend", d.backend), "experiment.backend")
+    seed = _seed(exp.get("seed", d.seed), "experiment.seed")
+
+    tr = _table(data, "trajectory")
+    _keys(tr, "trajectory.", {f.name for f in fields(TrajectoryConfig)})
+    td = TrajectoryConfig()
+    amplitude = require_finite(tr.get("amplitude", td.amplitude), "trajectory.amplitude")
+    if amplitude == 0.0 or abs(amplitude) > 1.0:
+        raise InputError("trajectory.amplitude",
+                         f"must be non-zero and at most 1 rad in size, not {amplitude!r}")
+    trajectory = TrajectoryConfig(
+        amplitude,
+        _duration(tr.get("duration", td.duration), "trajectory.duration"),
+        require_nonnegative(tr.get("hold", td.hold), "trajectory.hold"))
+    default_duration = trajectory.duration + trajectory.hold
+    duration = _duration(exp.get("duration", default_duration), "experiment.duration")
+
+    gains = _gains(_table(data, "gains"))
+    _gains_fit_the_nodes(robot, controllers, gains)
+    return ExperimentConfig(name, robot, controllers, backend, seed, duration, trajectory,
+                            _plant(_table(data, "plant")), gains, _timing(_table(data, "timing")))
+
+
+def _table(data: dict, name: str) -> dict:
+    value = data.get(name, {})
+    if not isinstance(value, dict):
+        raise InputError(name, f"must be a table ([{name}]), not {value!r}")
+    return value
+
+
+def _keys(table: dict, prefix: str, known: set) -> None:
+    for key in table:
+        if key not in known:
+            raise InputError(f"{prefix}{key}", f"unknown key; known: {', '.join(sorted(known))}")
+
+
+def _string(value, name: str) -> str:
+    if not isinstance(value, str) or not value:
+        raise InputError(name, f"must be a non-empty string, not {value!r}")
+    return value
+
+
+def _robot(value, base_dir) -> str:
+    from models.robot import load_robot
+
+    value = _string(value, "experiment.robot")
+    if value.endswith(".toml"):
+        path = Path(value)
+        if not path.is_absolute() and base_dir is not None:
+            path = Path(base_dir) / path
+        value = str(path.resolve())
+    try:
+        load_robot(value)
+    except InputError as exc:
+        raise InputError("experiment.robot", f"{exc.field}: {exc.message}") from None
+    return value
+
+
+def _controllers(value) -> tuple[str, ...]:
+    if not isinstance(value, list) or not value:
+        raise InputError("experiment.controllers",
+                         f"must be a non-empty list of {', '.join(CONTROLLERS)}, not {value!r}")
+    for i, c in enumerate(value):
+        if c not in CONTROLLERS:
+            raise InputError(f"experiment.controllers[{i}]",
+                             f"must be one of {', '.join(CONTROLLERS)}, not {c!r}")
+    if len(set(value)) != len(value):
+        raise InputError("experiment.controllers", f"lists a controller twice: {value!r}")
+    return tuple(value)
+
+
+def _backend(value, name: str) -> str:
+    from cosim.track import BACKENDS
+
+    if value not in BACKENDS:
+        raise InputError(name, f"must be one of {', '.join(BACKENDS)}, not {value!r}")
+    return value
+
+
+def _seed(value, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < 2**63:
+        raise InputError(name, f"must be a non-negative integer, not {value!r}")
+    return value
+
+
+def _duration(value, name: str) -> float:
+    x = require_positive(value, name)
+    if x > MAX_DURATION:
+        raise InputError(name, f"must be at most {MAX_DURATION} s, not {value!r}")
+    return x
+
+
+def _bool(value, name: str) -> bool:
+    if not isinstance(value, bool):
+        raise InputError(name, f"must be true or false, not {value!r}")
+    return value
+
+
+def _plant(table: dict) -> PlantConfig:
+    known = {"dt", "friction", "springs", "current_loop", "current_bandwidth", "perturbation"}
+    _keys(table, "plant.", known)
+    d = PlantConfig()
+    pert = table.get("perturbation", {})
+    if isinstance(pert, dict):
+        _keys(pert, "plant.perturbation.", {f.name for f in fields(Perturbation)})
+        dp = Perturbation()
+        perturbation = Perturbation(**{
+            f.name: require_finite(pert.get(f.name, getattr(dp, f.name)),
+                                   f"plant.perturbation.{f.name}")
+            for f in fields(Perturbation)})
+    else:
+        perturbation = require_finite(pert, "plant.perturbation")
+    bw = table.get("current_bandwidth")
+    return PlantConfig(
+        dt=require_positive(table.get("dt", d.dt), "plant.dt"),
+        perturbation=perturbation,
+        friction=_bool(table.get("friction", d.friction), "plant.friction"),
+        springs=_bool(table.get("springs", d.springs), "plant.springs"),
+        current_loop=_bool(table.get("current_loop", d.current_loop), "plant.current_loop"),
+        current_bandwidth=None if bw is None else require_positive(bw, "plant.current_bandwidth"))
+
+
+# Upper bounds keep every gain inside the node's fixed-point registers with margin.
+_GAIN_LIMITS = {"lam": (False, 1000.0), "k_j": (True, 500.0), "K": (True, 5000.0),
+                "adapt": (True, 100.0), "pid_fpga_hz": (False, 200.0),
+                "pid_1khz_hz": (False, 100.0)}
+
+
+def _gains(table: dict) -> Gains:
+    _keys(table, "gains.", set(_GAIN_LIMITS))
+    d = Gains()
+    values = {}
+    for name, (zero_ok, top) in _GAIN_LIMITS.items():
+        field_name = f"gains.{name}"
+        raw = table.get(name, getattr(d, name))
+        x = (require_nonnegative if zero_ok else require_positive)(raw, field_name)
+        if x > top:
+            raise InputError(field_name, f"must be at most {top}, not {raw!r}")
+        values[name] = x
+    return Gains(**values)
+
+
+def _gains_fit_the_nodes(robot: str, controllers, gains: Gains) -> None:
+    """Encode the uploads each controller needs: every gain must fit its fixed-point word."""
+    from cosim.closed_loop import node_uploads
+    from models.robot import load_robot
+
+    r = load_robot(robot)
+    for c in controllers:
+        try:
+            node_uploads(r, c, gains)
+        except InputError as exc:
+            raise InputError(_gain_field(exc.field), f"does not fit the node's registers "
+                             f"for {c} ({exc.field}: {exc.message})") from None
+
+
+def _gain_field(word: str) -> str:
+    """The configuration field behind a node register word named in an upload error."""
+    leaf = word.rsplit(".", 1)[-1].split("[", 1)[0]
+    return "gains." + {"kp": "pid_fpga_hz", "ki": "pid_fpga_hz", "kd": "pid_fpga_hz",
+                       "ilo": "pid_fpga_hz", "ihi": "pid_fpga_hz", "K": "K", "rho": "adapt",
+                       "kj": "k_j", "lam": "lam", "lamc": "lam", "ivlc": "lam"}.get(leaf, "*")
+
+
+def _timing(table: dict) -> MasterTiming:
+    _keys(table, "timing.", {f.name for f in fields(MasterTiming)})
+    d = MasterTiming()
+    values = {}
+    for f in fields(MasterTiming):
+        raw = table.get(f.name, getattr(d, f.name))
+        if isinstance(raw, bool) or not isinstance(raw, int) or raw < 1:
+            raise InputError(f"timing.{f.name}", f"must be a positive whole number of 20 ns "
+                             f"cycles, not {raw!r}")
+        values[f.name] = raw
+    if values["period_cycles"] % 500:
+        raise InputError("timing.period_cycles", "must be a multiple of the 500-cycle plant "
+                         f"step, not {values['period_cycles']!r}")
+    if values["kinematics_cycles"] + values["force_cycles"] >= values["period_cycles"]:
+        raise InputError("timing.kinematics_cycles", "the master's compute time "
+                         "(kinematics + force) must be shorter than the period")
+    return MasterTiming(**values)
+
+
+# --- writing ---------------------------------------------------------------------------------
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise ValueError(f"cannot write {v!r} to TOML")
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _dump_toml(data: dict, prefix: str = "") -> str:
+    lines, tables = [], []
+    for key, value in data.items():
+        if isinstance(value, dict):
+            tables.append((key, value))
+        else:
+            lines.append(f"{key} = {_toml_value(value)}")
+    out = "\n".join(lines)
+    for key, value in tables:
+        name = f"{prefix}{key}"
+        body = _dump_toml(value, f"{name}.")
+        out += ("\n\n" if out else "") + f"[{name}]\n" + body
+    return out + ("\n" if not prefix else "")

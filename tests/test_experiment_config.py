@@ -1,0 +1,146 @@
+"""Experiment TOML: defaults, exact round trip, and every bad value named by its field."""
+
+import math
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+import mrm.cli as cli
+from cosim import experiment_config as ec
+from cosim.closed_loop import Gains
+from master.cycle import MasterTiming
+from models.plant import Perturbation, PlantConfig
+from mrm.errors import InputError
+
+ROBOTS = Path(__file__).resolve().parents[1] / "models" / "robots"
+
+
+def test_default_file_is_the_paper_experiment_on_the_code_defaults():
+    cfg = ec.load()
+    assert cfg.controllers == ("pid-1khz", "pid-fpga", "vdc")
+    assert cfg.robot == "mrm3"
+    assert cfg.trajectory.amplitude == 0.1571 and cfg.trajectory.duration == 1.0
+    assert cfg.duration == pytest.approx(cfg.trajectory.duration + cfg.trajectory.hold)
+    assert cfg.timing == MasterTiming()
+    assert cfg.plant.dt == PlantConfig().dt
+
+
+def test_empty_file_gives_the_dataclass_defaults():
+    cfg = ec.loads("")
+    assert cfg.gains == Gains()
+    assert cfg.timing == MasterTiming()
+    assert cfg.plant == PlantConfig()
+    assert cfg.duration == pytest.approx(1.2)
+
+
+@pytest.mark.parametrize("changes", [
+    {},
+    {"gains": replace(Gains(), lam=37.5, k_j=12.25, K=100.0, adapt=0.01, pid_fpga_hz=12.0)},
+    {"plant": PlantConfig(perturbation=Perturbation(0.2, 0.05, 0.3, 0.0), friction=False,
+                          current_bandwidth=700.0)},
+    {"timing": MasterTiming(50_000, 2_500, 1_750), "seed": 123456789, "duration": 0.0123},
+    {"controllers": ("vdc",), "name": 'a "quoted" name\\'},
+])
+def test_resolved_toml_loads_back_equal(changes):
+    cfg = replace(ec.loads(""), **changes)
+    text = cfg.to_toml()
+    assert ec.loads(text) == cfg
+    assert ec.loads(text).to_toml() == text
+
+
+def test_floats_survive_the_round_trip_bit_for_bit():
+    lam = math.nextafter(50.0, 60.0)
+    cfg = replace(ec.loads(""), gains=replace(Gains(), lam=lam))
+    assert ec.loads(cfg.to_toml()).gains.lam == lam
+
+
+@pytest.mark.parametrize("text, field", [
+    ("speed = 3", "speed"),
+    ("[experiment]\nrobots = 'mrm3'", "experiment.robots"),
+    ("[trajectory]\nq0 = 0.0", "trajectory.q0"),
+    ("[plant]\nmass = 1.0", "plant.mass"),
+    ("[plant.perturbation]\nlink = 0.1", "plant.perturbation.link"),
+    ("[gains]\nkp = 1.0", "gains.kp"),
+    ("[timing]\nperiod = 50000", "timing.period"),
+])
+def test_unknown_keys_are_rejected_by_name(text, field):
+    with pytest.raises(InputError) as exc:
+        ec.loads(text)
+    assert exc.value.field == field
+
+
+@pytest.mark.parametrize("text, field", [
+    ("experiment = 3", "experiment"),
+    ("[experiment]\nrobot = 'mrm9'", "experiment.robot"),
+    ("[experiment]\ncontrollers = ['vdc', 'lqr']", "experiment.controllers[1]"),
+    ("[experiment]\ncontrollers = []", "experiment.controllers"),
+    ("[experiment]\ncontrollers = ['vdc', 'vdc']", "experiment.controllers"),
+    ("[experiment]\nbackend = 'fpga'", "experiment.backend"),
+    ("[experiment]\nseed = -1", "experiment.seed"),
+    ("[experiment]\nseed = 1.5", "experiment.seed"),
+    ("[experiment]\nduration = 0", "experiment.duration"),
+    ("[experiment]\nduration = 61.0", "experiment.duration"),
+    ("[experiment]\nduration = nan", "experiment.duration"),
+    ("[trajectory]\namplitude = 0.0", "trajectory.amplitude"),
+    ("[trajectory]\nduration = -1.0", "trajectory.duration"),
+    ("[trajectory]\nhold = -0.1", "trajectory.hold"),
+    ("[plant]\ndt = 1.5e-8", "plant.dt"),
+    ("[plant]\nfriction = 1", "plant.friction"),
+    ("[plant]\ncurrent_bandwidth = 0.0", "plant.current_bandwidth"),
+    ("[plant]\nperturbation = 0.9", "plant.perturbation"),
+    ("[plant.perturbation]\nlinks = 0.6", "plant.perturbation.links"),
+    ("[plant.perturbation]\nfriction = 'lots'", "plant.perturbation.friction"),
+    ("[gains]\nlam = -5.0", "gains.lam"),
+    ("[gains]\nk_j = inf", "gains.k_j"),
+    ("[gains]\npid_1khz_hz = 0", "gains.pid_1khz_hz"),
+    ("[gains]\npid_fpga_hz = 150.0", "gains.pid_fpga_hz"),      # fits no KP word
+    ("[gains]\nlam = 1000.0", "gains.lam"),                     # fits no LAMC word
+    ("[gains]\nadapt = 100.0", "gains.adapt"),
+    ("[gains]\nK = 4000.0", "gains.K"),
+    ("[timing]\nforce_cycles = 0", "timing.force_cycles"),
+    ("[timing]\nperiod_cycles = 50001", "timing.period_cycles"),
+    ("[timing]\nkinematics_cycles = 30000\nforce_cycles = 20000", "timing.kinematics_cycles"),
+    ("[gains\nlam = 1", "--config"),
+])
+def test_bad_values_name_their_field(text, field):
+    with pytest.raises(InputError) as exc:
+        ec.loads(text)
+    assert exc.value.field == field
+
+
+def test_relative_robot_path_is_taken_from_the_config_folder(tmp_path):
+    shutil.copy(ROBOTS / "mrm3.toml", tmp_path / "arm.toml")
+    (tmp_path / "exp.toml").write_text("[experiment]\nrobot = 'arm.toml'\n")
+    cfg = ec.load(tmp_path / "exp.toml")
+    assert cfg.robot == str((tmp_path / "arm.toml").resolve())
+    assert ec.loads(cfg.to_toml()) == cfg
+
+
+def test_overrides_are_validated_under_the_flag_name():
+    cfg = ec.loads("")
+    assert cfg.with_overrides(seed=7, duration=0.5).seed == 7
+    for kw, field in [({"seed": -2}, "--seed"), ({"duration": -1.0}, "--duration"),
+                      ({"backend": "nope"}, "--backend")]:
+        with pytest.raises(InputError) as exc:
+            cfg.with_overrides(**kw)
+        assert exc.value.field == field
+
+
+def test_missing_file_is_an_input_error(tmp_path):
+    with pytest.raises(InputError) as exc:
+        ec.load(tmp_path / "none.toml")
+    assert exc.value.field == "--config"
+
+
+def test_cli_names_the_field_exits_2_and_writes_nothing(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[gains]\nlam = -1.0\n")
+    out = tmp_path / "out"
+    code = cli.main(["run", "table2", "--config", str(bad), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "gains.lam" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+    assert list(tmp_path.iterdir()) == [bad]
