@@ -1,28 +1,56 @@
-"""Figures of a run (PNG, matplotlib's Agg backend: no display needed)."""
+"""Figures of a run (PNG through matplotlib's Agg canvas: no display, no pyplot state).
+
+Every function writes one PNG and returns the :class:`matplotlib.figure.Figure` it drew, so
+tests can check the data on each axis rather than pixels. Figures follow the MRM paper: joint
+tracking (Fig. 4), tracking errors (Fig. 5); plus torque commands, parameter estimates, and a
+Gantt timeline of one period's A/B/C/D exchange on the 20 ns grid.
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 
-__all__ = ["plot_tracking"]
+import numpy as np
+
+__all__ = ["plot_tracking", "plot_joint_tracking", "plot_error_comparison", "plot_torques",
+           "plot_parameters", "plot_timeline", "timeline_bars", "pick_period", "Bar"]
+
+_COLORS = {"pid-1khz": "tab:red", "pid-fpga": "tab:orange", "vdc": "tab:blue"}
 
 
-def plot_tracking(path, t, q_d, q, tau, title: str) -> None:
-    """Joint tracking (paper Fig. 4), tracking errors (Fig. 5) and torque commands, one PNG.
+def _figure(rows: int, height: float = 2.6, width: float = 8.0):
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, max(2.5, height * rows)), constrained_layout=True)
+    axes = fig.subplots(rows, 1, sharex=True, squeeze=False)[:, 0]
+    return fig, axes
+
+
+def _save(fig, path) -> None:
+    fig.savefig(path, dpi=110)
+
+
+def plot_tracking(path, t, q_d, q, tau, title: str):
+    """Joint tracking (Fig. 4), tracking errors (Fig. 5) and torque commands of one run.
 
     Parameters
     ----------
     t : ndarray, shape (n_samples,), s
-    q_d, q, tau : ndarray, shape (n_samples, n_joints), rad and N·m
+    q_d, q, tau : ndarray, shape (n_samples, n_joints), rad, rad and N·m
+    title : str
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Axes 0: q (solid, labels ``q1``…) and q_d (dashed, ``q1 desired``…); axis 1: q_d − q
+        in mrad; axis 2: torque commands.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(3, 1, figsize=(8, 9), sharex=True, constrained_layout=True)
+    t, q_d, q, tau = (np.asarray(a, dtype=float) for a in (t, q_d, q, tau))
+    fig, axes = _figure(3, 3.0)
     for k in range(q.shape[1]):
         (line,) = axes[0].plot(t, q[:, k], label=f"q{k + 1}")
-        axes[0].plot(t, q_d[:, k], "--", color=line.get_color(), lw=0.8)
+        axes[0].plot(t, q_d[:, k], "--", color=line.get_color(), lw=0.8,
+                     label=f"q{k + 1} desired")
         axes[1].plot(t, 1e3 * (q_d[:, k] - q[:, k]), label=f"e{k + 1}")
         axes[2].plot(t, tau[:, k], label=f"τ{k + 1}")
     axes[0].set_ylabel("joint position (rad)\n— actual, -- desired")
@@ -31,7 +59,243 @@ def plot_tracking(path, t, q_d, q, tau, title: str) -> None:
     axes[2].set_xlabel("time (s)")
     for ax in axes:
         ax.grid(True, lw=0.3)
-        ax.legend(loc="upper right", fontsize=8, ncol=min(q.shape[1], 6))
+        ax.legend(loc="upper right", fontsize=7, ncol=min(2 * q.shape[1], 6))
     axes[0].set_title(title)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
+    return fig
+
+
+def plot_joint_tracking(path, t, q_d, runs: dict, title: str):
+    """The paper's Fig. 4: desired and actual angle of every joint, one line per controller.
+
+    Parameters
+    ----------
+    t : ndarray, shape (n_samples,), s
+    q_d : ndarray, shape (n_samples, n_joints), rad
+    runs : dict of str -> ndarray, shape (n_samples, n_joints), rad
+        Actual joint angles per controller.
+
+    Returns
+    -------
+    Figure
+        One axis per joint; its first line is ``desired``, then one per controller.
+    """
+    q_d = np.asarray(q_d, dtype=float)
+    fig, axes = _figure(q_d.shape[1], 2.2)
+    for k, ax in enumerate(axes):
+        ax.plot(t, q_d[:, k], "k--", lw=1.2, label="desired")
+        for name, q in runs.items():
+            ax.plot(t, np.asarray(q)[:, k], color=_COLORS.get(name), lw=0.9, label=name)
+        ax.set_ylabel(f"q{k + 1} (rad)")
+        ax.grid(True, lw=0.3)
+        ax.legend(loc="lower right", fontsize=7)
+    axes[0].set_title(title)
+    axes[-1].set_xlabel("time (s)")
+    _save(fig, path)
+    return fig
+
+
+def plot_error_comparison(path, t, errors: dict, tip_errors: dict, title: str):
+    """The paper's Fig. 5: joint tracking errors per controller, and the tip position error.
+
+    Parameters
+    ----------
+    t : ndarray, shape (n_samples,), s
+    errors : dict of str -> ndarray, shape (n_samples, n_joints), rad
+        q_d − q per controller.
+    tip_errors : dict of str -> ndarray, shape (n_samples,), m
+        ‖p_d − p‖ of the tip per controller.
+
+    Returns
+    -------
+    Figure
+        Axes 0…n−1: joint errors in mrad; last axis: tip error in mm (the numerator of ρ).
+    """
+    n = np.asarray(next(iter(errors.values()))).shape[1]
+    fig, axes = _figure(n + 1, 2.0)
+    for name, e in errors.items():
+        e = np.asarray(e, dtype=float)
+        for k in range(n):
+            axes[k].plot(t, 1e3 * e[:, k], color=_COLORS.get(name), lw=0.9, label=name)
+    for name, e in tip_errors.items():
+        axes[n].plot(t, 1e3 * np.asarray(e, dtype=float), color=_COLORS.get(name), lw=0.9,
+                     label=name)
+    for k in range(n):
+        axes[k].set_ylabel(f"e{k + 1} (mrad)")
+    axes[n].set_ylabel("tip error (mm)")
+    axes[n].set_xlabel("time (s)")
+    for ax in axes:
+        ax.grid(True, lw=0.3)
+        ax.legend(loc="upper right", fontsize=7)
+    axes[0].set_title(title)
+    _save(fig, path)
+    return fig
+
+
+def plot_torques(path, t, torques: dict, title: str, peak=None):
+    """Torque commands of every joint, one line per controller.
+
+    Parameters
+    ----------
+    t : ndarray, shape (n_samples,), s
+    torques : dict of str -> ndarray, shape (n_samples, n_joints), N·m
+    peak : ndarray, shape (n_joints,), N·m, optional
+        Drawn as dotted limits.
+    """
+    n = np.asarray(next(iter(torques.values()))).shape[1]
+    fig, axes = _figure(n, 2.2)
+    for name, tau in torques.items():
+        tau = np.asarray(tau, dtype=float)
+        for k in range(n):
+            axes[k].plot(t, tau[:, k], color=_COLORS.get(name), lw=0.8, label=name)
+    for k, ax in enumerate(axes):
+        if peak is not None:
+            for s in (1, -1):
+                ax.axhline(s * peak[k], color="grey", ls=":", lw=0.8)
+        ax.set_ylabel(f"τ{k + 1} (N·m)")
+        ax.grid(True, lw=0.3)
+        ax.legend(loc="upper right", fontsize=7)
+    axes[0].set_title(title)
+    axes[-1].set_xlabel("time (s)")
+    _save(fig, path)
+    return fig
+
+
+def plot_parameters(path, t=None, theta=None, names=None, title: str = "",
+                    note: str | None = None):
+    """Parameter estimates over time, or a figure that says why there are none.
+
+    Parameters
+    ----------
+    t : ndarray, shape (n_samples,), s, optional
+    theta : ndarray, shape (n_samples, n_params), optional
+        Estimates in SI units; each is drawn relative to its first value (θ̂/θ̂₀).
+    names : list of str, optional
+    note : str, optional
+        Shown instead of curves when ``theta`` is None (e.g. "adaptation off").
+    """
+    fig, (ax,) = _figure(1, 3.5)
+    if theta is None:
+        ax.text(0.5, 0.5, note or "no parameter estimates recorded", ha="center",
+                va="center", wrap=True, transform=ax.transAxes)
+        ax.set_axis_off()
+    else:
+        theta = np.asarray(theta, dtype=float)
+        first = theta[0]
+        rel = np.divide(theta, first, out=np.ones_like(theta), where=first != 0)
+        names = names or [f"θ{k + 1}" for k in range(theta.shape[1])]
+        for k in range(theta.shape[1]):
+            ax.plot(t, rel[:, k], lw=0.8, label=names[k])
+        ax.set_ylabel("estimate / initial")
+        ax.set_xlabel("time (s)")
+        ax.grid(True, lw=0.3)
+        ax.legend(loc="upper right", fontsize=6, ncol=4)
+    ax.set_title(title)
+    _save(fig, path)
+    return fig
+
+
+# --- timeline ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Bar:
+    """One bar of the Gantt timeline, µs from the period start (exact multiples of 0.02)."""
+
+    row: str          # "master" or "node k"
+    label: str        # what happens
+    start_us: float
+    end_us: float
+
+
+def pick_period(records, when: float | None = None, period_s: float = 1e-3):
+    """The complete period at time ``when`` (s) or, without it, the one nearest the middle."""
+    complete = [r for r in records if r.complete]
+    if not complete:
+        raise ValueError("no complete period to show")
+    if when is None:
+        return complete[len(complete) // 2]
+    return min(complete, key=lambda r: abs(r.index * period_s - when))
+
+
+def timeline_bars(record, n_nodes: int, clock_hz: float = 50e6) -> list[Bar]:
+    """Bars of one period's exchange from a :class:`master.cycle.PeriodRecord`.
+
+    Rows and bars (cycles counted from ``record.start``):
+
+    * ``master``: ``kinematics`` from the last Comm A arrival (``A_done``) to Comm B sent
+      (VDC) or ``PID`` / ``references`` to Comm D sent (PID modes); ``forces`` from the last
+      Comm C arrival (``C_done``) to Comm D sent.
+    * ``node k``: ``A`` from the period start (time-code and Comm A request leave the master)
+      to node k's Comm A reply arriving; ``B→C`` from Comm B sent to node k's Comm C reply
+      arriving (transfer of B, the node's link dynamics, transfer of C).
+    """
+    per_us = clock_hz / 1e6                   # cycles per µs; dividing rounds once
+
+    def t(cycle):
+        return (cycle - record.start) / per_us
+
+    ev = record.events
+    bars = []
+    pid = "B_sent" not in ev
+    if pid and "A_done" in ev and "D_sent" in ev:
+        bars.append(Bar("master", "PID / references", t(ev["A_done"]), t(ev["D_sent"])))
+    if "A_done" in ev and "B_sent" in ev:
+        bars.append(Bar("master", "kinematics", t(ev["A_done"]), t(ev["B_sent"])))
+    if "C_done" in ev and "D_sent" in ev:
+        bars.append(Bar("master", "forces", t(ev["C_done"]), t(ev["D_sent"])))
+    for k in range(1, n_nodes + 1):
+        if ("A", k) in record.arrivals:
+            bars.append(Bar(f"node {k}", "A", 0.0, t(record.arrivals[("A", k)])))
+        if ("C", k) in record.arrivals and "B_sent" in ev:
+            bars.append(Bar(f"node {k}", "B→C", t(ev["B_sent"]), t(record.arrivals[("C", k)])))
+    return bars
+
+
+_BAR_COLORS = {"A": "tab:green", "B→C": "tab:purple", "kinematics": "tab:grey",
+               "forces": "tab:brown", "PID / references": "tab:grey"}
+
+
+def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
+                  clock_hz: float = 50e6):
+    """Gantt chart of one period's time-code/A/B/C/D exchange per node.
+
+    Parameters
+    ----------
+    record : master.cycle.PeriodRecord
+    n_nodes : int
+    period_cycles : int
+        Length of the period (for the slack annotation).
+
+    Returns
+    -------
+    Figure
+        Its ``broken_barh`` collections are in the order of :func:`timeline_bars`; y tick
+        labels are the rows, master on top.
+    """
+    bars = timeline_bars(record, n_nodes, clock_hz)
+    rows = ["master"] + [f"node {k}" for k in range(1, n_nodes + 1)]
+    fig, (ax,) = _figure(1, 0.6 * len(rows) + 1.5, 9.0)
+    y = {r: len(rows) - 1 - i for i, r in enumerate(rows)}
+    seen = set()
+    for b in bars:
+        ax.broken_barh([(b.start_us, b.end_us - b.start_us)], (y[b.row] - 0.35, 0.7),
+                       facecolors=_BAR_COLORS.get(b.label, "tab:cyan"),
+                       label=None if b.label in seen else b.label)
+        seen.add(b.label)
+    per_us = clock_hz / 1e6
+    d_sent = record.events.get("D_sent")
+    end = max((b.end_us for b in bars), default=0.0)
+    if d_sent is not None:
+        d = (d_sent - record.start) / per_us
+        ax.axvline(d, color="k", lw=0.8, ls="--", label="Comm D sent")
+        end = max(end, d)
+    ax.axvline(0.0, color="k", lw=0.8, ls=":", label="time-code + Comm A request")
+    slack = period_cycles / per_us - end
+    ax.set_yticks([y[r] for r in rows], rows)
+    ax.set_xlabel(f"µs from the period start (20 ns grid); slack to the period end "
+                  f"{slack:.2f} µs of {period_cycles / per_us:.0f} µs")
+    ax.set_xlim(-0.02 * end - 1.0, 1.08 * end + 1.0)
+    ax.grid(True, axis="x", lw=0.3)
+    ax.legend(loc="lower right", fontsize=7)
+    ax.set_title(title)
+    _save(fig, path)
+    return fig

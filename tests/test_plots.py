@@ -1,0 +1,147 @@
+"""Plots: each writes a PNG and draws exactly the data it was given (checked on the axes)."""
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+
+from cosim import plots
+from master.cycle import PeriodRecord
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def _png(path):
+    data = path.read_bytes()
+    assert data[:8] == PNG
+    return data
+
+
+@pytest.fixture
+def series():
+    rng = np.random.default_rng(0)
+    t = np.arange(50) * 1e-3
+    q_d = np.cumsum(rng.normal(size=(50, 3)), axis=0) * 1e-3
+    q = q_d + rng.normal(size=(50, 3)) * 1e-5
+    tau = rng.normal(size=(50, 3))
+    return t, q_d, q, tau
+
+
+def test_tracking_draws_angles_errors_and_torques(tmp_path, series):
+    t, q_d, q, tau = series
+    fig = plots.plot_tracking(tmp_path / "t.png", t, q_d, q, tau, "title")
+    _png(tmp_path / "t.png")
+    ax_q, ax_e, ax_tau = fig.axes[:3]
+    for k in range(3):
+        assert_array_equal(ax_q.lines[2 * k].get_ydata(), q[:, k])
+        assert_array_equal(ax_q.lines[2 * k + 1].get_ydata(), q_d[:, k])
+        assert ax_q.lines[2 * k + 1].get_label() == f"q{k + 1} desired"
+        assert_allclose(ax_e.lines[k].get_ydata(), 1e3 * (q_d[:, k] - q[:, k]), rtol=1e-15)
+        assert_array_equal(ax_tau.lines[k].get_ydata(), tau[:, k])
+        assert_array_equal(ax_tau.lines[k].get_xdata(), t)
+    assert "mrad" in ax_e.get_ylabel()
+
+
+def test_error_comparison_has_one_axis_per_joint_and_the_tip(tmp_path, series):
+    t, q_d, q, _ = series
+    errs = {"pid-1khz": 10 * (q_d - q), "vdc": q_d - q}
+    tips = {"pid-1khz": np.linspace(0, 1e-3, 50), "vdc": np.linspace(0, 1e-4, 50)}
+    fig = plots.plot_error_comparison(tmp_path / "e.png", t, errs, tips, "Fig. 5")
+    _png(tmp_path / "e.png")
+    assert len(fig.axes) == 4
+    for k in range(3):
+        assert [ln.get_label() for ln in fig.axes[k].lines] == ["pid-1khz", "vdc"]
+        assert_allclose(fig.axes[k].lines[1].get_ydata(), 1e3 * errs["vdc"][:, k])
+    assert_allclose(fig.axes[3].lines[0].get_ydata(), 1e3 * tips["pid-1khz"])
+    assert "mm" in fig.axes[3].get_ylabel()
+
+
+def test_joint_tracking_starts_with_the_desired_line(tmp_path, series):
+    t, q_d, q, _ = series
+    fig = plots.plot_joint_tracking(tmp_path / "f4.png", t, q_d, {"vdc": q}, "Fig. 4")
+    _png(tmp_path / "f4.png")
+    for k, ax in enumerate(fig.axes):
+        assert ax.lines[0].get_label() == "desired"
+        assert_array_equal(ax.lines[0].get_ydata(), q_d[:, k])
+        assert_array_equal(ax.lines[1].get_ydata(), q[:, k])
+
+
+def test_torques_with_peak_limits(tmp_path, series):
+    t, _, _, tau = series
+    peak = np.array([11.0, 28.0, 11.0])
+    fig = plots.plot_torques(tmp_path / "tau.png", t, {"vdc": tau}, "τ", peak=peak)
+    _png(tmp_path / "tau.png")
+    for k, ax in enumerate(fig.axes):
+        assert_array_equal(ax.lines[0].get_ydata(), tau[:, k])
+        limits = sorted(float(ln.get_ydata()[0]) for ln in ax.lines[1:])
+        assert limits == [-peak[k], peak[k]]
+
+
+def test_parameters_without_estimates_say_why(tmp_path):
+    note = "adaptation off (gains.adapt = 0)"
+    fig = plots.plot_parameters(tmp_path / "p.png", note=note, title="vdc")
+    _png(tmp_path / "p.png")
+    (ax,) = fig.axes
+    assert [tx.get_text() for tx in ax.texts] == [note]
+    assert not ax.lines
+
+
+def test_parameters_are_drawn_relative_to_their_start(tmp_path):
+    t = np.arange(4) * 1e-3
+    theta = np.array([[2.0, 0.0], [2.2, 0.0], [2.4, 1.0], [2.6, 2.0]])
+    fig = plots.plot_parameters(tmp_path / "p.png", t, theta, ["m", "zero"])
+    (ax,) = fig.axes
+    assert_allclose(ax.lines[0].get_ydata(), [1.0, 1.1, 1.2, 1.3])
+    assert_allclose(ax.lines[1].get_ydata(), [1.0, 1.0, 1.0, 1.0])   # 0 start: not divided
+
+
+def _vdc_record():
+    r = PeriodRecord(index=7, start=400_000, complete=True)
+    r.arrivals = {("A", 1): 400_150, ("A", 2): 400_190, ("A", 3): 400_230,
+                  ("C", 1): 402_401, ("C", 2): 402_350, ("C", 3): 402_310}
+    r.events = {"A_done": 400_230, "B_sent": 401_230, "C_done": 402_401, "D_sent": 403_401}
+    return r
+
+
+def test_timeline_bars_follow_the_records_on_the_20ns_grid():
+    bars = plots.timeline_bars(_vdc_record(), 3)
+    got = {(b.row, b.label): (b.start_us, b.end_us) for b in bars}
+    assert got == {
+        ("master", "kinematics"): (4.6, 24.6),
+        ("master", "forces"): (48.02, 68.02),
+        ("node 1", "A"): (0.0, 3.0), ("node 2", "A"): (0.0, 3.8), ("node 3", "A"): (0.0, 4.6),
+        ("node 1", "B→C"): (24.6, 48.02), ("node 2", "B→C"): (24.6, 47.0),
+        ("node 3", "B→C"): (24.6, 46.2),
+    }
+
+
+def test_timeline_bars_of_a_pid_period_skip_b_and_c():
+    r = PeriodRecord(index=2, start=100_000, complete=True)
+    r.arrivals = {("A", 1): 100_100, ("A", 2): 100_125}
+    r.events = {"A_done": 100_125, "D_sent": 101_125}
+    bars = plots.timeline_bars(r, 2)
+    assert [(b.row, b.label) for b in bars] == [
+        ("master", "PID / references"), ("node 1", "A"), ("node 2", "A")]
+    assert bars[0].end_us - bars[0].start_us == pytest.approx(20.0)
+
+
+def test_timeline_plot_rows_bars_and_slack(tmp_path):
+    rec = _vdc_record()
+    fig = plots.plot_timeline(tmp_path / "g.png", rec, 3, 50_000, "period 7")
+    _png(tmp_path / "g.png")
+    (ax,) = fig.axes
+    assert [tl.get_text() for tl in ax.get_yticklabels()] == ["master", "node 1", "node 2",
+                                                             "node 3"]
+    bars = plots.timeline_bars(rec, 3)
+    assert len(ax.collections) == len(bars)
+    for coll, bar in zip(ax.collections, bars, strict=True):
+        x0, x1 = coll.get_paths()[0].vertices[:, 0].min(), coll.get_paths()[0].vertices[:, 0].max()
+        assert (x0, x1) == pytest.approx((bar.start_us, bar.end_us))
+    assert "slack to the period end 931.98 µs" in ax.get_xlabel()
+
+
+def test_pick_period_prefers_the_requested_time_among_complete_ones():
+    recs = [PeriodRecord(i, 50_000 * i, complete=i != 5) for i in range(10)]
+    assert plots.pick_period(recs, when=0.005).index in (4, 6)
+    assert plots.pick_period(recs).index == 4           # 5th of the 9 complete ones
+    with pytest.raises(ValueError):
+        plots.pick_period([PeriodRecord(0, 0)])
