@@ -33,6 +33,18 @@ def register(subparsers) -> None:
     pt.add_argument("--out", default="results/track", help="result folder (replaced)")
     pt.add_argument("--quiet", action="store_true", help="print nothing but errors")
     pt.set_defaults(func=_track)
+    p2 = sub.add_parser("table2", help="the paper's Table 2: pid-1khz, pid-fpga and vdc on the "
+                        "quintic test, same plant and seed; table, plots, timelines")
+    p2.add_argument("--config", default=None,
+                    help="experiment TOML (default: configs/table2.toml)")
+    p2.add_argument("--backend", default=None,
+                    help="override the config's backend (any name run_track accepts)")
+    p2.add_argument("--out", default="results/table2", help="result folder (replaced)")
+    p2.add_argument("--seed", type=int, default=None, help="override the plant seed")
+    p2.add_argument("--duration", type=float, default=None,
+                    help="override the simulated seconds per controller")
+    p2.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p2.set_defaults(func=_table2)
 
 
 def _preview(args) -> int:
@@ -76,8 +88,9 @@ def _preview(args) -> int:
 
 
 def _track(args) -> int:
-    from cosim.plots import plot_tracking
+    from cosim.plots import pick_period, plot_timeline, plot_tracking
     from cosim.preview import paper_test_profile
+    from cosim.table2 import Progress, timeline_json
     from cosim.track import run_track
     from models.robot import load_robot
     from mrm.errors import require_positive
@@ -85,8 +98,11 @@ def _track(args) -> int:
 
     robot = load_robot(args.robot)
     duration = require_positive(args.duration, "--duration")
+    progress = None if args.quiet else Progress([args.controller], duration)
+    if progress is not None:
+        progress.begin(args.controller)
     result, summary = run_track(robot, args.controller, args.backend, duration, args.seed,
-                                progress=None if args.quiet else True)
+                                progress=progress)
     summary["version"] = __version__
     q_d = paper_test_profile(robot).evaluate(result.t)[0]
     with atomic_output_dir(args.out) as tmp:
@@ -95,10 +111,13 @@ def _track(args) -> int:
             "command": "mrm run track", "controller": args.controller,
             "backend": args.backend, "robot": robot.describe(), "seed": args.seed,
             "duration_s": duration, "version": __version__})
-        write_json(tmp / "timeline.json", [
-            {"period": r.index, "start_cycle": r.start, "events": r.events,
-             "arrivals": {f"{ph}{node}": c for (ph, node), c in r.arrivals.items()}}
-            for r in result.master.records])
+        write_json(tmp / "timeline.json", timeline_json(result.master.records))
+        records = result.master.records
+        if any(r.complete for r in records):
+            record = pick_period(records, when=0.5)
+            plot_timeline(tmp / "timeline.png", record, robot.n,
+                          result.master.timing.period_cycles,
+                          f"{args.controller}: period {record.index} exchange")
         every = max(1, round(1e-3 / (result.t[1] - result.t[0]))) if len(result.t) > 1 else 1
         plot_tracking(tmp / "tracking.png", result.t[::every], q_d[::every],
                       result.q[::every], result.tau[::every],
@@ -110,6 +129,21 @@ def _track(args) -> int:
               f"A/B/C/D done at {summary['phases_us']} µs; RTF {summary['rtf']:.0f}")
         print(f"results in {args.out}/")
     return 0
+
+
+def _table2(args) -> int:
+    from cosim.experiment_config import load
+    from cosim.table2 import Progress, run_table2
+
+    config = load(args.config).with_overrides(backend=args.backend, seed=args.seed,
+                                              duration=args.duration)
+    progress = None if args.quiet else Progress(config.controllers, config.duration)
+    summary = run_table2(config, args.out, progress=progress)
+    if not args.quiet:
+        print((Path(args.out) / "table2.md").read_text(), end="")
+        print(f"results in {args.out}/ (summary.json, table2.md, config.toml, "
+              "fig4_tracking.png, fig5_errors.png, torques.png, <controller>/timeline.png)")
+    return 0 if summary["controllers"] else 1
 
 
 def _plant_config(uncertainty: float):

@@ -1,0 +1,290 @@
+"""``mrm run table2``: the MRM paper's Table 2, the three controllers on the same plant.
+
+Each controller named in the configuration runs the quintic test (paper eqs. 1–4) in closed
+loop through :func:`cosim.track.run_track` on the same backend, robot, plant perturbation
+seed, master timing and gains. The result folder (written atomically: a failed run leaves
+nothing) holds::
+
+    summary.json          {"controllers": {name: run_track summary, ...}, "paper": ...,
+                           "ordering": ..., "config": ..., "seed", "version", ...}
+    table2.md             our figures beside the paper's printed ones
+    config.toml           the exact resolved configuration (loads back equal)
+    fig4_tracking.png     joint angles, desired and per controller (paper Fig. 4)
+    fig5_errors.png       joint and tip errors per controller (paper Fig. 5)
+    torques.png           torque commands per controller with the peak-torque limits
+    <controller>/         summary.json, trace.csv (1 ms), timeline.json, tracking.png,
+                          timeline.png (Gantt of one period), parameters.png
+"""
+
+from __future__ import annotations
+
+import csv
+import inspect
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from cosim.experiment_config import PAPER_AMPLITUDE, PAPER_DURATION, ExperimentConfig
+from mrm.errors import InputError
+
+__all__ = ["PAPER_TABLE2", "run_table2", "table_markdown", "Progress", "timeline_json"]
+
+PAPER_TABLE2 = {
+    # controller: (max velocity m/s, max error m, ratio s), MRM paper Table 2, rows 5-7
+    "pid-1khz": (0.5226, 2.3e-3, 0.00440),
+    "pid-fpga": (0.5226, 0.26e-3, 0.00050),
+    "vdc": (0.5226, 0.0618e-3, 0.00012),
+}
+_NAMES = {"pid-1khz": "PID with 1000 Hz", "pid-fpga": "PID with embedded FPGA",
+          "vdc": "VDC with embedded FPGA"}
+
+
+class Progress:
+    """Progress lines on a stream: which controller, simulated time, speed, ETA.
+
+    Call :meth:`begin` / :meth:`end` around each controller's run and pass the instance as
+    ``run_track``'s ``progress``: when the harness calls it as ``progress(t_sim, t_total)``
+    (simulated seconds done and to do) it prints at most every ``every`` wall seconds.
+    """
+
+    def __init__(self, controllers, duration: float, stream=None, every: float = 5.0):
+        self.controllers = list(controllers)
+        self.duration = duration
+        self.stream = sys.stderr if stream is None else stream
+        self.every = every
+        self._wall_per_sim: float | None = None   # measured wall s per simulated s
+        self._t0 = self._last = 0.0
+        self._index = 0
+        self._total_wall = 0.0
+
+    def _print(self, text: str) -> None:
+        print(text, file=self.stream, flush=True)
+
+    def begin(self, controller: str) -> None:
+        self._index = self.controllers.index(controller)
+        self._t0 = self._last = time.perf_counter()
+        eta = ""
+        if self._wall_per_sim is not None:
+            left = (len(self.controllers) - self._index) * self.duration * self._wall_per_sim
+            eta = f", ETA {_hms(left)} for the rest"
+        self._print(f"[{self._index + 1}/{len(self.controllers)}] {controller}: "
+                    f"{self.duration:g} s simulated{eta}")
+
+    def __call__(self, t_sim: float, t_total: float | None = None) -> None:
+        now = time.perf_counter()
+        if now - self._last < self.every or t_sim <= 0:
+            return
+        self._last = now
+        total = self.duration if t_total is None else t_total
+        rate = t_sim / (now - self._t0)                  # simulated s per wall s
+        left = (total - t_sim) / rate + (len(self.controllers) - self._index - 1) * total / rate
+        self._print(f"    {t_sim:.3f}/{total:g} s simulated, {rate * 1e3:.3g} ms/s "
+                    f"(RTF {1 / rate:.3g}), ETA {_hms(left)}")
+
+    def end(self, controller: str, summary: dict) -> None:
+        wall = time.perf_counter() - self._t0
+        self._total_wall += wall
+        done = self._index + 1
+        self._wall_per_sim = self._total_wall / (done * self.duration)
+        left = (len(self.controllers) - done) * self.duration * self._wall_per_sim
+        tail = f", ETA {_hms(left)}" if left > 0 else ""
+        self._print(f"    {controller}: rho {summary['rho_s']:.3g} s, max tip error "
+                    f"{1e3 * summary['max_tip_error_m']:.4g} mm in {_hms(wall)}{tail}")
+
+
+def _hms(seconds: float) -> str:
+    seconds = int(round(seconds))
+    h, rest = divmod(seconds, 3600)
+    m, s = divmod(rest, 60)
+    return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s" if m else f"{s}s"
+
+
+def _run_kwargs(runner, config: ExperimentConfig, robot) -> dict:
+    """Keyword arguments for ``runner`` beyond the common ones; refuses what it cannot run."""
+    params = inspect.signature(runner).parameters
+    tr = config.trajectory
+    paper = tr.amplitude == PAPER_AMPLITUDE and tr.duration == PAPER_DURATION
+    if paper:
+        return {}
+    if "profile" not in params:
+        raise InputError("trajectory", "this tree's run_track runs only the paper's quintic "
+                         f"({PAPER_AMPLITUDE} rad in {PAPER_DURATION} s); amplitude "
+                         f"{tr.amplitude!r} rad in {tr.duration!r} s needs its profile argument")
+    from cosim.preview import paper_test_profile
+
+    return {"profile": paper_test_profile(robot, tr.amplitude, tr.duration)}
+
+
+def run_table2(config: ExperimentConfig, out, *, progress: Progress | None = None,
+               runner=None) -> dict:
+    """Run every configured controller and write the result folder ``out`` atomically.
+
+    Parameters
+    ----------
+    config : ExperimentConfig
+    out : path
+        Result folder; replaced only when everything succeeded.
+    progress : Progress, optional
+    runner : callable, optional
+        ``cosim.track.run_track`` (default) or a function with its signature.
+
+    Returns
+    -------
+    dict
+        What ``summary.json`` holds.
+    """
+    from cosim.preview import paper_test_profile
+    from models.robot import load_robot
+    from mrm import __version__
+    from mrm.output import atomic_output_dir, atomic_write_text, write_json
+
+    if runner is None:
+        from cosim.track import run_track as runner
+    robot = load_robot(config.robot)
+    extra = _run_kwargs(runner, config, robot)
+    profile = paper_test_profile(robot, config.trajectory.amplitude, config.trajectory.duration)
+    t_start = time.perf_counter()
+    runs = {}
+    with atomic_output_dir(out) as tmp:
+        for c in config.controllers:
+            if progress is not None:
+                progress.begin(c)
+            result, summary = runner(robot, c, config.backend, config.duration, config.seed,
+                                     gains=config.gains, timing=config.timing,
+                                     plant_config=config.plant, progress=progress, **extra)
+            summary = dict(summary, version=__version__)
+            if progress is not None:
+                progress.end(c, summary)
+            runs[c] = (result, summary)
+            _write_controller(tmp / c, robot, c, config, result, summary, profile)
+        summary = {
+            "experiment": config.name, "robot": robot.name, "backend": config.backend,
+            "seed": config.seed, "duration_s": config.duration, "version": __version__,
+            "controllers": {c: s for c, (_, s) in runs.items()},
+            "paper": {c: {"max_velocity_m_s": v, "max_error_m": e, "rho_s": r}
+                      for c, (v, e, r) in PAPER_TABLE2.items()},
+            "ordering": _ordering(runs),
+            "config": config.to_dict(),
+            "wall_s": time.perf_counter() - t_start,
+        }
+        write_json(tmp / "summary.json", summary)
+        atomic_write_text(tmp / "config.toml", config.to_toml())
+        atomic_write_text(tmp / "table2.md", table_markdown(summary))
+        _comparison_plots(tmp, robot, config, runs, profile)
+    return summary
+
+
+def _ordering(runs: dict) -> dict:
+    rho = {c: s["rho_s"] for c, (_, s) in runs.items()}
+    order = sorted(rho, key=rho.get)
+    paper = [c for c in ("vdc", "pid-fpga", "pid-1khz") if c in rho]
+    return {"best_to_worst": order, "as_paper": order == paper}
+
+
+def table_markdown(summary: dict) -> str:
+    """Table 2 rows of this run beside the paper's printed ones (Markdown)."""
+    lines = [f"# Table 2 — {summary['robot']}, backend {summary['backend']}, "
+             f"seed {summary['seed']}, {summary['duration_s']:g} s simulated",
+             "",
+             "| controller | max tip speed (m/s) | max tip error (mm) | ρ (s) "
+             "| paper speed (m/s) | paper error (mm) | paper ρ (s) | max joint error (mrad) "
+             "| overruns | link errors |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for c, s in summary["controllers"].items():
+        v, e, r = PAPER_TABLE2[c]
+        lines.append(
+            f"| {_NAMES[c]} (`{c}`) | {s['max_tip_speed_m_s']:.4f} "
+            f"| {1e3 * s['max_tip_error_m']:.4f} | {s['rho_s']:.5f} | {v} | {1e3 * e:.4g} "
+            f"| {r:.5f} | {1e3 * s['max_joint_error_rad']:.4f} | {s['overruns']} "
+            f"| {s['link_errors']} |")
+    order = summary["ordering"]
+    lines += ["", "Ordering by ρ, best first: " + " < ".join(order["best_to_worst"])
+              + (" — as in the paper." if order["as_paper"] else
+                 " — NOT the paper's order (vdc < pid-fpga < pid-1khz)."),
+              "", "ρ = max‖tip error‖ / max‖tip velocity‖ over the run (paper eq. 5 for this "
+              "one trajectory); the tip velocity is the desired one. See docs/experiments.md.",
+              ""]
+    return "\n".join(lines)
+
+
+def timeline_json(records) -> list:
+    """Every period's events and per-node arrivals (absolute 20 ns cycles), JSON-ready."""
+    return [{"period": r.index, "start_cycle": r.start, "complete": r.complete,
+             "events": dict(r.events),
+             "arrivals": {f"{ph}{node}": c for (ph, node), c in r.arrivals.items()}}
+            for r in records]
+
+
+def _every_ms(t) -> int:
+    return max(1, round(1e-3 / (t[1] - t[0]))) if len(t) > 1 else 1
+
+
+def _write_controller(folder: Path, robot, controller, config, result, summary, profile):
+    from cosim.plots import pick_period, plot_parameters, plot_timeline, plot_tracking
+    from mrm.output import write_json
+
+    folder.mkdir()
+    write_json(folder / "timeline.json", timeline_json(result.master.records))
+    every = _every_ms(result.t)
+    t = result.t[::every]
+    q_d = profile.evaluate(t)[0]
+    q, tau = result.q[::every], result.tau[::every]
+    with open(folder / "trace.csv", "w", newline="") as f:
+        w = csv.writer(f)
+        n = robot.n
+        w.writerow(["t_s"] + [f"q_d{k + 1}_rad" for k in range(n)]
+                   + [f"q{k + 1}_rad" for k in range(n)] + [f"tau{k + 1}_Nm" for k in range(n)])
+        for i in range(len(t)):
+            w.writerow([repr(float(t[i]))] + [repr(float(x)) for x in q_d[i]]
+                       + [repr(float(x)) for x in q[i]] + [repr(float(x)) for x in tau[i]])
+    title = f"{robot.name}: quintic test, {controller} on {config.backend}"
+    plot_tracking(folder / "tracking.png", t, q_d, q, tau, title)
+    try:
+        record = pick_period(result.master.records, when=0.5 * config.trajectory.duration)
+        plot_timeline(folder / "timeline.png", record, robot.n, config.timing.period_cycles,
+                      f"{controller}: period {record.index} exchange (gateware in the loop)")
+    except ValueError:
+        plot_parameters(folder / "timeline.png", title=title,
+                        note="no complete period in this run: no timeline to draw")
+    theta = getattr(result, "theta", None)
+    if theta is not None:
+        plot_parameters(folder / "parameters.png", result.t, theta, title=title)
+    else:
+        if controller != "vdc":
+            note = f"{controller} has no parameter estimates (no model in the controller)"
+        elif config.gains.adapt == 0.0:
+            note = ("adaptation off (gains.adapt = 0): the VDC estimates stay at the nominal "
+                    "Table 1 values for the whole run")
+        else:
+            note = (f"adaptation on (gains.adapt = {config.gains.adapt:g}), but this backend "
+                    "does not report the node's estimates: nothing to plot")
+        plot_parameters(folder / "parameters.png", title=title, note=note)
+        summary["parameter_estimates"] = note
+    write_json(folder / "summary.json", summary)
+
+
+def tip_error(robot, q_d, q) -> np.ndarray:
+    """‖p_tip(q_d) − p_tip(q)‖ per sample, m; ``q_d, q`` shape (n_samples, n)."""
+    return np.array([np.linalg.norm(robot.tip_pose(a)[:3, 3] - robot.tip_pose(b)[:3, 3])
+                     for a, b in zip(q_d, q, strict=True)])
+
+
+def _comparison_plots(folder: Path, robot, config, runs, profile) -> None:
+    from cosim.plots import plot_error_comparison, plot_joint_tracking, plot_torques
+
+    first = next(iter(runs.values()))[0]
+    every = _every_ms(first.t)
+    t = first.t[::every]
+    q_d = profile.evaluate(t)[0]
+    qs = {c: r.q[::every][: len(t)] for c, (r, _) in runs.items()}
+    sub = f"{robot.name}, {config.backend}, seed {config.seed}"
+    plot_joint_tracking(folder / "fig4_tracking.png", t, q_d, qs,
+                        f"Joint tracking (paper Fig. 4), {sub}")
+    plot_error_comparison(folder / "fig5_errors.png", t, {c: q_d - q for c, q in qs.items()},
+                          {c: tip_error(robot, q_d, q) for c, q in qs.items()},
+                          f"Tracking errors (paper Fig. 5), {sub}")
+    plot_torques(folder / "torques.png", t,
+                 {c: r.tau[::every][: len(t)] for c, (r, _) in runs.items()},
+                 f"Torque commands, {sub}", peak=robot.peak_torques)

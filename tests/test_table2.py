@@ -1,0 +1,206 @@
+"""``mrm run table2``: plumbing with a stand-in run_track, atomic output, and one real short run."""
+
+import io
+import json
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+import mrm.cli as cli
+from cosim import experiment_config as ec
+from cosim import table2
+from cosim.track import BACKENDS, run_track
+from master.cycle import MasterTiming, PeriodRecord
+from mrm import __version__
+from mrm.errors import InputError
+
+FIELDS = {"controller", "backend", "rho_s", "max_tip_error_m", "max_tip_speed_m_s",
+          "max_joint_error_rad", "overruns", "link_errors", "phases_us", "trace_sha256"}
+
+
+class FakeRunner:
+    """Stands in for run_track: records its calls, returns a trace whose error scales with a
+    per-controller factor, and fails on request."""
+
+    def __init__(self, errors=None, fail_on=None):
+        self.calls = []
+        self.errors = errors or {"pid-1khz": 4e-3, "pid-fpga": 5e-4, "vdc": 1e-4}
+        self.fail_on = fail_on
+
+    def __call__(self, robot, controller, backend, duration, seed, gains=None, timing=None,
+                 plant_config=None, progress=None):
+        self.calls.append(dict(robot=robot.name, controller=controller, backend=backend,
+                               duration=duration, seed=seed, gains=gains, timing=timing,
+                               plant=plant_config))
+        if controller == self.fail_on:
+            raise RuntimeError("simulated crash")
+        if progress is not None:
+            progress(0.5 * duration, duration)
+        t = np.arange(int(round(duration / 1e-5))) * 1e-5
+        q = np.outer(np.sin(t), [1.0, 2.0, 3.0]) * self.errors[controller]
+        tau = np.outer(np.cos(t), [1.0, -1.0, 0.5])
+        records = []
+        for i in range(int(duration / 1e-3)):
+            r = PeriodRecord(i, 50_000 * (i + 1), complete=True)
+            r.arrivals = {("A", k): r.start + 100 + 40 * k for k in (1, 2, 3)}
+            r.events = {"A_done": r.start + 220, "D_sent": r.start + 1220}
+            records.append(r)
+        master = SimpleNamespace(records=records, timing=timing or MasterTiming())
+        err = self.errors[controller]
+        summary = {"controller": controller, "backend": backend, "robot": robot.name,
+                   "seed": seed, "duration_s": duration, "rho_s": err / 0.5,
+                   "max_tip_error_m": err, "max_tip_speed_m_s": 0.5,
+                   "max_joint_error_rad": 3 * err, "overruns": 0, "missing_replies": 0,
+                   "unexpected_replies": 0, "link_errors": 0,
+                   "phases_us": {"A": 4.4, "D": 24.4, "cycle": 4.4}, "trace_sha256": "ab" * 32}
+        return SimpleNamespace(t=t, q=q, tau=tau, master=master), summary
+
+
+@pytest.fixture(scope="module")
+def config():
+    return ec.loads("[experiment]\nduration = 0.02\nseed = 5\nbackend = 'pysim'\n")
+
+
+@pytest.fixture(scope="module")
+def done(config, tmp_path_factory):
+    """One stand-in run of the three controllers: (runner, summary returned, folder)."""
+    out = tmp_path_factory.mktemp("table2") / "out"
+    runner = FakeRunner()
+    return runner, table2.run_table2(config, out, runner=runner), out
+
+
+def test_three_controllers_same_plant_seed_gains_and_timing(done, config):
+    runner, summary, out = done
+    assert [c["controller"] for c in runner.calls] == ["pid-1khz", "pid-fpga", "vdc"]
+    for call in runner.calls:
+        assert (call["robot"], call["backend"], call["seed"], call["duration"]) == \
+            ("mrm3", "pysim", 5, 0.02)
+        assert call["gains"] == config.gains and call["timing"] == config.timing
+        assert call["plant"] == config.plant
+    on_disk = json.loads((out / "summary.json").read_text())
+    assert on_disk == json.loads(json.dumps(summary))
+    assert set(on_disk["controllers"]) == {"pid-1khz", "pid-fpga", "vdc"}
+    for name, s in on_disk["controllers"].items():
+        assert FIELDS <= set(s) and s["controller"] == name
+        assert s["version"] == __version__
+    assert on_disk["seed"] == 5 and on_disk["version"] == __version__
+    assert on_disk["ordering"] == {"best_to_worst": ["vdc", "pid-fpga", "pid-1khz"],
+                                   "as_paper": True}
+    assert ec.loads((out / "config.toml").read_text()) == config
+    assert on_disk["config"] == config.to_dict()
+
+
+def test_folder_holds_table_plots_and_per_controller_results(done):
+    _, _, out = done
+    for name in ("fig4_tracking.png", "fig5_errors.png", "torques.png"):
+        assert (out / name).read_bytes()[:4] == b"\x89PNG"
+    for c in ("pid-1khz", "pid-fpga", "vdc"):
+        for name in ("tracking.png", "timeline.png", "parameters.png"):
+            assert (out / c / name).read_bytes()[:4] == b"\x89PNG"
+        timeline = json.loads((out / c / "timeline.json").read_text())
+        assert timeline[3]["arrivals"] == {"A1": 200_140, "A2": 200_180, "A3": 200_220}
+        rows = (out / c / "trace.csv").read_text().splitlines()
+        assert len(rows) == 1 + 20 and rows[0].startswith("t_s,q_d1_rad")
+    s = json.loads((out / "vdc" / "summary.json").read_text())
+    assert "adaptation off" in s["parameter_estimates"]
+    assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]
+
+
+def test_markdown_table_sits_beside_the_papers_numbers(done):
+    md = (done[2] / "table2.md").read_text()
+    rows = {line.split("|")[1].strip(): [x.strip() for x in line.split("|")[2:-1]]
+            for line in md.splitlines() if line.startswith("| ") and "`" in line}
+    assert rows["VDC with embedded FPGA (`vdc`)"][:7] == [
+        "0.5000", "0.1000", "0.00020", "0.5226", "0.0618", "0.00012", "0.3000"]
+    assert rows["PID with 1000 Hz (`pid-1khz`)"][3:6] == ["0.5226", "2.3", "0.00440"]
+    assert rows["PID with embedded FPGA (`pid-fpga`)"][5] == "0.00050"
+    assert "as in the paper" in md
+
+
+def test_ordering_unlike_the_paper_is_said_plainly(done):
+    summary = json.loads(json.dumps(done[1]))
+    for c, rho in {"pid-1khz": 1e-4, "pid-fpga": 5e-4, "vdc": 2e-4}.items():
+        summary["controllers"][c]["rho_s"] = rho
+    runs = {c: (None, s) for c, s in summary["controllers"].items()}
+    summary["ordering"] = table2._ordering(runs)
+    assert summary["ordering"] == {"best_to_worst": ["pid-1khz", "vdc", "pid-fpga"],
+                                   "as_paper": False}
+    assert "NOT the paper's order" in table2.table_markdown(summary)
+
+
+def test_a_failed_run_leaves_no_folder_and_keeps_the_old_one(tmp_path, config):
+    out = tmp_path / "out"
+    with pytest.raises(RuntimeError):
+        table2.run_table2(config, out, runner=FakeRunner(fail_on="pid-fpga"))
+    assert list(tmp_path.iterdir()) == []
+    out.mkdir()
+    (out / "keep.txt").write_text("old result")
+    with pytest.raises(RuntimeError):
+        table2.run_table2(config, out, runner=FakeRunner(fail_on="vdc"))
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+    assert [p.name for p in out.iterdir()] == ["keep.txt"]
+
+
+def test_other_trajectories_are_refused_before_anything_runs(tmp_path, config):
+    cfg = replace(config, trajectory=ec.TrajectoryConfig(0.1, 1.0, 0.2))
+    runner = FakeRunner()
+    with pytest.raises(InputError) as exc:
+        table2.run_table2(cfg, tmp_path / "out", runner=runner)
+    assert exc.value.field == "trajectory" and runner.calls == []
+    assert not (tmp_path / "out").exists()
+
+
+def test_progress_reports_each_controller_with_speed_and_eta():
+    stream = io.StringIO()
+    p = table2.Progress(["pid-fpga", "vdc"], 1.0, stream=stream, every=0.0)
+    p.begin("pid-fpga")
+    p(0.25, 1.0)
+    p.end("pid-fpga", {"rho_s": 1e-3, "max_tip_error_m": 5e-4})
+    p.begin("vdc")
+    lines = stream.getvalue().splitlines()
+    assert lines[0].startswith("[1/2] pid-fpga: 1 s simulated")
+    assert "0.250/1 s simulated" in lines[1] and "RTF" in lines[1] and "ETA" in lines[1]
+    assert "pid-fpga: rho 0.001 s" in lines[2] and "ETA" in lines[2]
+    assert lines[3].startswith("[2/2] vdc") and "ETA" in lines[3]
+
+
+def test_cli_prints_progress_unless_quiet(tmp_path, monkeypatch, capsys):
+    import cosim.track
+
+    monkeypatch.setattr(cosim.track, "run_track", FakeRunner())
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[experiment]\nduration = 0.01\ncontrollers = ['pid-fpga', 'vdc']\n")
+    assert cli.main(["run", "table2", "--config", str(cfg), "--out", str(tmp_path / "a"),
+                     "--seed", "3"]) == 0
+    out, err = capsys.readouterr()
+    assert "[2/2] vdc" in err and "| VDC with embedded FPGA" in out
+    assert json.loads((tmp_path / "a" / "summary.json").read_text())["seed"] == 3
+    assert cli.main(["run", "table2", "--config", str(cfg), "--out", str(tmp_path / "b"),
+                     "--quiet", "--duration", "0.005"]) == 0
+    assert capsys.readouterr() == ("", "")
+    assert json.loads((tmp_path / "b" / "summary.json").read_text())["duration_s"] == 0.005
+
+
+def test_cli_rejects_an_unknown_backend_naming_the_flag(tmp_path, capsys):
+    code = cli.main(["run", "table2", "--backend", "fpga", "--out", str(tmp_path / "o")])
+    assert code == 2 and "--backend" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_real_short_run_of_the_three_controllers(tmp_path):
+    """The gateware in the loop for 3 ms per controller on the fastest backend."""
+    backend = "model" if "model" in BACKENDS else "compiled"
+    cfg = ec.load().with_overrides(backend=backend, duration=0.003, seed=1)
+    summary = table2.run_table2(cfg, tmp_path / "out", runner=run_track)
+    for c, s in summary["controllers"].items():
+        assert s["overruns"] == 0 and s["link_errors"] == 0, c
+        assert s["max_joint_error_rad"] < 1e-3
+    timeline = json.loads((tmp_path / "out" / "vdc" / "timeline.json").read_text())
+    done = [p for p in timeline if p["complete"]]
+    assert len(done) >= 2
+    for p in done:
+        ev = p["events"]
+        assert p["start_cycle"] < ev["A_done"] < ev["B_sent"] < ev["C_done"] < ev["D_sent"] \
+            < p["start_cycle"] + 50_000
