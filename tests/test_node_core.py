@@ -62,16 +62,26 @@ def period_packets(rng, n):
     return b, d
 
 
-@pytest.mark.parametrize("mode, n_periods, end", [(0, 3, 14_000), (1, 1, 8_000),
-                                                  (2, 1, 8_000)])
+PERIOD, COMMIT, WINDOW = 2000, 1000, 300
+
+
+def timing_config():
+    return {Config.PERIOD: PERIOD, Config.COMMIT: COMMIT, Config.SYNC_WINDOW: WINDOW}
+
+
+@pytest.mark.parametrize("mode, n_periods, end", [(0, 3, 16_000), (1, 2, 12_000),
+                                                  (2, 2, 12_000)])
 def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
-    """mode 0 VDC, 1 PID, 2 torque-only."""
+    """mode 0 VDC, 1 PID, 2 torque-only. Periods of 2000 cycles on the node's own timer; the
+    time-codes arrive inside the window, the last period has a late Comm D and an
+    out-of-window time-code (a resynchronisation), then the master falls silent."""
     dut = NodeCore(encoder=ENC)
     rng = np.random.default_rng(0)
-    trace = {}              # cycle -> (count, velocity, torque, status)
-    events = []             # (cycle, kind, data)
+    trace = {}              # cycle -> (count, velocity, torque, status, errors)
+    events = []             # (cycle, kind)
     replies = []            # (request type, header, payload)
     period_starts = []
+    marks = {}
 
     async def encoder_lines(ctx):
         for c in range(end + 10):
@@ -88,39 +98,59 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
                 dut.rx.p.last, dut.period_start)
             trace[c] = (cnt, vel, tq, st)
             if valid and ready and last:
-                events.append((c, "packet", None))
+                events.append((c, "packet"))
             if ps:
-                events.append((c, "period", None))
+                events.append((c, "timecode"))
 
     sent = []
+    timecodes = []
 
     async def send(ctx, ptype, payload, seq=0):
         header = Header(dest=1, src=0, type=int(ptype), seq=seq)
         await put_packet(ctx, dut.rx, header, payload)
         sent.append((int(ptype), bytes(payload)))
 
+    async def wait_until(ctx, cycle):
+        while ctx.get(dut_cycle) < cycle:
+            await ctx.tick()
+
+    async def timecode(ctx, value):
+        ctx.set(dut.period, value)
+        ctx.set(dut.period_start, 1)
+        timecodes.append(value)
+        await ctx.tick()
+        ctx.set(dut.period_start, 0)
+
     async def master(ctx):
         ctx.set(dut.period, 0)
-        for ptype, payload in uploads(mode):
+        for ptype, payload in [(PacketType.CONFIG, p) for p in
+                               config_payloads(timing_config())] + uploads(mode):
             await send(ctx, ptype, payload)
-        first = ctx.get(dut_cycle) + 100
-        for n in range(n_periods):
-            start = first + 2000 * n
+        marks["armed_sent"] = ctx.get(dut_cycle)
+        first = (ctx.get(dut_cycle) // PERIOD + 1) * PERIOD
+        for n in range(n_periods + 1):
+            start = first + PERIOD * n
             period_starts.append(start)
-            while ctx.get(dut_cycle) < start:
-                await ctx.tick()
-            ctx.set(dut.period, n + 1)
-            ctx.set(dut.period_start, 1)
-            await ctx.tick()
-            ctx.set(dut.period_start, 0)
-            await ctx.tick().repeat(60)
+            last = n == n_periods
+            await wait_until(ctx, start + 20)
+            await timecode(ctx, n + 1)                 # inside the window: no resync
+            await ctx.tick().repeat(40)
             await send(ctx, PacketType.COMM_A, b"\0", seq=3 * n)
             replies.append((PacketType.COMM_A, *await get_packet(ctx, dut.tx)))
             b, d = period_packets(rng, n)
             await send(ctx, PacketType.COMM_B, b)
             await send(ctx, PacketType.COMM_C, b"\0", seq=3 * n + 1)
             replies.append((PacketType.COMM_C, *await get_packet(ctx, dut.tx)))
+            if last:
+                await wait_until(ctx, start + COMMIT + 200)
+                marks["late_d"] = start
             await send(ctx, PacketType.COMM_D, d)
+            if last:
+                await wait_until(ctx, start + COMMIT + 500)
+                await timecode(ctx, 63)                # outside the window: resync
+                await ctx.tick().repeat(60)
+                await send(ctx, PacketType.COMM_A, b"\0", seq=99)
+                replies.append((PacketType.COMM_A, *await get_packet(ctx, dut.tx)))
 
     from amaranth import Signal
     dut_cycle = Signal(32)
@@ -138,46 +168,72 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
     sim.add_testbench(master, background=True)
     run_simulation(sim, "node_core")
 
-    # --- replay on the reference ----------------------------------------------------------
+    # --- replay on the reference: every cycle's torque and status, every reply ---------------
     model = NodeModel(encoder=ENC)
-    packets = iter(sent)
-    timeline = sorted([(c, 1 if k == "period" else 2, k) for c, k, _ in events] +
-                      [(t, 0, "tick") for t in range(0, end - TICK, TICK)])
-    ref_replies = []
-    torque_checks = 0
-    period = 0
-    for c, _, kind in timeline:
-        cnt, vel, _, _ = trace[c]
-        if kind == "tick":
-            tau = model.tick(c, cnt, vel)
-            if model.armed:
-                assert trace[c + TICK - 1][2] == tau, f"torque after the tick at cycle {c}"
-                torque_checks += 1
-        elif kind == "period":
-            period += 1
-            model.period_start(c, cnt, vel)
-        else:
-            ptype, payload = next(packets)
-            reply = model.packet(c, ptype, payload, period=period)
-            if reply is not None:
-                ref_replies.append(reply)
-    assert [r[2] for r in replies] == ref_replies
-    assert torque_checks > 60
+    packets, tcs = iter(sent), iter(timecodes)
+    by_cycle = {}
+    for c, kind in events:
+        by_cycle.setdefault(c, []).append(kind)
 
-    # The exchange made sense: Comm A reports the snapshot, Comm C fresh forces.
+    def sample(c):
+        return trace[c][0], trace[c][1], 0
+
+    ref_replies = []
+    for c in range(end - 1):
+        model.run(c, sample)
+        assert model.torque_at(c) == trace[c][2], f"torque in cycle {c}"
+        # FRESH rises when the VDC passes its MARK, the model has the forces at once; CONFIG
+        # records apply as their bytes arrive, in the model at the packet's end (so compare
+        # after the uploads)
+        if c >= period_starts[0]:
+            assert int(model.status) & ~Status.FRESH == trace[c][3] & ~Status.FRESH, \
+                f"status in cycle {c}"
+        model.run(c + 1)
+        for kind in sorted(by_cycle.get(c, []), reverse=True):     # time-code first
+            if kind == "timecode":
+                model.timecode(c, next(tcs))
+            else:
+                ptype, payload = next(packets)
+                reply = model.packet(c, ptype, payload)
+                if reply is not None:
+                    ref_replies.append(reply)
+    assert [r[2] for r in replies] == ref_replies
+
+    # Boundaries on the timer's grid from reset, plus the resynchronisation.
+    resync = max(c for c, kind in events if kind == "timecode")
+    assert resync - resync // PERIOD * PERIOD >= WINDOW
+    assert [b for b in model.boundaries if b < resync] == \
+        list(range(0, resync, PERIOD))
+    assert resync in model.boundaries
+    # ARM takes effect at the first boundary after it arrived.
+    armed = [c for c in range(end) if trace[c][3] & Status.ARMED]
+    assert armed[0] == period_starts[0] + 1 and armed[0] - 1 > marks["armed_sent"]
+    # Comm A reports the snapshot at the boundary, not at the request.
     a = parse_comm_a(replies[0][2])
     assert a["count"] == trace[period_starts[0]][0]
-    assert a["status"] & Status.ARMED
+    assert a["period"] == 1 and a["sync_errors"] == 0 and a["late_d"] == 0
     F_a, F_b, status, per = parse_comm_c(replies[1][2])
     assert status & Status.FRESH and per == 1
     assert replies[1][1].seq == 1 and replies[1][1].type == PacketType.COMM_C
+    # The late Comm D and the resynchronisation are counted.
+    last_a = parse_comm_a(replies[-1][2])
+    assert last_a["sync_errors"] == 1 and last_a["late_d"] == 1 and last_a["period"] == 63
+    assert last_a["count"] == trace[resync][0]
+    if mode == 2:
+        # torque-only: τ = τ_D, committed at phase COMMIT; the tick at COMMIT still has the old
+        # word, the next one the new, which lands cycles("torque") + 1 later.
+        from hdl.node.joint import joint_microcode
+
+        land = period_starts[0] + COMMIT + TICK + joint_microcode().cycles("torque") + 1
+        d0 = period_packets(np.random.default_rng(0), 0)[1]
+        tau_d = int.from_bytes(d0[:3], "little", signed=True)
+        assert trace[land][2] == tau_d != trace[land - 1][2]
     # Master silent after the last period: the watchdog trips and the torque ramps to zero.
     st_end = trace[end - 1][3]
     assert st_end & Status.TRIPPED and st_end & Status.SAFE
     assert trace[end - 1][2] == 0
     trip = min(c for c in trace if trace[c][3] & Status.TRIPPED)
     assert trip > period_starts[-1]
-    assert not any(trace[c][3] & Status.TRIPPED for c in range(period_starts[0], trip))
 
 
 def test_payload_helpers_round_trip_and_refuse_bad_uploads():

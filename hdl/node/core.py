@@ -7,23 +7,32 @@
                                   │        └ τ_D, q_d0, q̇_d0, q̈_d0 ─► D regs ┼─► joint engine
                                   ├─ PARAM ──► VDC / joint register files    │   every tick
                                   └─ CONFIG ─► mode, tick, limits, arm, …    │       │ τ
-    period_start ─► snapshot (count, q̇) ─► CORDIC ─► q̇, cos q, sin q ─► VDC  │       ▼
+    timer (phase 0) ─► snapshot (count, q̇, τ, status, …) ─► CORDIC ─► q̇, cos q, sin q ─► VDC
     encoder A/B ──► decoder, velocity ──────────────────────────────────────►  limits, watchdog
     tx beats ◄── reply: Comm A (snapshot, status) / Comm C (F_a, F_b once ready) ─► torque
 
-Behaviour (the transaction-level reference is :class:`~hdl.node.core_ref.NodeModel`):
+Behaviour (the transaction-level reference is :class:`~hdl.node.core_ref.NodeModel`). What the
+node does, and when, depends on packet contents and its own period timer only, never on the
+cycle a packet or time-code arrived (docs/node.md "Timing"):
 
-* ``period_start`` (the time-code) snapshots the encoder count and velocity, restarts the
-  period timer and runs the CORDIC; its result and the velocity go into the VDC's registers.
+* A period timer free-runs from reset (CONFIG PERIOD, 50,000 cycles). Its boundary (phase 0)
+  snapshots the encoder count and velocity, the torque, status, encoder errors and counters
+  (everything Comm A reports), runs the CORDIC and restarts the control ticks. Its result and
+  the velocity go into the VDC's registers.
+* The time-code (``period_start``) is monitored: one arriving at a phase outside
+  ``[0, SYNC_WINDOW)`` makes its own cycle a boundary (re-synchronisation), counted while
+  armed (``sync_errors`` in Comm A). Its value is echoed in the replies.
 * A Comm B of 40 bytes writes its 13 words into the VDC's registers as they arrive, then starts
   the VDC (from ``"first"`` after reset, arming, a trip, a PRIME config or flag; else
   ``"main"``). A Comm C request is answered as soon as the VDC has its forces (MARK).
-* A Comm D of 40 bytes writes ``g_C`` into the VDC's registers and commits ``τ_D, q_d0, q̇_d0,
-  q̈_d0`` to the joint engine's inputs at its last byte (all four at once).
-* Every ``tick`` cycles the encoder velocity is sampled and the joint engine runs with the
-  latched count, velocity, Comm D values and ``t_next``; its torque goes through the
-  :class:`~hdl.node.watchdog.Watchdog`. A tick that finds the joint engine busy is skipped
-  and counted (``overruns``).
+* A Comm D of 40 bytes writes ``g_C`` into the VDC's registers; ``τ_D, q_d0, q̇_d0, q̈_d0``
+  (all four at once) take effect at phase COMMIT while armed (one arriving at or after COMMIT
+  waits for the next commit point and is counted, ``late_d``), at its last byte while disarmed.
+* ARM takes effect at the next boundary and clears the PID integral; disarming is immediate.
+* Every ``tick`` cycles from the boundary the encoder velocity is sampled and the joint engine
+  runs with the latched count, velocity, Comm D values and ``t_next`` (from the boundary); its
+  torque goes through the :class:`~hdl.node.watchdog.Watchdog`. A tick that finds the joint
+  engine busy is skipped and counted (``overruns``).
 * Words arrive over the byte stream; a word for a busy engine waits (``rx.ready`` low).
 """
 
@@ -64,7 +73,7 @@ class NodeCore(wiring.Component):
     tx : Out(stream.Signature(Beat))
         Replies (to ``LinkNode.tx``).
     period_start : In(1)
-        Period start (the time-code strobe).
+        The time-code strobe (monitored; re-synchronises the timer outside the window).
     period : In(8)
         The time-code value, echoed in the replies.
     enc_a, enc_b : In(1)
@@ -121,8 +130,13 @@ class NodeCore(wiring.Component):
         cfg_ramp    = Signal(WORD, init=CONFIG_DEFAULTS[Config.RAMP])
         cfg_tmin    = Signal(signed(WORD), init=CONFIG_DEFAULTS[Config.TAU_MIN])
         cfg_tmax    = Signal(signed(WORD), init=CONFIG_DEFAULTS[Config.TAU_MAX])
+        cfg_period  = Signal(24, init=CONFIG_DEFAULTS[Config.PERIOD])
+        cfg_window  = Signal(24, init=CONFIG_DEFAULTS[Config.SYNC_WINDOW])
+        cfg_commit  = Signal(24, init=CONFIG_DEFAULTS[Config.COMMIT])
         prime       = Signal(init=1)
-        arm         = Signal()
+        arm         = Signal()          # the ARM taking effect (at a period boundary)
+        arm_pending = Signal()          # CONFIG ARM=1 received
+        arming      = Signal()          # armed at the coming boundary (integral cleared)
         disarm      = Signal()
         m.d.comb += [
             wd.timeout.eq(cfg_timeout),
@@ -134,22 +148,42 @@ class NodeCore(wiring.Component):
             self.torque.eq(wd.torque),
         ]
 
-        # --- period start: snapshot, timer, CORDIC, snapshot words into the VDC ---------------
+        # --- period timer: boundary (phase 0) = snapshot, CORDIC, ARM; time-code monitor ------
+        # The timer free-runs from reset; a time-code arriving at a phase outside
+        # [0, SYNC_WINDOW) makes its own cycle a boundary (re-synchronisation), counted while
+        # armed. Nothing here depends on when a packet arrived, only on what it said.
+        phase       = Signal(24)
+        boundary    = Signal()
+        resync      = Signal()
+        pre_bound   = Signal()
+        tt          = Signal(24)
+        sync_errors = Signal(16)
+        m.d.comb += [
+            resync.eq(self.period_start & (phase >= cfg_window)),
+            boundary.eq((phase == 0) | resync),
+            pre_bound.eq(phase == cfg_period - 1),
+            tt.eq(Mux(boundary, 0, phase)),
+        ]
+        with m.If(boundary):
+            m.d.sync += phase.eq(1)
+        with m.Elif(phase >= cfg_period - 1):
+            m.d.sync += phase.eq(0)
+        with m.Else():
+            m.d.sync += phase.eq(phase + 1)
+        with m.If(resync & wd.armed & (sync_errors != 0xFFFF)):
+            m.d.sync += sync_errors.eq(sync_errors + 1)
+
         snap_count = Signal(signed(32))
         snap_qd    = Signal(signed(WORD))
-        tt         = Signal(23)
         vdc_fresh  = Signal()
-        with m.If(self.period_start):
+        with m.If(boundary):
             m.d.sync += [
                 snap_count.eq(enc.count),
                 snap_qd.eq(enc.velocity),
-                tt.eq(0),
                 vdc_fresh.eq(0),
             ]
-        with m.Elif(tt != _TIME_MAX):
-            m.d.sync += tt.eq(tt + 1)
         m.d.comb += [
-            trig.start.eq(self.period_start),
+            trig.start.eq(boundary),
             trig.count.eq(enc.count),
         ]
         sw_pending = Signal()
@@ -188,7 +222,22 @@ class NodeCore(wiring.Component):
                 vdc.host_we.eq(1),
             ]
             m.d.sync += pw_valid.eq(0)
-        with m.If(pw_valid & (pw_bank == Bank.JOINT) & ~joint.busy):
+        # ARM clears the PID integral: its fine part in the cycle before the boundary, its
+        # coarse part in the boundary's cycle (the engine is idle in both when TICK ≥ the
+        # program's cycles + 2 and PERIOD is a multiple of TICK; see docs/node.md).
+        clr_lo = Signal()
+        clr_hi = Signal()
+        m.d.comb += [
+            clr_lo.eq(pre_bound & arm_pending & ~joint.busy),
+            clr_hi.eq(boundary & arming),
+        ]
+        with m.If(clr_lo | clr_hi):
+            m.d.comb += [
+                joint.host_addr.eq(Mux(clr_lo, jmc.addr("ilo_s"), jmc.addr("ihi_s"))),
+                joint.host_wdata.eq(0),
+                joint.host_we.eq(1),
+            ]
+        with m.Elif(pw_valid & (pw_bank == Bank.JOINT) & ~joint.busy):
             m.d.comb += [
                 joint.host_addr.eq(pw_addr),
                 joint.host_wdata.eq(pw_data),
@@ -220,6 +269,10 @@ class NodeCore(wiring.Component):
         packet_event = Signal()
         d_words  = [Signal(signed(WORD), name=f"d_{n}") for n in ("tau", "qd0", "vd0", "ad0")]
         d_shadow = [Signal(signed(WORD), name=f"ds_{n}") for n in ("tau", "qd0", "vd0", "ad0")]
+        d_next   = [Signal(signed(WORD), name=f"dn_{n}") for n in ("tau", "qd0", "vd0", "ad0")]
+        d_pending = Signal()
+        d_arrive  = Signal()
+        late_d    = Signal(16)
         b_addr = Array(C(vmc.addr(n), 9) for n in COMM_B_WORDS)
         g_addr = Array(C(vmc.addr(f"gC{k}"), 9) for k in range(3))
 
@@ -319,11 +372,20 @@ class NodeCore(wiring.Component):
                     m.d.sync += cfg_tmin.eq(cfg_value)
                 with m.Case(Config.TAU_MAX):
                     m.d.sync += cfg_tmax.eq(cfg_value)
+                with m.Case(Config.PERIOD):
+                    with m.If((cfg_value >= 2) & (cfg_value < (1 << 24))):
+                        m.d.sync += cfg_period.eq(cfg_value)
+                with m.Case(Config.SYNC_WINDOW):
+                    with m.If(cfg_value < (1 << 24)):
+                        m.d.sync += cfg_window.eq(cfg_value)
+                with m.Case(Config.COMMIT):
+                    with m.If(cfg_value < (1 << 24)):
+                        m.d.sync += cfg_commit.eq(cfg_value)
                 with m.Case(Config.ARM):
-                    m.d.comb += [
-                        arm.eq(cfg_value != 0),
-                        disarm.eq(cfg_value == 0),
-                    ]
+                    with m.If(cfg_value != 0):
+                        m.d.sync += arm_pending.eq(1)
+                    with m.Else():
+                        m.d.comb += disarm.eq(1)
                 with m.Case(Config.PRESET):
                     m.d.comb += [
                         enc.preset.eq(1),
@@ -350,6 +412,21 @@ class NodeCore(wiring.Component):
                 vdc_wait.eq(0),
                 vdc_fresh.eq(1),
             ]
+        # ARM takes effect at the next period boundary (so the state at that boundary does not
+        # depend on when the uploads arrived); disarming is immediate (safety first).
+        with m.If(disarm):
+            m.d.sync += [
+                arm_pending.eq(0),
+                arming.eq(0),
+            ]
+        with m.Elif(clr_lo):
+            m.d.sync += [
+                arm_pending.eq(0),
+                arming.eq(1),
+            ]
+        with m.Elif(clr_hi):
+            m.d.sync += arming.eq(0)
+        m.d.comb += arm.eq(clr_hi & ~disarm)
         tripped_prev = Signal()
         m.d.sync += tripped_prev.eq(wd.tripped)
         with m.If((wd.tripped & ~tripped_prev) | arm):
@@ -359,10 +436,10 @@ class NodeCore(wiring.Component):
         tick_cnt = Signal(16)
         tick     = Signal()
         overruns = Signal(16)
-        m.d.comb += tick.eq(tick_cnt == 0)
+        m.d.comb += tick.eq(boundary | (tick_cnt == 0))
         m.d.sync += tick_cnt.eq(Mux(tick, cfg_tick - 1, tick_cnt - 1))
         j_in = {n: Signal(signed(WORD), name=f"jin_{n}") for n in JOINT_INPUTS}
-        tn = Signal(24)
+        tn = Signal(25)
         m.d.comb += [
             tn.eq(tt + cfg_tick),
             enc.sample.eq(tick),
@@ -408,14 +485,27 @@ class NodeCore(wiring.Component):
         r_idx    = Signal(range(PAYLOAD))
         c_status = Signal(16)            # Comm C: captured with the request
         c_period = Signal(8)
-        a_status = Signal(16)            # Comm A: captured with the request
+        a_status = Signal(16)            # Comm A: captured at the period boundary
         a_torque = Signal(signed(WORD))
         a_errors = Signal(16)
-        a_period = Signal(8)
+        a_overr  = Signal(16)
+        a_sync   = Signal(16)
+        a_late   = Signal(16)
+        a_period = Signal(8)             # (the time-code: captured with the request)
+        with m.If(boundary):
+            m.d.sync += [
+                a_status.eq(status),
+                a_torque.eq(wd.torque),
+                a_errors.eq(enc.errors),
+                a_overr.eq(overruns),
+                a_sync.eq(Mux(resync & wd.armed & (sync_errors != 0xFFFF), sync_errors + 1,
+                              sync_errors)),   # a resync reports itself
+                a_late.eq(late_d),
+            ]
         forces   = Cat(*(vdc.outputs[vmc.addr(f"F{L}{k}") - IO_BASE]
                          for L in "AB" for k in range(6)))
-        payload_a = Cat(snap_count, snap_qd, a_torque, a_status, a_errors, a_period, overruns,
-                        C(0, 8 * PAYLOAD - 136))
+        payload_a = Cat(snap_count, snap_qd, a_torque, a_status, a_errors, a_period, a_overr,
+                        a_sync, a_late, C(0, 8 * PAYLOAD - 168))
         payload_c = Cat(forces, c_status, c_period, C(0, 8))
         # The reply is loaded into a shift register and sent from its low byte: cheaper on a
         # Virtex-II than a 40-way byte multiplexer (320 flip-flops instead of ~700 LUTs).
@@ -469,14 +559,15 @@ class NodeCore(wiring.Component):
                     prime.eq(0),
                 ]
             with m.If(is_d & full):
-                m.d.sync += [dw.eq(ds) for dw, ds in zip(d_words, d_shadow, strict=True)]
+                with m.If(wd.armed):
+                    m.d.sync += [dn.eq(ds) for dn, ds in zip(d_next, d_shadow, strict=True)]
+                    m.d.comb += d_arrive.eq(1)
+                with m.Else():
+                    m.d.sync += [dw.eq(ds) for dw, ds in zip(d_words, d_shadow, strict=True)]
             with m.If(ptype == PacketType.COMM_A):
                 m.d.sync += [
                     reply_a.eq(1),
                     seq_a.eq(beat.header.seq),
-                    a_status.eq(status),
-                    a_torque.eq(wd.torque),
-                    a_errors.eq(enc.errors),
                     a_period.eq(self.period),
                 ]
             with m.If(ptype == PacketType.COMM_C):
@@ -489,5 +580,16 @@ class NodeCore(wiring.Component):
                     c_period.eq(self.period),
                 ]
         m.d.comb += wd.packet.eq(packet_event)
+
+        # Comm D while armed: committed at phase COMMIT of the period (all joints on the same
+        # grid); one that arrives at or after COMMIT waits for the next commit point, counted.
+        with m.If(phase == cfg_commit):
+            with m.If(d_pending):
+                m.d.sync += [dw.eq(dn) for dw, dn in zip(d_words, d_next, strict=True)]
+            m.d.sync += d_pending.eq(d_arrive)
+        with m.Elif(d_arrive):
+            m.d.sync += d_pending.eq(1)
+        with m.If(d_arrive & (phase >= cfg_commit) & (late_d != 0xFFFF)):
+            m.d.sync += late_d.eq(late_d + 1)
 
         return m

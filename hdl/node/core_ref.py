@@ -3,17 +3,25 @@
 It composes the block references: :class:`~hdl.node.vdc_ref.VdcModel`,
 :class:`~hdl.node.joint_ref.JointModel`, :mod:`~hdl.node.trig_ref` and the watchdog rules of
 :mod:`~hdl.node.watchdog_ref`, driven by events with their clock cycle. The encoder is not in
-it: callers give the count and velocity the encoder interface (or its reference,
-:class:`~hdl.node.encoder_ref.EncoderModel`) shows at each event. It is fast enough to stand
-in for the gateware in long runs (the ``model`` backend).
+it: callers give a ``sample(cycle) -> (count, velocity, errors)`` function, the encoder
+interface's outputs in that cycle (the gateware's, or those of its reference
+:class:`~hdl.node.encoder_ref.EncoderModel`). It is fast enough to stand in for the gateware in
+long runs (the ``model`` backend, :mod:`cosim.model`).
 
-Event timing, as in the gateware:
+Internal events follow the node's period timer (free-running from reset, phase 0 = boundary):
 
-* :meth:`period_start` at the time-code strobe's cycle;
-* :meth:`packet` at the cycle its last byte is taken; Comm D values reach the joint engine from
-  the next cycle on; the watchdog's silence restarts there;
-* :meth:`tick` at each control tick's cycle; its command lands ``cycles(mode)`` cycles later
-  (:meth:`~hdl.node.isa.Microcode.cycles`), then the limits and the watchdog apply.
+* boundary (phase 0, or a time-code outside the sync window): snapshot of everything the
+  Comm A reply carries (count, velocity, torque, status, encoder errors, counters), CORDIC of
+  the count; an ARM received before the previous cycle takes effect here (PID integral cleared);
+* control ticks every ``TICK`` cycles from each boundary; a tick's command lands
+  ``cycles(mode)`` cycles later (:meth:`~hdl.node.isa.Microcode.cycles`), then the limits and
+  the watchdog apply;
+* commit point (phase ``COMMIT``): an armed node's last full Comm D becomes the joint
+  engine's input (disarmed: at its last byte).
+
+External events: :meth:`timecode` at the strobe's cycle, :meth:`packet` at the cycle its last
+byte is taken. Within one cycle, internal events come first (they see the registers as they were
+before the cycle, as the packet does).
 """
 
 from __future__ import annotations
@@ -36,6 +44,7 @@ from .vdc_ref import VdcInputs, VdcModel, VdcParams
 __all__ = ["NodeModel"]
 
 _TIME_MAX = (1 << 23) - 1
+_NEVER = 1 << 62
 
 
 def _zero_vdc() -> VdcModel:
@@ -55,9 +64,15 @@ class NodeModel:
     config : dict of Config to int
     d_words : list of 4 int
         Committed Comm D words ``τ_D, q_d0, q̇_d0, q̈_d0``.
+    d_next : list of 4 int
+        The last full Comm D received while armed, waiting for the commit point.
     g_words : list of 3 int
     forces : list of 12 int
         FORCE words of the last VDC run (Link a, then Link b): what Comm C returns.
+    boundaries : list of int
+        Cycles of every period boundary so far (resynchronisations included).
+    sync_errors, late_d : int
+        Time-codes outside the window while armed; Comm D packets after the commit phase.
     """
 
     encoder: EncoderParams = field(default_factory=EncoderParams)
@@ -65,43 +80,180 @@ class NodeModel:
     joint: JointModel = field(default_factory=lambda: JointModel(JointParams(*([0] * 17))))
     config: dict = field(default_factory=lambda: dict(CONFIG_DEFAULTS))
     d_words: list = field(default_factory=lambda: [0, 0, 0, 0])
+    d_next: list = field(default_factory=lambda: [0, 0, 0, 0])
+    d_pending: bool = False
     g_words: list = field(default_factory=lambda: [0, 0, 0])
     b_words: list = field(default_factory=lambda: [0] * 13)
     snap_count: int = 0
     snap_qd: int = 0
     cos_q: int = 0
     sin_q: int = 0
-    period_cycle: int = 0
     prime: bool = True
     fresh: bool = False
     armed: bool = False
     tripped: bool = False
+    arm_pending: bool = False
+    arming: bool = False
     torque: int = 0
     last_packet: int = 0
     overruns: int = 0
+    sync_errors: int = 0
+    late_d: int = 0
+    tc_value: int = 0
     forces: list = field(default_factory=lambda: [0] * 12)
+    boundaries: list = field(default_factory=list)
+    _snap: tuple = (0, 0, 0, 0, 0, 0)     # torque, status, errors, overruns, sync, late
     _busy_until: int = -1
+    _started: int = -1
     _landing: tuple | None = None
+    _done: int = 0                        # internal events at cycles < _done are processed
+    _lb: int = 0                          # last boundary
+    _nb: int = 0                          # next boundary
+    _nt: int = 0                          # next regular tick
+    _commit_seen: int = -1                # boundary whose commit point has passed
+    _prime_due: int | None = None
+    _pre_seen: int = -1                   # boundary whose previous cycle was examined
+    _sample: object = None
 
-    # --- events -------------------------------------------------------------------------------
-    def period_start(self, now: int, count: int, qd: int) -> None:
-        """Time-code strobe at cycle ``now``; ``count``, ``qd`` the encoder outputs then."""
-        self._watch(now)
+    # --- internal events ----------------------------------------------------------------------
+    def phase(self, now: int) -> int:
+        """Phase of the period timer in cycle ``now`` (internal events before it processed)."""
+        return 0 if now >= self._nb else now - self._lb
+
+    def next_boundary(self) -> int:
+        return self._nb
+
+    def run(self, until: int, sample=None) -> None:
+        """Process the internal events (boundaries, ticks, commit points) of cycles < ``until``.
+
+        ``sample(cycle) -> (count, velocity, errors)``: the encoder interface's outputs.
+        """
+        if sample is not None:
+            self._sample = sample
+        sample = self._sample or (lambda c: (0, 0, 0))
+        cfg = self.config
+        while True:
+            nb = self._nb
+            commit = self._lb + cfg[Config.COMMIT] if self._commit_seen != self._lb else _NEVER
+            if commit >= nb:
+                commit = _NEVER
+            pre = nb - 1 if self.arm_pending and self._pre_seen != nb else _NEVER
+            c = min(nb, self._nt, commit, pre)
+            if c >= until:
+                break
+            if c == pre:
+                self._pre_seen = nb
+                if c == self._started or c >= self._busy_until:    # engine idle: clear I_lo
+                    self.joint.i_lo = 0
+                    self.arm_pending = False
+                    self.arming = True
+                if c != min(nb, self._nt, commit):
+                    continue
+            if c == nb:
+                self._boundary(c, sample)
+            elif c == self._nt:
+                self._tick(c, sample, c - self._lb)
+            if c == commit:
+                self._commit_seen = self._lb
+                if self.d_pending:
+                    self.d_words = list(self.d_next)
+                    self.d_pending = False
+        self._done = max(self._done, until)
+
+    def _boundary(self, c: int, sample, resync: bool = False) -> None:
+        self._watch(c)
+        count, qd, errors = sample(c)
+        if resync and self.armed:                       # a resync reports itself
+            self.sync_errors = min(self.sync_errors + 1, 0xFFFF)
+        self._snap = (self.torque, int(self.status), errors, self.overruns, self.sync_errors,
+                      self.late_d)
         self.snap_count, self.snap_qd = count, qd
         self.cos_q, self.sin_q = sin_cos(count, self.encoder.counts_per_rev)
-        self.period_cycle = now
         self.fresh = False
+        self._lb = c
+        self._nb = c + self.config[Config.PERIOD]
+        self.boundaries.append(c)
+        arm = self.arming
+        if arm and self.armed and self.tripped:
+            self._ramp()
+        if arm:
+            self.arming = False
+            self.joint.i_hi = 0
+            self.armed, self.tripped, self.prime = True, False, True
+            self.last_packet = c
+        self._tick(c, sample, 0, ramped=arm)
 
-    def packet(self, now: int, ptype: int, payload: bytes, period: int = 0,
-               enc_errors: int = 0):
-        """A packet whose last byte is taken at cycle ``now`` (``period``: the time-code value
-        then; ``enc_errors``: the encoder's illegal-transition count then).
+    def _ramp(self) -> None:
+        ramp = self.config[Config.RAMP]
+        self.torque = 0 if abs(self.torque) <= ramp else \
+            self.torque - ramp if self.torque > 0 else self.torque + ramp
+
+    def _tick(self, now: int, sample, tt: int, ramped: bool = False) -> None:
+        """Control tick at cycle ``now``, ``tt`` cycles after the period boundary."""
+        self._watch(now)
+        tick = self.config[Config.TICK]
+        self._nt = now + tick
+        if self.armed and self.tripped and not ramped:
+            self._ramp()
+        if now < self._busy_until:
+            self.overruns = min(self.overruns + 1, 0xFFFF)
+            return
+        count, qd, _ = sample(now)
+        mode = JOINT_MODES[self.config[Config.MODE]]
+        tt = min(tt, _TIME_MAX)
+        x = JointInputs(q=saturate(count), qd=qd, tn=min(tt + tick, _TIME_MAX),
+                        tau_D=self.d_words[0], qd0=self.d_words[1], vd0=self.d_words[2],
+                        ad0=self.d_words[3])
+        tau, _, _ = self.joint.tick(mode, x)
+        cycles = joint_microcode().cycles(mode)
+        self._started = now
+        self._busy_until = now + cycles + 1
+        done = now + cycles
+        tripped = self.tripped or (
+            self.armed and done >= self.last_packet + 2 + self.config[Config.TIMEOUT])
+        if not self.armed:
+            self._landing = (done + 1, 0)
+        elif not tripped:                       # visible from the cycle after the command
+            self._landing = (done + 1, min(max(tau, self.config[Config.TAU_MIN]),
+                                           self.config[Config.TAU_MAX]))
+
+    def torque_at(self, now: int) -> int:
+        """Torque word output in cycle ``now`` (internal events up to ``now`` processed, none
+        after it)."""
+        self._watch(now)
+        return self.torque
+
+    # --- external events ----------------------------------------------------------------------
+    def timecode(self, now: int, value: int, sample=None) -> bool:
+        """Time-code strobe in cycle ``now`` with time ``value``; returns whether it
+        re-synchronised the timer (arrival phase outside ``[0, SYNC_WINDOW)``)."""
+        self.run(now, sample)
+        sample = self._sample or (lambda c: (0, 0, 0))
+        resync = self.phase(now) >= self.config[Config.SYNC_WINDOW]
+        if resync:
+            self._boundary(now, sample, resync=True)
+        self.run(now + 1)
+        self.tc_value = value & 0xFF
+        return resync
+
+    def period_start(self, now: int, count: int, qd: int) -> None:
+        """A time-code in cycle ``now`` with the encoder resting at ``count``, ``qd``."""
+        self.timecode(now, self.tc_value, lambda c: (count, qd, 0))
+
+    def packet(self, now: int, ptype: int, payload: bytes, period: int | None = None,
+               enc_errors: int = 0, sample=None):
+        """A packet whose last byte is taken at cycle ``now``.
+
+        ``period`` overrides the last time-code value; ``sample`` as in :meth:`run`.
 
         Returns
         -------
         bytes or None
             The reply payload for Comm A and Comm C requests (Comm C: once the VDC ran).
         """
+        self.run(now + 1, sample)
+        if period is not None:
+            self.tc_value = period & 0xFF
         self._watch(now)
         payload = bytes(payload)
         reply = None
@@ -117,16 +269,24 @@ class NodeModel:
             self.forces = F_a + F_b
             self.fresh = True
         elif ptype == PacketType.COMM_D:
-            # g_C goes to the VDC word by word as it arrives; the rest commits on a full packet.
+            # g_C goes to the VDC word by word as it arrives; the rest on a full packet: at
+            # once while disarmed, at the commit point while armed.
             w = unpack_words(payload, min(len(payload) // 3, len(COMM_D_WORDS)))
             for k in range(1, min(4, len(w))):
                 self.g_words[k - 1] = w[k]
             if len(payload) == PAYLOAD:
-                self.d_words = [w[0], w[4], w[5], w[6]]
+                words = [w[0], w[4], w[5], w[6]]
+                if self.armed:
+                    self.d_next = words
+                    self.d_pending = True
+                    if self.phase(now) >= self.config[Config.COMMIT]:
+                        self.late_d = min(self.late_d + 1, 0xFFFF)
+                else:
+                    self.d_words = words
         elif ptype == PacketType.COMM_A:
-            reply = self._reply_a(period, enc_errors)
+            reply = self._reply_a()
         elif ptype == PacketType.COMM_C:
-            reply = self._reply_c(period)
+            reply = self._reply_c()
         elif ptype == PacketType.CONFIG:
             for k in range(0, len(payload) - 4, 5):
                 self._config(now, payload[k], int.from_bytes(payload[k + 1:k + 5], "little"))
@@ -137,47 +297,21 @@ class NodeModel:
         self.last_packet = now
         return reply
 
-    def tick(self, now: int, count: int, qd: int) -> int:
-        """Control tick at cycle ``now``; returns the torque word after its command landed."""
-        self._watch(now)
-        if self.armed and self.tripped:
-            ramp = self.config[Config.RAMP]
-            self.torque = 0 if abs(self.torque) <= ramp else \
-                self.torque - ramp if self.torque > 0 else self.torque + ramp
-        if now < self._busy_until:
-            self.overruns = min(self.overruns + 1, 0xFFFF)
-            return self.torque
-        mode = JOINT_MODES[self.config[Config.MODE]]
-        tick = self.config[Config.TICK]
-        tt = min(now - self.period_cycle, _TIME_MAX)
-        x = JointInputs(q=saturate(count), qd=qd, tn=min(tt + tick, _TIME_MAX),
-                        tau_D=self.d_words[0], qd0=self.d_words[1], vd0=self.d_words[2],
-                        ad0=self.d_words[3])
-        tau, _, _ = self.joint.tick(mode, x)
-        cycles = joint_microcode().cycles(mode)
-        self._busy_until = now + cycles + 1
-        done = now + cycles
-        self._watch(done)
-        if not self.armed:
-            landed = 0
-        elif not self.tripped:
-            landed = min(max(tau, self.config[Config.TAU_MIN]), self.config[Config.TAU_MAX])
-        else:
-            landed = self.torque
-        self._landing = (done + 1, landed)      # visible from the cycle after the command
-        return landed
-
     # --- helpers ------------------------------------------------------------------------------
     def _watch(self, now: int) -> None:
-        """Land a pending command; the watchdog trips when the silence reaches the timeout
-        (visible one cycle later)."""
+        """State visible in cycle ``now``: a pending command lands; the watchdog trips one
+        cycle after the silence reaches the timeout (silence 0 in the cycle after a packet),
+        and PRIME follows the trip one cycle later."""
         if self._landing is not None and now >= self._landing[0]:
             self.torque = self._landing[1]
             self._landing = None
-        if self.armed and not self.tripped and now >= self.last_packet + 1 + \
-                self.config[Config.TIMEOUT]:
+        trip = self.last_packet + 2 + self.config[Config.TIMEOUT]
+        if self.armed and not self.tripped and now >= trip:
             self.tripped = True
+            self._prime_due = trip + 1
+        if self._prime_due is not None and now >= self._prime_due:
             self.prime = True
+            self._prime_due = None
 
     @property
     def status(self) -> Status:
@@ -194,17 +328,19 @@ class NodeModel:
             s |= Status.PRIME
         return Status(int(s) | (self.config[Config.MODE] << 5))
 
-    def _reply_a(self, period: int, enc_errors: int) -> bytes:
+    def _reply_a(self) -> bytes:
+        torque, status, errors, overruns, sync, late = self._snap
         out = (self.snap_count & 0xFFFFFFFF).to_bytes(4, "little")
-        out += pack_words([self.snap_qd, self.torque])
-        out += int(self.status).to_bytes(2, "little") + enc_errors.to_bytes(2, "little")
-        out += bytes([period])
-        out += self.overruns.to_bytes(2, "little")
+        out += pack_words([self.snap_qd, torque])
+        out += status.to_bytes(2, "little") + errors.to_bytes(2, "little")
+        out += bytes([self.tc_value])
+        for v in (overruns, sync, late):
+            out += v.to_bytes(2, "little")
         return out + bytes(PAYLOAD - len(out))
 
-    def _reply_c(self, period: int) -> bytes:
+    def _reply_c(self) -> bytes:
         out = pack_words(self.forces)
-        out += int(self.status).to_bytes(2, "little") + bytes([period])
+        out += int(self.status).to_bytes(2, "little") + bytes([self.tc_value])
         return out + bytes(PAYLOAD - len(out))
 
     def _config(self, now: int, reg: int, value: int) -> None:
@@ -219,11 +355,17 @@ class NodeModel:
             self.config[Config.RAMP] = value & 0xFFFFFF
         elif reg in (Config.TAU_MIN, Config.TAU_MAX):
             self.config[Config(reg)] = saturate(((signed + (1 << 23)) % (1 << 24)) - (1 << 23))
+        elif reg == Config.PERIOD and 2 <= value < (1 << 24):
+            self.config[Config.PERIOD] = value
+            if now + 1 < self._nb:          # the timer compares with the new value from now + 1
+                self._nb = max(self._lb + value, now + 2)
+        elif reg in (Config.SYNC_WINDOW, Config.COMMIT) and value < (1 << 24):
+            self.config[Config(reg)] = value
         elif reg == Config.ARM:
             if value:
-                self.armed, self.tripped, self.prime = True, False, True
+                self.arm_pending = True
             else:
-                self.armed = False
+                self.armed = self.arm_pending = self.arming = False
                 self.torque = 0
                 self._landing = None
         elif reg == Config.PRIME:

@@ -6,11 +6,13 @@ Every Comm payload is the paper's 40 bytes.
 ======== =====  ==============================================================================
 packet   dir    payload
 ======== =====  ==============================================================================
-COMM_A   m→s    request (any payload); the node answers with a COMM_A packet:
-         s→m    ``count`` int32 (encoder count at the period start) · ``q̇`` VEL · ``τ`` FORCE
-                (torque applied now) · ``status`` u16 (:class:`Status`) · ``errors`` u16
-                (illegal encoder transitions) · ``period`` u8 (last time-code) · ``overruns``
-                u16 (control ticks skipped) · zeros
+COMM_A   m→s    request (any payload); the node answers with a COMM_A packet, every field
+         s→m    but ``period`` taken at the last period boundary of the node's timer:
+                ``count`` int32 (encoder count) · ``q̇`` VEL · ``τ`` FORCE (torque applied
+                then) · ``status`` u16 (:class:`Status`) · ``errors`` u16 (illegal encoder
+                transitions) · ``period`` u8 (last time-code) · ``overruns`` u16 (control
+                ticks skipped) · ``sync_errors`` u16 (time-codes outside the sync window
+                while armed) · ``late_d`` u16 (Comm D packets after the commit phase) · zeros
 COMM_B   m→s    ``q̇_r`` · ``V_C[6]`` · ``V_rC[6]`` (13 VEL words, 39 bytes) · flags u8 (bit 0:
                 restart the derivative history)
 COMM_C   m→s    request; the node answers once its VDC run for the last Comm B has its forces:
@@ -62,10 +64,14 @@ class Config(enum.IntEnum):
     ARM        = 7   # 1 arms (and clears a trip), 0 disarms
     PRESET     = 8   # load the encoder count (homing)
     PRIME      = 9   # restart the VDC derivative history at the next Comm B
+    PERIOD     = 10  # cycles per period of the node's timer (a multiple of TICK)
+    SYNC_WINDOW = 11  # a time-code arriving at phase >= this re-synchronises the timer
+    COMMIT     = 12  # phase at which an armed node commits the last Comm D
 
 
 CONFIG_DEFAULTS = {Config.MODE: 0, Config.TICK: 50, Config.TIMEOUT: 100_000, Config.RAMP: 0,
-                   Config.TAU_MIN: 0, Config.TAU_MAX: 0}
+                   Config.TAU_MIN: 0, Config.TAU_MAX: 0, Config.PERIOD: 50_000,
+                   Config.SYNC_WINDOW: 2_500, Config.COMMIT: 10_000}
 
 
 class Bank(enum.IntEnum):
@@ -128,7 +134,9 @@ def parse_comm_a(data: bytes) -> dict:
     return {"count": int.from_bytes(data[0:4], "little", signed=True), "qd": qd, "torque": tau,
             "status": Status(int.from_bytes(data[10:12], "little")),
             "errors": int.from_bytes(data[12:14], "little"), "period": data[14],
-            "overruns": int.from_bytes(data[15:17], "little")}
+            "overruns": int.from_bytes(data[15:17], "little"),
+            "sync_errors": int.from_bytes(data[17:19], "little"),
+            "late_d": int.from_bytes(data[19:21], "little")}
 
 
 def parse_comm_c(data: bytes) -> tuple[list[int], list[int], Status, int]:
