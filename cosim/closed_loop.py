@@ -82,10 +82,31 @@ def pid_gains(robot: Robot, hz: float) -> dict:
 
 
 def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int = 50,
-                 timeout_cycles: int = 100_000) -> list[tuple[int, int, bytes]]:
-    """``(dest, type, payload)`` packets that configure every node before the run."""
+                 timeout_cycles: int = 100_000, period_cycles: int = 50_000,
+                 commit_cycles: int | None = None,
+                 sync_window: int = 2_500) -> list[tuple[int, int, bytes]]:
+    """``(dest, type, payload)`` packets that configure every node before the run.
+
+    ``period_cycles`` (the master's period), ``commit_cycles`` (the phase at which Comm D takes
+    effect) and ``sync_window`` set the nodes' period timer (docs/node.md "Timing"); the
+    timing record goes first, so it arrives within the first period after reset. The default
+    commit phase is a fifth of the period (200 µs of 1 ms: the measured Comm D reaches the last
+    of three nodes at ~85 µs; docs/node.md "Timing" says why the margin).
+    """
+    if commit_cycles is None:
+        commit_cycles = period_cycles // 5
     mode = {"vdc": MODES["vdc"], "pid-fpga": MODES["pid"], "pid-1khz": MODES["torque"]}
-    out = []
+    if period_cycles % tick_cycles or not 0 < period_cycles < (1 << 24):
+        raise InputError("period_cycles", f"must be a multiple of the tick ({tick_cycles}) "
+                         f"below 2^24, not {period_cycles!r}")
+    if not 0 <= commit_cycles < period_cycles:
+        raise InputError("commit_cycles", f"must lie in [0, {period_cycles}), "
+                         f"not {commit_cycles!r}")
+    if not 0 <= sync_window < period_cycles:
+        raise InputError("sync_window", f"must lie in [0, {period_cycles}), not {sync_window!r}")
+    out = [(k + 1, ref.PacketType.CONFIG, p) for k in range(robot.n) for p in config_payloads(
+        {Config.PERIOD: period_cycles, Config.COMMIT: commit_cycles,
+         Config.SYNC_WINDOW: sync_window})]
     pid = pid_gains(robot, gains.pid_fpga_hz)
     for k, mod in enumerate(robot.modules):
         dest = k + 1
@@ -122,6 +143,7 @@ class LoopResult:
     crc_errors: int
     frames: list = field(default_factory=list)   # (cycle, src, type) of every good frame
     trace_sha256: str = ""
+    violations: list = field(default_factory=list)   # model backend: conditions not met
 
 
 class ClosedLoop:

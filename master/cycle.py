@@ -15,7 +15,14 @@ received, and sends what the master returns. Per period p, starting at cycle
 
 Everything the master knows about the robot is nominal: Table 1 parameters, the kinematics,
 encoder counts and the nodes' velocity words. Replies that are missing at the period's end,
-late or malformed are counted (``overruns``, ``missing``), never silently absorbed.
+late or malformed are counted (``overruns``, ``missing``), never silently absorbed. The nodes'
+own counters, reported in every Comm A (control ticks skipped, time-codes outside the sync
+window, Comm D packets after the commit phase, illegal encoder transitions), are kept per node
+(:attr:`Master.node_counters`); a run with any of them non-zero says so.
+
+The nodes act on their own period timer (docs/node.md "Timing"): the master's period grid
+must be the nodes' (``period_cycles`` = CONFIG PERIOD, period 0 at a multiple of it from the
+nodes' reset), and its Comm D must reach every node before the commit phase.
 """
 
 from __future__ import annotations
@@ -31,9 +38,11 @@ from hdl.node.regs import Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_
 from master.vdc import propagate_forces, propagate_velocities
 from models.robot import Robot
 
-__all__ = ["Send", "Master", "MasterTiming", "PeriodRecord", "CONTROLLERS"]
+__all__ = ["Send", "Master", "MasterTiming", "PeriodRecord", "CONTROLLERS", "NODE_COUNTERS"]
 
 CONTROLLERS = ("vdc", "pid-fpga", "pid-1khz")
+#: Comm A fields that count problems in a node (cumulative since its reset)
+NODE_COUNTERS = ("overruns", "sync_errors", "late_d", "errors")
 
 
 @dataclass(frozen=True)
@@ -119,12 +128,18 @@ class Master:
         self.overruns = 0        # periods whose exchange did not finish within the period
         self.missing = 0         # replies that never came
         self.unexpected = 0      # replies that were not asked for, or malformed
+        #: node -> the counters of its last Comm A (cumulative in the node)
+        self.node_counters: dict[int, dict] = {}
         self._seq = 0
         self._pending: list[tuple[int, list[Send]]] = []   # (cycle, actions)
         self._integral = np.zeros(self.n)
         self._rec: PeriodRecord | None = None
         self._a = {}
         self._c = {}
+
+    def node_totals(self) -> dict:
+        """Sum over the nodes of each of :data:`NODE_COUNTERS`, as last reported."""
+        return {k: int(sum(c[k] for c in self.node_counters.values())) for k in NODE_COUNTERS}
 
     # --- scheduling ------------------------------------------------------------------------
     def begin(self, start_cycle: int) -> None:
@@ -172,7 +187,8 @@ class Master:
             return
         try:
             if ptype == PacketType.COMM_A and src not in self._a:
-                self._a[src] = parse_comm_a(payload)
+                self._a[src] = a = parse_comm_a(payload)
+                self.node_counters[src] = {k: a[k] for k in NODE_COUNTERS}
                 rec.arrivals[("A", src)] = now
                 if len(self._a) == self.n:
                     rec.events["A_done"] = now

@@ -50,8 +50,8 @@ def _one_module_loop(backend, record=True):
     master = Master(robot, "vdc", trajectory, robot.counts_per_rev, timing)
     plant = Plant(robot, seed=1)
     plant.reset(robot.home)
-    uploads = node_uploads(robot, "vdc", Gains())
-    return run_loop(robot, backend, master, plant, 2_000, uploads, 8_000, record=record)
+    uploads = node_uploads(robot, "vdc", Gains(), period_cycles=5_000, commit_cycles=3_000)
+    return run_loop(robot, backend, master, plant, 5_000, uploads, 8_000, record=record)
 
 
 def test_pysim_and_compiled_agree_cycle_for_cycle():

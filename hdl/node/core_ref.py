@@ -195,10 +195,10 @@ class NodeModel:
         self._nt = now + tick
         if self.armed and self.tripped and not ramped:
             self._ramp()
+        count, qd, _ = sample(now)              # every tick strobes the velocity estimator
         if now < self._busy_until:
             self.overruns = min(self.overruns + 1, 0xFFFF)
             return
-        count, qd, _ = sample(now)
         mode = JOINT_MODES[self.config[Config.MODE]]
         tt = min(tt, _TIME_MAX)
         x = JointInputs(q=saturate(count), qd=qd, tn=min(tt + tick, _TIME_MAX),
