@@ -17,7 +17,7 @@ from mrm.errors import InputError
 
 __all__ = ["run_track", "BACKENDS"]
 
-BACKENDS = ("compiled", "pysim")
+BACKENDS = ("compiled", "pysim", "model")
 START_CYCLE = 50_000          # period 0 at 1 ms: links up (21 µs) and uploads done well before
 
 
@@ -36,19 +36,17 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     if backend not in BACKENDS:
         raise InputError("--backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")
     profile = paper_test_profile(robot)
-
-    def trajectory(t):
-        q, qd, qdd, _ = profile.evaluate(np.array([t]))
-        return q[0], qd[0], qdd[0]
-
+    trajectory = _trajectory(robot, profile)
     master = Master(robot, controller, trajectory, robot.counts_per_rev, timing, lam=gains.lam,
                     pid=pid_gains(robot, gains.pid_1khz_hz))
     plant = Plant(robot, plant_config or PlantConfig(), seed=seed)
     plant.reset(robot.home)
-    uploads = node_uploads(robot, controller, gains)
+    uploads = node_uploads(robot, controller, gains, period_cycles=timing.period_cycles)
     duration_cycles = int(round(duration * 50e6))
     t0 = time.perf_counter()
-    result, _ = run_loop(robot, backend, master, plant, START_CYCLE, uploads, duration_cycles,
+    # period 0 on the nodes' timer grid (a multiple of the period from reset), after start-up
+    start = -(-START_CYCLE // timing.period_cycles) * timing.period_cycles
+    result, _ = run_loop(robot, backend, master, plant, start, uploads, duration_cycles,
                          quiet=progress is None)
     wall = time.perf_counter() - t0
     q_d, qd_d, _, _ = profile.evaluate(result.t)
@@ -67,13 +65,26 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         "max_joint_error_rad": float(np.abs(q_d - result.q).max()),
         "overruns": master.overruns, "missing_replies": master.missing,
         "unexpected_replies": master.unexpected,
+        "node_counters": master.node_totals(),
+        "model_violations": list(getattr(result, "violations", [])),
         "link_errors": result.crc_errors,
         "phases_us": phases,
         "trace_sha256": result.trace_sha256,
         "wall_s": wall,
-        "rtf": wall / (duration + START_CYCLE / 50e6),
+        "rtf": wall / (duration + start / 50e6),
     }
     return result, summary
+
+
+def _trajectory(robot, profile=None):
+    """``t -> (q_d, q̇_d, q̈_d)`` of the paper's quintic test for ``robot``."""
+    profile = profile or paper_test_profile(robot)
+
+    def trajectory(t):
+        q, qd, qdd, _ = profile.evaluate(np.array([t]))
+        return q[0], qd[0], qdd[0]
+
+    return trajectory
 
 
 def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
@@ -87,6 +98,13 @@ def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
     """
     from hdl.system import System
 
+    if backend == "model":
+        from cosim.model import ModelLoop
+
+        loop = ModelLoop(robot, master, plant, start_cycle, uploads)
+        result = loop.run(duration_cycles)
+        result.violations = loop.violations
+        return result, None
     if backend == "compiled":
         be = CompiledBackend(lambda: System(robot.n), f"system{robot.n}", quiet=quiet)
     elif backend == "pysim":

@@ -1,0 +1,406 @@
+"""The ``model`` backend: the closed loop with the nodes' bit-exact references at transaction level.
+
+Same master, same plant, same plant step, same seed as :class:`cosim.closed_loop.ClosedLoop`
+on the gateware; the gateware is replaced by
+
+* one :class:`~hdl.node.core_ref.NodeModel` per node (period timer, ticks, joint engine, VDC,
+  watchdog, replies), bit-exact and cycle-exact with :class:`~hdl.node.core.NodeCore` given
+  the same events;
+* one :class:`EncoderEvents` per node: the encoder interface (synchronizer, glitch filter,
+  ×4 decoder, M/T velocity estimator) computed from the plant's per-cycle counts event by
+  event, equal to :class:`~hdl.node.encoder_ref.EncoderModel` cycle for cycle;
+* a link whose only job is the timeline: a packet's last byte reaches node k
+  ``9 + 11 (k − 1)`` cycles plus its frame time (10 line bits per data character, 4 per EOP,
+  3 line bits per cycle at 150 Mbit/s) after the master's link is free, replies come back the
+  same way through the shared upstream link, a time-code reaches node k after ``12 k``
+  cycles (docs/link.md "Per-hop latency"). These are approximations.
+
+Why the results are nonetheless the gateware's, bit for bit: the node acts on its own period
+timer and on packet *contents* (docs/node.md "Timing"). The torque at every plant step and every
+reply payload depend on when packets arrive only through conditions the model checks with a
+margin: time-codes inside the sync window, Comm B after the snapshot, every Comm D before the
+commit phase, the ARM before the boundary that should arm, no watchdog silence. A run where one
+of these is near its edge, or a time-code resynchronises a node, is reported
+(:attr:`ModelLoop.violations`, and :class:`ModelAssumptionError` with ``strict=True``); its
+results may then differ from the gateware's by the latency error.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+
+from hdl.link import packet_ref as ref
+from hdl.node.core_ref import NodeModel
+from hdl.node.encoder_ref import AGE_MAX, DC_MAX, VEL_LATENCY, EncoderParams, velocity_word
+from hdl.node.fixed import FORCE
+from hdl.node.regs import Config
+from master.cycle import Master, Send
+from models.plant import Plant
+from models.robot import Robot
+from mrm.errors import InputError
+
+from .closed_loop import LoopResult
+
+__all__ = ["EncoderEvents", "ModelLoop", "ModelAssumptionError", "LINK_UP_CYCLE"]
+
+#: Cycle at which the modelled link reaches Run (the gateware: about 21.4 µs at standard timers).
+LINK_UP_CYCLE = 1_100
+_FIRST_HOP = 9          # master tx → node 1, cycles before the first character
+_HOP = 11               # per further hop
+_TC_HOP = 12            # time-code, per hop
+_MARK = 300             # Comm B's last byte → forces ready (MARK at 282-289 cycles)
+_REPLY = 4              # request taken → reply's first character offered
+_MARGIN = 500           # cycles of margin the model wants around every timing condition
+
+_PHASE = {(0, 0): 0, (1, 0): 1, (1, 1): 2, (0, 1): 3}
+
+
+class ModelAssumptionError(RuntimeError):
+    """A model run left the conditions under which it equals the gateware."""
+
+
+def _frame_cycles(payload_len: int) -> int:
+    """Line time of a frame (header 4 + payload + CRC 2 data characters, EOP), cycles."""
+    return -(-((4 + payload_len + 2) * 10 + 4) // 3)
+
+
+class EncoderEvents:
+    """The node's encoder interface, event by event (equal to
+    :class:`~hdl.node.encoder_ref.EncoderModel` on the same lines).
+
+    Feed it the exact count of every cycle (:meth:`feed`, the plant's
+    :class:`~models.encoder.EncoderCycles` ``counts`` column); query it at the control ticks
+    (:meth:`sample`, which is also the velocity estimator's strobe). Only the cycles where a
+    line changes cost Python time.
+
+    Parameters
+    ----------
+    params : EncoderParams
+    count0 : int
+        The count the lines show from reset on (the interface counts from 0 there).
+    """
+
+    def __init__(self, params: EncoderParams, count0: int):
+        self.p = params
+        self.kv = params.kv
+        self._raw = int(count0)                 # last raw count fed
+        self._known = -1                        # last cycle fed
+        a, b = (((count0 & 3) >> 1) ^ (count0 & 1)), (count0 & 3) >> 1
+        self._filt = [a, b]                     # filtered levels (decided so far)
+        self._pair = (a, b)                     # decoder's pair (as of the last commit)
+        self._pending = [[], []]                # per line: raw changes (cycle, level) unresolved
+        self._visible: list[tuple[int, int]] = []   # (cycle visible, +1 / -1 / 0 illegal)
+        self._vi = 0
+        self.count = 0
+        self.errors = 0
+        self.velocity = 0
+        self._e_last = 0                        # cycle the last edge became visible
+        self._ref_t = 0                         # age_ref(c) = min(c - _ref_t, AGE_MAX)
+        self._c_ref = 0
+        self._pipe: list = []                   # (cycle visible, case, num, den), in order
+        self._taken = -2
+        self._last = (-1, 0, 0, 0)
+
+    def feed(self, start: int, counts: np.ndarray) -> None:
+        """Raw counts of cycles ``start … start + len(counts) − 1`` (consecutive feeds)."""
+        counts = np.asarray(counts)
+        if start != self._known + 1:
+            raise ValueError(f"feed must continue at cycle {self._known + 1}, not {start}")
+        prev = np.empty_like(counts)
+        prev[0] = self._raw
+        prev[1:] = counts[:-1]
+        idx = np.flatnonzero(counts != prev)
+        if len(idx):
+            new = counts[idx].tolist()
+            old = prev[idx].tolist()
+            for i, n, o in zip(idx.tolist(), new, old, strict=True):
+                lo = min(n, o)
+                line = 0 if (lo & 3) in (0, 2) else 1
+                level = (((n & 3) >> 1) ^ (n & 1)) if line == 0 else (n & 3) >> 1
+                self._pending[line].append((start + i, level))
+        self._raw = int(counts[-1])
+        self._known = start + len(counts) - 1
+        self._resolve()
+
+    def _resolve(self) -> None:
+        f = self.p.filter_cycles
+        commits = []
+        for line in (0, 1):
+            pend = self._pending[line]
+            keep = 0
+            for j, (t, level) in enumerate(pend):
+                nxt = pend[j + 1][0] if j + 1 < len(pend) else None
+                if nxt is None and t + f - 1 > self._known:
+                    keep = j
+                    break
+                keep = j + 1
+                if level != self._filt[line] and (nxt is None or nxt - t >= f):
+                    self._filt[line] = level
+                    commits.append((t + f + 1, line, level))
+            del pend[:keep]
+        if not commits:
+            return
+        commits.sort()
+        i = 0
+        while i < len(commits):
+            k = commits[i][0]
+            pair = list(self._pair)
+            while i < len(commits) and commits[i][0] == k:
+                pair[commits[i][1]] = commits[i][2]
+                i += 1
+            pair = tuple(pair)
+            d = (_PHASE[pair] - _PHASE[self._pair]) % 4
+            self._pair = pair
+            self._visible.append((k + 1, 0 if d == 2 else (1 if d == 1 else -1)))
+
+    def sample(self, c: int) -> tuple[int, int, int]:
+        """``(count, velocity, errors)`` visible in cycle ``c``, then the velocity strobe there
+        (a second call for the same cycle returns the same values)."""
+        if c == self._last[0]:
+            return self._last[1:]
+        vis = self._visible
+        while self._vi < len(vis) and vis[self._vi][0] <= c:
+            t, step = vis[self._vi]
+            self._vi += 1
+            if step:
+                self.count += step
+                self._e_last = t
+            else:
+                self.errors = min(self.errors + 1, 0xFFFF)
+        if self._vi > 64:
+            del vis[:self._vi]
+            self._vi = 0
+        pipe = self._pipe
+        while pipe and pipe[0][0] <= c:
+            _, case, num, den = pipe.pop(0)
+            if case == 0:
+                self.velocity = 0
+            else:
+                v = velocity_word(num, den, self.kv)
+                if case == 1:
+                    self.velocity = v
+                elif abs(self.velocity) > v:
+                    self.velocity = v if self.velocity > 0 else -v
+        out = (self.count, self.velocity, self.errors)
+        self._last = (c, *out)
+        if c != self._taken + 1:
+            self._taken = c
+            age_edge = min(c - self._e_last, AGE_MAX)
+            age_ref = min(c - self._ref_t, AGE_MAX)
+            dc = max(-DC_MAX - 1, min(DC_MAX, self.count - self._c_ref))
+            window = age_ref - age_edge
+            due = c + VEL_LATENCY
+            if dc != 0 and window >= self.p.min_window:
+                pipe.append((due, 1, dc, window))
+                self._c_ref = self.count
+                self._ref_t = c + 2 - min(age_edge + 2, AGE_MAX)
+            elif age_edge >= self.p.stop_cycles:
+                pipe.append((due, 0, 0, 1))
+            else:
+                pipe.append((due, 2, abs(dc) + 1, age_ref))
+        return out
+
+
+class ModelLoop:
+    """The closed loop on the ``model`` backend (same interface and result as
+    :class:`~cosim.closed_loop.ClosedLoop`).
+
+    Parameters
+    ----------
+    robot : Robot
+    master : Master
+    plant : Plant
+    start_cycle : int
+        Cycle of period 0 (a multiple of the nodes' PERIOD, after start-up and uploads).
+    uploads : list of (dest, type, payload)
+    encoder : EncoderParams, optional
+        The nodes' encoder interface (the gateware's default).
+    strict : bool
+        Raise :class:`ModelAssumptionError` at the first violated condition instead of
+        recording it in :attr:`violations`.
+    """
+
+    def __init__(self, robot: Robot, master: Master, plant: Plant, start_cycle: int, uploads,
+                 encoder: EncoderParams | None = None, strict: bool = False):
+        self.robot = robot
+        self.n = robot.n
+        self.master = master
+        self.plant = plant
+        self.step_cycles = round(plant.dt * 50e6)
+        if start_cycle % self.step_cycles:
+            raise InputError("start_cycle", "must be a multiple of the plant step")
+        self.start_cycle = start_cycle
+        self.strict = strict
+        self.violations: list[str] = []
+        self.cycle = 0
+        self.frames = []
+        enc = encoder or EncoderParams()
+        self.nodes = [NodeModel(encoder=enc) for _ in range(self.n)]
+        counts = plant.encoder_counts().tolist()
+        self.encoders = [EncoderEvents(enc, c) for c in counts]
+        self._samplers = [e.sample for e in self.encoders]
+        self._static = np.array(counts, dtype=np.int64)
+        self._uploads = list(uploads)
+        self._seq = 0
+        self._down_free = 0                     # master → node 1 link free from this cycle
+        self._up_free = 0                       # node 1 → master link free from this cycle
+        self._inbox: list[list] = [[] for _ in range(self.n)]   # (cycle, order, kind, data)
+        self._replies: list = []                # (cycle at master, src, type, payload)
+        self._b_arrival = [-1] * self.n
+        self._torque = np.zeros(self.n)
+
+    # --- conditions ----------------------------------------------------------------------------
+    def _violate(self, message: str) -> None:
+        if self.strict:
+            raise ModelAssumptionError(message)
+        if len(self.violations) < 100:
+            self.violations.append(message)
+
+    # --- link --------------------------------------------------------------------------------
+    def _queue(self, action: Send, now: int) -> None:
+        """The master hands ``action`` to its link port in cycle ``now``."""
+        if action.kind == "timecode":
+            t = max(now, self._down_free)
+            for k in range(self.n):
+                self._inbox[k].append((t + _TC_HOP * (k + 1), 0, "timecode", action.time))
+            return
+        t = max(now, self._down_free) + _frame_cycles(len(action.payload))
+        self._down_free = t
+        dests = range(self.n) if action.dest == ref.BROADCAST else [action.dest - 1]
+        for k in dests:
+            if 0 <= k < self.n:
+                self._inbox[k].append((t + _FIRST_HOP + _HOP * k, 1, "packet",
+                                       (action.ptype, action.payload, action.seq)))
+
+    def _reply(self, k: int, ready: int, ptype: int, payload: bytes) -> None:
+        t = max(ready + _REPLY + _FIRST_HOP + _HOP * k, self._up_free) + \
+            _frame_cycles(len(payload))
+        self._up_free = t
+        self._replies.append((t, k + 1, ptype, payload))
+
+    # --- one chunk of cycles -----------------------------------------------------------------
+    def _check_packet(self, k: int, node: NodeModel, c: int, ptype: int) -> None:
+        if c < self.start_cycle:
+            if ptype == ref.PacketType.CONFIG and c >= self.start_cycle - _MARGIN:
+                self._violate(f"node {k + 1}: CONFIG {c - self.start_cycle} cycles before "
+                              "period 0 (an ARM may miss its boundary)")
+            return
+        cfg = node.config
+        ph = node.phase(c)
+        if ptype == ref.PacketType.COMM_D and node.armed:
+            if abs(ph - cfg[Config.COMMIT]) < _MARGIN:
+                self._violate(f"node {k + 1}: Comm D at phase {ph}, within {_MARGIN} cycles of "
+                              f"the commit phase {cfg[Config.COMMIT]} (cycle {c})")
+        elif ptype in (ref.PacketType.COMM_A, ref.PacketType.COMM_B) and (
+                (ptype == ref.PacketType.COMM_B and ph < 100)
+                or ph > cfg[Config.PERIOD] - _MARGIN):
+            # (a Comm A request leaves the master with the time-code: it cannot overtake the
+            # boundary; a Comm B needs the boundary's CORDIC, 60 cycles, in the VDC first)
+            self._violate(f"node {k + 1}: {ref.PacketType(ptype).name} at phase {ph} "
+                          f"(cycle {c}), too near a boundary")
+        if node.armed and c - node.last_packet > cfg[Config.TIMEOUT] - _MARGIN:
+            self._violate(f"node {k + 1}: {c - node.last_packet} cycles without a packet "
+                          f"(watchdog timeout {cfg[Config.TIMEOUT]})")
+
+    def _run_nodes(self, end: int) -> None:
+        """Every node's events of cycles < ``end``; torque words output in cycle ``end − 1``."""
+        for k, node in enumerate(self.nodes):
+            sample = self._samplers[k]
+            box = self._inbox[k]
+            if box:
+                box.sort(key=lambda e: (e[0], e[1]))
+                i = 0
+                while i < len(box) and box[i][0] < end:
+                    c, _, kind, data = box[i]
+                    i += 1
+                    node.run(c, sample)
+                    if kind == "timecode":
+                        ph_before = node.phase(c) if c < node.next_boundary() else 0
+                        window = node.config[Config.SYNC_WINDOW]
+                        if node.timecode(c, data, sample):
+                            self._violate(f"node {k + 1}: time-code at phase {ph_before} "
+                                          f"(cycle {c}) resynchronised the timer")
+                        elif window - ph_before < min(_MARGIN, window // 2):
+                            self._violate(f"node {k + 1}: time-code at phase {ph_before}, "
+                                          f"near the sync window {window}")
+                        continue
+                    ptype, payload, _seq = data
+                    node.run(c + 1)
+                    self._check_packet(k, node, c, ptype)
+                    if ptype == ref.PacketType.COMM_B:
+                        self._b_arrival[k] = c
+                    reply = node.packet(c, ptype, payload, sample=sample)
+                    if reply is not None:
+                        ready = c if ptype == ref.PacketType.COMM_A else \
+                            max(c, self._b_arrival[k] + _MARK)
+                        self._reply(k, ready, ptype, reply)
+                del box[:i]
+            node.run(end - 1, sample)
+            self._torque[k] = FORCE.decode(node.torque_at(end - 1))
+
+    def _chunk(self, n: int, counts: np.ndarray | None) -> None:
+        start = self.cycle
+        end = start + n
+        for k, enc in enumerate(self.encoders):
+            enc.feed(start, np.full(n, self._static[k]) if counts is None else counts[:, k])
+        self._run_nodes(end)
+        if self._replies:
+            self._replies.sort(key=lambda r: r[0])
+            i = 0
+            while i < len(self._replies) and self._replies[i][0] < end:
+                c, src, ptype, payload = self._replies[i]
+                i += 1
+                self.frames.append((c, src, ptype))
+                self.master.on_packet(c, src, ptype, bytes(payload))
+            del self._replies[:i]
+        self.cycle = end
+
+    # --- the run -------------------------------------------------------------------------------
+    def run(self, duration_cycles: int) -> LoopResult:
+        """Start-up and ``duration_cycles`` of closed loop; the trace, as
+        :meth:`cosim.closed_loop.ClosedLoop.run` returns it."""
+        s = self.step_cycles
+        uploads_sent = False
+        steps = duration_cycles // s
+        t_rec = np.zeros(steps)
+        q_rec = np.zeros((steps, self.n))
+        tau_rec = np.zeros((steps, self.n))
+        while self.cycle < self.start_cycle:
+            if self.cycle >= LINK_UP_CYCLE and not uploads_sent:
+                for dest, ptype, payload in self._uploads:
+                    self._seq = (self._seq + 1) & 0xFF
+                    self._queue(Send("packet", dest, int(ptype), payload, self._seq),
+                                self.cycle)
+                for a in self.master.initial_packets(self.plant.q):
+                    self._queue(a, self.cycle)
+                uploads_sent = True
+            self._chunk(s, None)
+        if not uploads_sent:
+            raise InputError("start_cycle", "the link did not come up before period 0")
+        for k, node in enumerate(self.nodes):
+            if node.config[Config.PERIOD] != self.master.timing.period_cycles or \
+                    self.start_cycle % node.config[Config.PERIOD]:
+                self._violate(f"node {k + 1}: PERIOD {node.config[Config.PERIOD]} and period 0 "
+                              f"at cycle {self.start_cycle} are not the master's grid")
+        self.master.begin(self.start_cycle)
+        poll, step = self.master.poll, self.plant.step
+        for i in range(steps):
+            for action in poll(self.cycle):
+                self._queue(action, self.cycle)
+            tau = self._torque.copy()
+            step(tau)
+            cyc = self.plant.encoder_cycles()
+            t_rec[i] = (self.cycle - self.start_cycle) / 50e6
+            q_rec[i] = self.plant.q
+            tau_rec[i] = tau
+            self._chunk(s, cyc.counts)
+        for k, node in enumerate(self.nodes):
+            if node.tripped:
+                self._violate(f"node {k + 1}: the watchdog tripped")
+        digest = hashlib.sha256()
+        digest.update(q_rec.tobytes())
+        digest.update(tau_rec.tobytes())
+        return LoopResult(t_rec, q_rec, tau_rec, self.master, 0, 0, self.frames,
+                          digest.hexdigest())

@@ -1,0 +1,170 @@
+"""The ``model`` backend (cosim.model): its encoder interface equals the cycle reference, and
+the closed loop on it equals the compiled gateware bit for bit — the plant's q at every plant
+step, the torque words, and every reply payload the master receives (issue 5)."""
+
+import numpy as np
+import pytest
+
+from cosim.model import EncoderEvents, ModelAssumptionError
+from hdl.node.encoder_ref import EncoderModel, EncoderParams
+from models.encoder import quadrature_levels
+
+
+def _walk(rng, n):
+    """Counts per cycle: runs of constant speed, stops, reversals, one-cycle dithers."""
+    out = np.empty(n, dtype=np.int64)
+    c, k = 12_345, 0
+    while k < n:
+        length = int(rng.integers(20, 3000))
+        kind = rng.integers(0, 4)
+        period = int(rng.integers(1, 400))
+        sign = 1 if rng.random() < 0.5 else -1
+        for j in range(min(length, n - k)):
+            if kind == 1 and j % period == 0:
+                c += sign
+            elif kind == 2 and rng.random() < 0.02:      # dither: a count and back
+                c += sign
+                out[k] = c
+                k += 1
+                c -= sign
+                if k >= n:
+                    break
+            elif kind == 3 and j % 2 == 0:                # fastest legal speed
+                c += sign
+            out[k] = c
+            k += 1
+            if k >= n:
+                break
+    return out
+
+
+@pytest.mark.parametrize("seed, params", [
+    (0, EncoderParams()),
+    (1, EncoderParams(min_window=256, stop_cycles=5_000)),
+    (2, EncoderParams(filter_cycles=1, min_window=64, stop_cycles=3_000)),
+    (3, EncoderParams(filter_cycles=3, min_window=512)),
+])
+def test_encoder_events_equal_the_cycle_reference(seed, params):
+    rng = np.random.default_rng(seed)
+    n = 60_000
+    counts = _walk(rng, n)
+    a, b = quadrature_levels(counts)
+    ticks = set(range(0, n, 50)) | {int(x) for x in rng.integers(0, n, 40)}
+    ticks |= {t + 1 for t in list(ticks)[:10]}                  # ignored strobes
+    ref = EncoderModel(params)
+    fast = EncoderEvents(params, int(counts[0]))
+    pos = 0
+    checked = 0
+    speeds = set()
+    for c in range(n):
+        if c == pos:                                            # feed in uneven chunks
+            size = int(rng.integers(1, 900))
+            fast.feed(c, counts[c:c + size])
+            pos = min(n, c + size)
+        if c in ticks:
+            got = fast.sample(c)
+            assert got == (ref.count, ref.velocity, ref.errors), f"cycle {c}"
+            checked += 1
+            speeds.add(got[1])
+        ref.cycle(int(a[c]), int(b[c]), sample=c in ticks)
+    assert checked > 1000
+    assert len(speeds) > 50 and 0 in speeds          # measured, bounded and stopped
+
+
+def test_strict_model_refuses_a_grid_it_cannot_match():
+    """Period 0 off the nodes' timer grid: the time-code resynchronises them, which the model
+    can only place by its approximate latency, so a strict run stops and says why."""
+    from cosim.closed_loop import Gains, node_uploads
+    from cosim.model import ModelLoop
+    from cosim.track import _trajectory
+    from master.cycle import Master
+    from models.plant import Plant
+    from models.robot import load_robot
+
+    robot = load_robot("mrm3")
+    master = Master(robot, "vdc", _trajectory(robot), robot.counts_per_rev)
+    plant = Plant(robot, seed=0)
+    plant.reset(robot.home)
+    loop = ModelLoop(robot, master, plant, 20_000, node_uploads(robot, "vdc", Gains()),
+                     strict=True)
+    with pytest.raises(ModelAssumptionError, match="grid|resynchronised"):
+        loop.run(5_000)
+
+
+class RecordingMaster:
+    """Wraps the master's ``on_packet`` to keep every reply payload with its period."""
+
+    @staticmethod
+    def make(robot, controller):
+        from cosim.closed_loop import Gains, pid_gains
+        from master.cycle import Master, MasterTiming
+
+        gains = Gains()
+        master = Master(robot, controller, _wiggle(robot), robot.counts_per_rev,
+                        MasterTiming(), lam=gains.lam, pid=pid_gains(robot, gains.pid_1khz_hz))
+        master.payloads = []
+        on_packet = master.on_packet
+
+        def record(now, src, ptype, payload):
+            master.payloads.append((master._rec.index, src, ptype, bytes(payload)))
+            on_packet(now, src, ptype, payload)
+
+        master.on_packet = record
+        return master
+
+
+def _wiggle(robot):
+    """A 25 Hz swing from rest, 2-4 mrad: the joints move by thousands of counts in the window
+    (the paper's quintic moves less than a count in its first 20 ms)."""
+    amp = np.array([2e-3, 3e-3, 4e-3])
+    w = 2 * np.pi * 25.0
+    home = np.asarray(robot.home, dtype=float)
+
+    def trajectory(t):
+        return (home + amp * (1 - np.cos(w * t)), amp * w * np.sin(w * t),
+                amp * w * w * np.cos(w * t))
+
+    return trajectory
+
+
+def _loop(backend, controller, cycles, seed=3):
+    from cosim.closed_loop import Gains, node_uploads
+    from cosim.track import run_loop
+    from models.plant import Plant
+    from models.robot import load_robot
+
+    robot = load_robot("mrm3")
+    master = RecordingMaster.make(robot, controller)
+    plant = Plant(robot, seed=seed)
+    plant.reset(robot.home)
+    result, _ = run_loop(robot, backend, master, plant, 50_000,
+                         node_uploads(robot, controller, Gains()), cycles)
+    return result, master
+
+
+@pytest.mark.parametrize("controller", ["vdc", "pid-fpga", "pid-1khz"])
+def test_model_equals_compiled_bit_for_bit(controller):
+    """20 ms after period 0 on mrm3: the plant's q at every plant step, the torque words the
+    plant received, and every reply payload per period are the gateware's exactly; only the
+    timeline (arrival cycles) is the model's approximation."""
+    cycles = 1_000_000
+    compiled, m_c = _loop("compiled", controller, cycles)
+    model, m_m = _loop("model", controller, cycles)
+    assert model.violations == []
+    assert m_c.overruns == m_c.missing == m_c.unexpected == 0
+    assert m_m.overruns == m_m.missing == m_m.unexpected == 0
+    assert len(m_c.records) == 20 and all(r.complete for r in m_c.records[:-1])
+    np.testing.assert_array_equal(model.q, compiled.q)
+    np.testing.assert_array_equal(model.tau, compiled.tau)
+    assert model.trace_sha256 == compiled.trace_sha256
+    assert len(m_m.payloads) == len(m_c.payloads) == (6 if controller == "vdc" else 3) * 20
+    assert m_m.payloads == m_c.payloads
+    assert m_c.node_totals() == m_m.node_totals() == dict.fromkeys(m_c.node_totals(), 0)
+    # the joints moved and the torques changed, so the comparison means something
+    # (torque-only nodes hold the master's 1 kHz torque for a period)
+    assert np.ptp(compiled.q, axis=0).min() > 5e-4
+    assert len(np.unique(compiled.tau[:, 2])) > (15 if controller == "pid-1khz" else 100)
+    # the phases' order is the same, their cycles are the model's
+    for rc, rm in zip(m_c.records[:-1], m_m.records[:-1], strict=True):
+        assert list(rc.events) == list(rm.events)
+        assert abs(rc.events["D_sent"] - rm.events["D_sent"]) < 500
