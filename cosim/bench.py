@@ -15,7 +15,7 @@ from models.robot import load_robot
 __all__ = ["bench_backend", "WINDOWS"]
 
 #: Closed-loop cycles measured per backend (pysim is ~400× slower than compiled).
-WINDOWS = {"compiled": 250_000, "pysim": 2_000}
+WINDOWS = {"compiled": 250_000, "pysim": 2_000, "model": 250_000}
 START = 2_000
 
 

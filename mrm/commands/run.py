@@ -26,7 +26,7 @@ def register(subparsers) -> None:
     pt = sub.add_parser("track", help="the paper's quintic test in closed loop with the gateware "
                         "(master, link, nodes, plant)")
     pt.add_argument("--controller", default="vdc", choices=["vdc", "pid-fpga", "pid-1khz"])
-    pt.add_argument("--backend", default="compiled", choices=["compiled", "pysim"])
+    pt.add_argument("--backend", default="compiled", choices=["compiled", "pysim", "model"])
     pt.add_argument("--robot", default="mrm3", help="built-in name or assembly .toml")
     pt.add_argument("--duration", type=float, default=1.5, help="simulated seconds")
     pt.add_argument("--seed", type=int, default=0, help="plant perturbation seed")
