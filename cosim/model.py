@@ -357,6 +357,8 @@ class ModelLoop:
         self.start_cycle = start_cycle
         self.strict = strict
         self.violations: list[str] = []
+        #: latest modelled arrival phase (cycles) of a time-code and of a Comm D, over the run
+        self.phases = {"timecode": 0, "comm_d": 0}
         self.cycle = 0
         self.frames = []
         enc = encoder or EncoderParams()
@@ -412,6 +414,8 @@ class ModelLoop:
             return
         cfg = node.config
         ph = node.phase(c)
+        if ptype == ref.PacketType.COMM_D:
+            self.phases["comm_d"] = max(self.phases["comm_d"], ph)
         if ptype == ref.PacketType.COMM_D and node.armed:
             if abs(ph - cfg[Config.COMMIT]) < _MARGIN:
                 self._violate(f"node {k + 1}: Comm D at phase {ph}, within {_MARGIN} cycles of "
@@ -442,6 +446,8 @@ class ModelLoop:
                     if kind == "timecode":
                         ph_before = node.phase(c) if c < node.next_boundary() else 0
                         window = node.config[Config.SYNC_WINDOW]
+                        if c >= self.start_cycle:
+                            self.phases["timecode"] = max(self.phases["timecode"], ph_before)
                         if node.timecode(c, data, sample):
                             self._violate(f"node {k + 1}: time-code at phase {ph_before} "
                                           f"(cycle {c}) resynchronised the timer")
