@@ -1,0 +1,182 @@
+"""Speed of Verilator build variants of the 3-node system, side by side, on a recorded loop.
+
+Run on purpose (each build takes 2-3 minutes on this machine), not in CI::
+
+    MRM_CACHE_DIR=/tmp/s-cache python benchmarks/compiled_variants.py record
+    MRM_CACHE_DIR=/tmp/s-cache python benchmarks/compiled_variants.py compare base o3 xfast
+
+``record`` runs the 3-module VDC closed loop (start-up, uploads, then ``--cycles`` of the
+A/B/C/D cycle) on the ``compiled`` backend and stores every chunk's per-cycle inputs. ``compare``
+builds each named variant (cached), replays the recorded inputs chunk by chunk through
+:meth:`cosim.compiled.CompiledModel.run` (the calls the closed loop makes, without plant and
+master), checks that every variant returns the same outputs bit for bit as the first, and prints
+the replay's cycles per second, best of ``--rounds`` rounds taken in turn (the machine is shared
+and noisy: only ratios within one run mean anything).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import pickle
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+_XFAST = ["--x-assign", "fast", "--x-initial", "fast", "--noassert"]
+
+#: name -> CompiledModel keyword arguments (everything spelled out: defaults may change)
+VARIANTS = {
+    # the engine before this work, from a copy of its source given with --legacy
+    "legacy": {"legacy": True},
+    # reset as an input port, as before (the harness steps it with two eval() per cycle)
+    "rst-port": {"reset_port": True, "opt": "-O2", "verilator_args": []},
+    # reset tied low in a harness module: Verilator folds the reset logic away
+    "tied": {"opt": "-O2", "verilator_args": []},
+    "tied-o3": {"opt": "-O3", "verilator_args": []},
+    "tied-xfast": {"opt": "-O2", "verilator_args": _XFAST},
+    "tied-o3-xfast": {"opt": "-O3", "verilator_args": _XFAST},
+    "tied-o3-xfast-native": {"opt": "-O3", "verilator_args": _XFAST,
+                             "cflags": "-march=native"},
+    "tied-o3-xfast-threads2": {"opt": "-O3", "verilator_args": [*_XFAST, "--threads", "2"]},
+    "tied-o3-xfast-inline": {"opt": "-O3", "verilator_args": [*_XFAST, "--inline-mult", "-1"]},
+    "prof": {"reset_port": True, "opt": "-O2", "verilator_args": ["--prof-cfuncs"],
+             "cflags": "-g"},
+    "tied-prof": {"opt": "-O2", "verilator_args": ["--prof-cfuncs"], "cflags": "-g"},
+}
+
+STIM = Path("/tmp/mrm-compiled-stimulus.pkl")
+
+
+class _Taping:
+    """A backend wrapper that keeps every chunk's inputs and output names."""
+
+    def __init__(self, backend):
+        self.backend = backend
+        self.chunks = []
+
+    async def run(self, n, inputs, outputs):
+        self.chunks.append((n, {k: np.array(np.broadcast_to(v, (n,))) for k, v in
+                                inputs.items()}, list(outputs)))
+        return await self.backend.run(n, inputs, outputs)
+
+
+def record(cycles: int, path: Path) -> None:
+    from cosim.backends import CompiledBackend, drive
+    from cosim.closed_loop import ClosedLoop, Gains, node_uploads, pid_gains
+    from cosim.preview import paper_test_profile
+    from hdl.system import System
+    from master.cycle import Master, MasterTiming
+    from models.plant import Plant
+    from models.robot import load_robot
+
+    robot = load_robot("mrm3")
+    profile = paper_test_profile(robot)
+
+    def trajectory(t):
+        q, qd, qdd, _ = profile.evaluate(np.array([t]))
+        return q[0], qd[0], qdd[0]
+
+    master = Master(robot, "vdc", trajectory, robot.counts_per_rev, MasterTiming(),
+                    pid=pid_gains(robot, 5.0))
+    plant = Plant(robot, seed=0)
+    plant.reset(robot.home)
+    be = _Taping(CompiledBackend(lambda: System(robot.n), f"system{robot.n}", quiet=False))
+    model = be.backend.model
+    text, signed = model.verilog, {p.name: p.signed for p in model.ports.values()}
+    loop = ClosedLoop(robot, be, master, plant, 50_000, node_uploads(robot, "vdc", Gains()))
+    drive(loop.run(cycles))
+    with open(path, "wb") as f:
+        # the Verilog goes with the stimulus: the gateware may change before the replay
+        pickle.dump({"verilog": text, "signed": signed, "chunks": be.chunks}, f)
+    print(f"recorded {sum(c[0] for c in be.chunks)} cycles in {len(be.chunks)} chunks "
+          f"to {path}; {len(master.records)} periods")
+
+
+LEGACY = None
+
+
+def _model(tape, kwargs):
+    from cosim.compiled import CompiledModel
+
+    if kwargs.get("legacy"):
+        import importlib.util
+
+        if LEGACY is None:
+            raise SystemExit("the 'legacy' variant needs --legacy PATH (an older compiled.py)")
+        spec = importlib.util.spec_from_file_location("compiled_legacy", LEGACY)
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = mod
+        spec.loader.exec_module(mod)
+        return mod.CompiledModel(None, "system", verilog_text=tape["verilog"],
+                                 signed_ports=tape["signed"], quiet=False)
+    return CompiledModel(None, "system", verilog_text=tape["verilog"],
+                         signed_ports=tape["signed"], quiet=False, **kwargs)
+
+
+def _replay(model, chunks):
+    digest = hashlib.sha256()
+    t0 = time.perf_counter()
+    for n, inputs, outputs in chunks:
+        out = model.run(n, inputs, outputs)
+        for v in out.values():
+            digest.update(v.tobytes())
+    return time.perf_counter() - t0, digest.hexdigest()
+
+
+def compare(names, path: Path, rounds: int) -> int:
+    with open(path, "rb") as f:
+        tape = pickle.load(f)
+    chunks = tape["chunks"]
+    cycles = sum(c[0] for c in chunks)
+    # build one at a time (each build uses both cores), then measure in turns
+    models = {}
+    for name in names:
+        t0 = time.perf_counter()
+        models[name] = _model(tape, VARIANTS[name])
+        print(f"{name}: ready in {time.perf_counter() - t0:.0f} s", file=sys.stderr)
+    best = {name: float("inf") for name in names}
+    digests = {}
+    for _ in range(rounds):
+        for name in names:
+            fresh = _model(tape, VARIANTS[name])      # cached build, state from reset
+            wall, digest = _replay(fresh, chunks)
+            fresh.close()
+            best[name] = min(best[name], wall)
+            digests.setdefault(name, digest)
+            if digests[name] != digest:
+                print(f"{name}: replay not deterministic", file=sys.stderr)
+                return 1
+    ref = digests[names[0]]
+    print(f"{cycles} cycles replayed, best of {rounds} rounds")
+    for name in names:
+        same = "identical" if digests[name] == ref else "DIFFERENT OUTPUTS"
+        print(f"{name:18s} {cycles / best[name]:12,.0f} cycles/s  "
+              f"x{best[names[0]] / best[name]:5.2f}  {same}")
+    return 0 if all(d == ref for d in digests.values()) else 1
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = p.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("record")
+    r.add_argument("--cycles", type=int, default=250_000)
+    r.add_argument("--stim", type=Path, default=STIM)
+    c = sub.add_parser("compare")
+    c.add_argument("variants", nargs="+", choices=sorted(VARIANTS))
+    c.add_argument("--stim", type=Path, default=STIM)
+    c.add_argument("--rounds", type=int, default=3)
+    c.add_argument("--legacy", type=Path, help="an older cosim/compiled.py, for 'legacy'")
+    args = p.parse_args(argv)
+    global LEGACY
+    LEGACY = getattr(args, "legacy", None)
+    if args.cmd == "record":
+        record(args.cycles, args.stim)
+        return 0
+    return compare(args.variants, args.stim, args.rounds)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
