@@ -1,0 +1,196 @@
+# amaranth: UnusedElaboratable=no
+"""Waveforms of a chosen window and signal set, from the pysim and compiled backends (issue 6)."""
+
+import numpy as np
+import pytest
+from amaranth import *
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+from vcd.reader import TokenKind, tokenize
+
+from cosim.backends import CompiledBackend, PysimBackend, VcdWindow, drive
+from mrm.errors import InputError
+
+PERIOD_PS = 20_000
+
+
+class Counter(wiring.Component):
+    """Counts the cycles in which ``inc`` was high."""
+
+    inc:   In(1)
+    count: Out(8)
+
+    def elaborate(self, platform):
+        m = Module()
+        with m.If(self.inc):
+            m.d.sync += self.count.eq(self.count + 1)
+        return m
+
+
+class Demo(wiring.Component):
+    """Two levels of hierarchy, a registered and a combinational output, a signed port."""
+
+    inc:   In(1)
+    total: Out(8)
+    odd:   Out(1)
+    neg:   Out(signed(6))
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.counter = counter = Counter()
+        seen = Signal(4)                    # internal register of the top
+        m.d.sync += seen.eq(seen + self.inc)
+        m.d.comb += [
+            counter.inc.eq(self.inc),
+            self.total.eq(counter.count),
+            self.odd.eq(counter.count[0] ^ seen[0]),
+            self.neg.eq(-counter.count[:5]),
+        ]
+        return m
+
+
+N = 120
+INC = (np.random.default_rng(6).random(N) < 0.6).astype(np.int64)
+
+
+def _vcd(path):
+    """{dotted name: [(time_ps, value), ...]}, read with pyvcd's tokenizer."""
+    scope, ids, changes, t = [], {}, {}, None
+    with open(path, "rb") as f:
+        for tok in tokenize(f):
+            if tok.kind is TokenKind.SCOPE:
+                scope.append(tok.scope.ident)
+            elif tok.kind is TokenKind.UPSCOPE:
+                scope.pop()
+            elif tok.kind is TokenKind.VAR:
+                name = ".".join([*scope[1:], tok.var.reference])
+                ids.setdefault(tok.var.id_code, []).append(name)
+                changes[name] = []
+            elif tok.kind is TokenKind.CHANGE_TIME:
+                t = tok.time_change
+            elif tok.kind in (TokenKind.CHANGE_SCALAR, TokenKind.CHANGE_VECTOR):
+                v = tok.data.value if tok.kind is TokenKind.CHANGE_VECTOR else tok.data.value
+                v = int(v, 2) if isinstance(v, str) else int(v)
+                for name in ids[tok.data.id_code]:
+                    changes[name].append((t, v))
+    return changes
+
+
+def _values(changes, start, stop):
+    """Per-cycle values from value changes, cycles ``start..stop-1``."""
+    out, it, cur = [], iter(changes), None
+    pending = next(it, None)
+    for c in range(start, stop):
+        while pending is not None and pending[0] <= c * PERIOD_PS:
+            cur = pending[1]
+            pending = next(it, None)
+        out.append(cur)
+    return out
+
+
+def _expected_total():
+    return np.concatenate([[0], np.cumsum(INC)[:-1]]) & 0xFF
+
+
+def _run_compiled(window):
+    be = CompiledBackend(Demo, "vcd-demo", vcd=window)
+    parts = []
+    for lo in range(0, N, 25):           # chunks that straddle both ends of the window
+        hi = min(N, lo + 25)
+        parts.append(drive(be.run(hi - lo, {"inc": INC[lo:hi]}, ["total"]))["total"])
+    return np.concatenate(parts)
+
+
+def _run_pysim(window):
+    be = PysimBackend(Demo(), vcd=window)
+    sim = be.simulator()
+    box = {}
+
+    async def bench(ctx):
+        be.bind(ctx)
+        parts = []
+        for lo in range(0, N, 25):
+            hi = min(N, lo + 25)
+            parts.append((await be.run(hi - lo, {"inc": INC[lo:hi]}, ["total"]))["total"])
+        box["total"] = np.concatenate(parts)
+
+    sim.add_testbench(bench)
+    sim.run()
+    return box["total"]
+
+
+@pytest.fixture(scope="module")
+def windows(tmp_path_factory):
+    out = tmp_path_factory.mktemp("vcd")
+    w = {name: VcdWindow(30, 70, out / f"{name}.vcd", "total,counter.*,neg")
+         for name in ("compiled", "pysim")}
+    totals = {"compiled": _run_compiled(w["compiled"]), "pysim": _run_pysim(w["pysim"])}
+    return w, totals
+
+
+@pytest.mark.parametrize("backend", ["compiled", "pysim"])
+def test_window_holds_only_the_selected_signals_and_cycles(windows, backend):
+    w, totals = windows
+    np.testing.assert_array_equal(totals[backend], _expected_total())
+    changes = _vcd(w[backend].path)
+    assert set(changes) == {"total", "neg", "counter.inc", "counter.count"}
+    times = [t for ch in changes.values() for t, _ in ch]
+    assert min(times) == 30 * PERIOD_PS and max(times) <= 69 * PERIOD_PS
+    assert [p.name for p in w[backend].path.parent.iterdir()
+            if p.name.startswith(".")] == [], "no temporary file left behind"
+
+
+@pytest.mark.parametrize("backend", ["compiled", "pysim"])
+def test_window_values_are_the_design_values_cycle_by_cycle(windows, backend):
+    w, _ = windows
+    changes = _vcd(w[backend].path)
+    total = _expected_total()[30:70]
+    assert _values(changes["total"], 30, 70) == list(total)
+    assert _values(changes["counter.count"], 30, 70) == list(total)
+    assert _values(changes["counter.inc"], 30, 70) == list(INC[30:70])
+    assert _values(changes["neg"], 30, 70) == list((-(total & 31)) & 63)   # two's complement
+
+
+def test_pysim_and_compiled_windows_agree(windows):
+    w, _ = windows
+    a, b = _vcd(w["compiled"].path), _vcd(w["pysim"].path)
+    for name in a:
+        assert _values(a[name], 30, 70) == _values(b[name], 30, 70), name
+
+
+@pytest.mark.parametrize("spec, start, stop", [
+    ("0:1e-6", 0, 50),
+    ("1ms:1.0002ms", 50_000, 50_010),
+    ("20us:30us", 1_000, 1_500),
+    ("100ns:101ns", 5, 6),               # at least one cycle
+])
+def test_window_spec_in_seconds_or_units(spec, start, stop, tmp_path):
+    w = VcdWindow.parse(spec, tmp_path / "x.vcd", "node1.*")
+    assert (w.start, w.stop) == (start, stop)
+    assert w.matches("node1.link.state") and not w.matches("node2.link.state")
+
+
+def test_window_offset_moves_both_ends(tmp_path):
+    w = VcdWindow.parse("0:2us", tmp_path / "x.vcd", offset=1e-3)
+    assert (w.start, w.stop) == (50_000, 50_100)
+    assert w.matches("anything.at.all")
+
+
+@pytest.mark.parametrize("spec", ["", "5", "1:2:3", "2ms:1ms", "-1:2", "a:b", "1ms:1ms",
+                                  "1h:2h"])
+def test_bad_window_names_the_field(spec, tmp_path):
+    with pytest.raises(InputError) as err:
+        VcdWindow.parse(spec, tmp_path / "x.vcd")
+    assert err.value.field == "--vcd"
+
+
+def test_empty_signal_pattern_names_the_field(tmp_path):
+    with pytest.raises(InputError) as err:
+        VcdWindow(0, 10, tmp_path / "x.vcd", " , ")
+    assert err.value.field == "--signals"
+
+
+def test_pysim_vcd_needs_the_backends_simulator(tmp_path):
+    be = PysimBackend(Demo(), vcd=VcdWindow(0, 5, tmp_path / "x.vcd"))
+    with pytest.raises(RuntimeError, match="simulator"):
+        be.bind(object())
