@@ -80,21 +80,45 @@ def fast_joint_tick(j: JointModel, mode: int, q: int, qd: int, tn: int, tau_D: i
     written out (formats' binary points folded into constant shifts); returns ``τ``.
 
     ``mode``: 0 VDC, 1 PID, 2 torque. Bit-exact with the reference (tested on random words).
-    Each line is one ``fx``: the exact sum aligned to its finest LSB, rounded half up onto the
-    destination's LSB, saturated (POS −4, CNT 0, VEL −19, ACC −14, FORCE −13, SGN −23, LAMC
+    Each statement is one ``fx``: the exact sum aligned to its finest LSB, rounded half up onto
+    the destination's LSB, saturated to ±2^23 (written inline: this runs a million times per
+    simulated second and node). LSBs: POS −4, CNT 0, VEL −19, ACC −14, FORCE −13, SGN −23, LAMC
     −30, LAM −12, IVS −8, IVLC −20, IM −20, VISC −16, GAIN −12, KP −24, KI −32, IHI 10, TS −26,
-    CT −48, ANG −26, KC −6).
+    CT −48, ANG −26, KC −6.
     """
     p = j.params
-    q = WORD_MIN if q < WORD_MIN else WORD_MAX if q > WORD_MAX else q
+    if q < -8388608:
+        q = -8388608
+    elif q > 8388607:
+        q = 8388607
     q_des, v_des = j.q_des, j.v_des
-    e = _sat(q_des - (q << 4))
-    qdr = _sat(((v_des << 15) + p.lamc * e + (1 << 14)) >> 15)
+    e = q_des - (q << 4)
+    if e < -8388608:
+        e = -8388608
+    elif e > 8388607:
+        e = 8388607
     if mode == 0:
-        qddr = _sat(((ad0 << 17) + p.lam * (v_des - qd) + (1 << 16)) >> 17)
-        sg = _sat((p.ivs * v_des + ((p.ivlc * e) << 3) + (1 << 3)) >> 4)
-        tau = _sat(((tau_D << 23) + ((p.th0 * qddr) << 2) + ((p.th1 * qdr) << 1) + p.th2 * sg
-                    + (p.th3 << 23) + ((p.kj * (qdr - qd)) << 5) + (1 << 22)) >> 23)
+        qdr = ((v_des << 15) + p.lamc * e + 16384) >> 15
+        if qdr < -8388608:
+            qdr = -8388608
+        elif qdr > 8388607:
+            qdr = 8388607
+        qddr = ((ad0 << 17) + p.lam * (v_des - qd) + 65536) >> 17
+        if qddr < -8388608:
+            qddr = -8388608
+        elif qddr > 8388607:
+            qddr = 8388607
+        sg = (p.ivs * v_des + ((p.ivlc * e) << 3) + 8) >> 4
+        if sg < -8388608:
+            sg = -8388608
+        elif sg > 8388607:
+            sg = 8388607
+        tau = ((tau_D << 23) + ((p.th0 * qddr) << 2) + ((p.th1 * qdr) << 1) + p.th2 * sg
+               + (p.th3 << 23) + ((p.kj * (qdr - qd)) << 5) + 4194304) >> 23
+        if tau < -8388608:
+            tau = -8388608
+        elif tau > 8388607:
+            tau = 8388607
     elif mode == 1:
         i_lo, i_hi = j.i_lo, j.i_hi
         tau = _sat(((tau_D << 23) + ((p.kp * e) << 8) + p.ki * i_lo + ((p.ki * i_hi) << 14)
@@ -106,21 +130,54 @@ def fast_joint_tick(j: JointModel, mode: int, q: int, qd: int, tn: int, tau_D: i
         j.i_hi = min(max(hi, p.ilo), p.ihi)
     else:
         tau = tau_D
-    ts = _sat((tn * p.cT + (1 << 21)) >> 22)
-    tsh = _sat((tn * p.cTh + (1 << 21)) >> 22)
-    j.v_des = _sat(((vd0 << 21) + ad0 * ts + (1 << 20)) >> 21)
-    h = _sat(((vd0 << 21) + ad0 * tsh + (1 << 20)) >> 21)
-    dq = _sat((h * ts + (1 << 18)) >> 19)
-    j.q_des = _sat(((qd0 << 28) + dq * p.Kc + (1 << 27)) >> 28)
+    # Part B: the reference for the next tick
+    ts = (tn * p.cT + 2097152) >> 22
+    if ts < -8388608:
+        ts = -8388608
+    elif ts > 8388607:
+        ts = 8388607
+    tsh = (tn * p.cTh + 2097152) >> 22
+    if tsh < -8388608:
+        tsh = -8388608
+    elif tsh > 8388607:
+        tsh = 8388607
+    v0 = vd0 << 21
+    v = (v0 + ad0 * ts + 1048576) >> 21
+    j.v_des = -8388608 if v < -8388608 else 8388607 if v > 8388607 else v
+    h = (v0 + ad0 * tsh + 1048576) >> 21
+    if h < -8388608:
+        h = -8388608
+    elif h > 8388607:
+        h = 8388607
+    dq = (h * ts + 262144) >> 19
+    if dq < -8388608:
+        dq = -8388608
+    elif dq > 8388607:
+        dq = 8388607
+    qq = ((qd0 << 28) + dq * p.Kc + 134217728) >> 28
+    j.q_des = -8388608 if qq < -8388608 else 8388607 if qq > 8388607 else qq
     return tau
 
 
 _CYCLES = tuple(joint_microcode().cycles(m) for m in JOINT_MODES)
+_TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX = (int(c) for c in (
+    Config.TICK, Config.MODE, Config.TIMEOUT, Config.TAU_MIN, Config.TAU_MAX))
 
 
 class FastNode(NodeModel):
     """:class:`~hdl.node.core_ref.NodeModel` with its control tick on
-    :func:`fast_joint_tick` (same behaviour; the tick is what a long run spends its time on)."""
+    :func:`fast_joint_tick` (same behaviour; the tick is what a long run spends its time on).
+
+    ``encoder``'s :meth:`EncoderEvents.tick_sample` serves the plain ticks."""
+
+    _fast_sample = None
+
+    def attach(self, encoder: EncoderEvents) -> None:
+        self._sample = encoder.sample
+        self._fast_sample = encoder.tick_sample
+
+    def _tick(self, now, sample, tt, ramped=False):       # the event loop's ticks
+        self._fast_tick(now, lambda c: sample(c)[:2], tt, ramped)
 
     def run(self, until: int, sample=None) -> None:
         """As :meth:`NodeModel.run`; runs of plain ticks between the timer's other events
@@ -131,8 +188,9 @@ class FastNode(NodeModel):
         if sample is None:
             NodeModel.run(self, until)
             return
+        fast = self._fast_sample or (lambda c: sample(c)[:2])
         cfg = self.config
-        tick = self._tick
+        tick = self._fast_tick
         while True:
             nb = self._nb
             special = nb
@@ -145,42 +203,43 @@ class FastNode(NodeModel):
             lim = special if special < until else until
             while self._nt < lim:
                 nt = self._nt
-                tick(nt, sample, nt - self._lb)
+                tick(nt, fast, nt - self._lb)
             if special >= until:
                 break
             NodeModel.run(self, special + 1)
         if until > self._done:
             self._done = until
 
-    def _tick(self, now: int, sample, tt: int, ramped: bool = False) -> None:
+    def _fast_tick(self, now: int, sample, tt: int, ramped: bool = False) -> None:
         landing = self._landing
         if landing is not None and now >= landing[0]:
             self.torque = landing[1]
             self._landing = None
-        if self.armed or self._prime_due is not None:
-            self._watch(now)
+        armed = self.armed
         cfg = self.config
-        tick = cfg[Config.TICK]
+        if (armed and not self.tripped and now >= self.last_packet + 2 + cfg[_TIMEOUT]) or \
+                self._prime_due is not None:
+            self._watch(now)
+        tick = cfg[_TICK]
         self._nt = now + tick
-        if self.tripped and self.armed and not ramped:
+        if armed and self.tripped and not ramped:
             self._ramp()
-        count, qd, _ = sample(now)
+        count, qd = sample(now)
         if now < self._busy_until:
             self.overruns = min(self.overruns + 1, 0xFFFF)
             return
-        mode = cfg[Config.MODE]
+        mode = cfg[_MODE]
         tn = tt + tick
         d = self.d_words
         tau = fast_joint_tick(self.joint, mode, count, qd, tn if tn < _TIME_MAX else _TIME_MAX,
                               d[0], d[1], d[2], d[3])
-        cycles = _CYCLES[mode]
+        done = now + _CYCLES[mode]
         self._started = now
-        self._busy_until = now + cycles + 1
-        done = now + cycles
-        if not self.armed:
+        self._busy_until = done + 1
+        if not armed:
             self._landing = (done + 1, 0)
-        elif not (self.tripped or done >= self.last_packet + 2 + cfg[Config.TIMEOUT]):
-            lo, hi = cfg[Config.TAU_MIN], cfg[Config.TAU_MAX]
+        elif not (self.tripped or done >= self.last_packet + 2 + cfg[_TIMEOUT]):
+            lo, hi = cfg[_TAU_MIN], cfg[_TAU_MAX]
             self._landing = (done + 1, lo if tau < lo else hi if tau > hi else tau)
 
 
@@ -220,7 +279,11 @@ class EncoderEvents:
         self._c_ref = 0
         self._pipe: list = []                   # (cycle visible, case, num, den), in order
         self._taken = -2
-        self._last = (-1, 0, 0, 0)
+        self._last = (0, 0)
+        self._last_c = -1
+        self.errors_at_last = 0
+        self._min_window = params.min_window
+        self._stop_cycles = params.stop_cycles
 
     def feed(self, start: int, counts: np.ndarray) -> None:
         """Raw counts of cycles ``start … start + len(counts) − 1`` (consecutive feeds)."""
@@ -277,20 +340,28 @@ class EncoderEvents:
     def sample(self, c: int) -> tuple[int, int, int]:
         """``(count, velocity, errors)`` visible in cycle ``c``, then the velocity strobe there
         (a second call for the same cycle returns the same values)."""
-        if c == self._last[0]:
-            return self._last[1:]
+        count, velocity = self.tick_sample(c)
+        return count, velocity, self.errors_at_last
+
+    def tick_sample(self, c: int) -> tuple[int, int]:
+        """:meth:`sample` without the error count (the control tick's path)."""
+        if c == self._last_c:
+            return self._last
         vis = self._visible
-        while self._vi < len(vis) and vis[self._vi][0] <= c:
-            t, step = vis[self._vi]
-            self._vi += 1
-            if step:
-                self.count += step
-                self._e_last = t
-            else:
-                self.errors = min(self.errors + 1, 0xFFFF)
-        if self._vi > 64:
-            del vis[:self._vi]
-            self._vi = 0
+        vi = self._vi
+        if vi < len(vis) and vis[vi][0] <= c:
+            while vi < len(vis) and vis[vi][0] <= c:
+                t, step = vis[vi]
+                vi += 1
+                if step:
+                    self.count += step
+                    self._e_last = t
+                else:
+                    self.errors = min(self.errors + 1, 0xFFFF)
+            if vi > 64:
+                del vis[:vi]
+                vi = 0
+            self._vi = vi
         pipe = self._pipe
         while pipe and pipe[0][0] <= c:
             _, case, num, den = pipe.pop(0)
@@ -302,24 +373,35 @@ class EncoderEvents:
                 mag = abs(self.velocity)
                 # The bound clips only an estimate above it; the reciprocal's relative error is
                 # < 2.5e-5, so far below the bound the exact word need not be formed.
-                if mag >= WORD_MAX or mag > num * self._kv_scale / max(den, 1) * 0.999 - 2:
+                if mag >= WORD_MAX or mag > num * self._kv_scale / (den or 1) * 0.999 - 2:
                     v = velocity_word(num, den, self.kv)
                     if mag > v:
                         self.velocity = v if self.velocity > 0 else -v
-        out = (self.count, self.velocity, self.errors)
-        self._last = (c, *out)
+        count = self.count
+        out = (count, self.velocity)
+        self._last = out
+        self._last_c = c
+        self.errors_at_last = self.errors
         if c != self._taken + 1:
             self._taken = c
-            age_edge = min(c - self._e_last, AGE_MAX)
-            age_ref = min(c - self._ref_t, AGE_MAX)
-            dc = max(-DC_MAX - 1, min(DC_MAX, self.count - self._c_ref))
+            age_edge = c - self._e_last
+            if age_edge > AGE_MAX:
+                age_edge = AGE_MAX
+            age_ref = c - self._ref_t
+            if age_ref > AGE_MAX:
+                age_ref = AGE_MAX
+            dc = count - self._c_ref
+            if dc > DC_MAX:
+                dc = DC_MAX
+            elif dc < -DC_MAX - 1:
+                dc = -DC_MAX - 1
             window = age_ref - age_edge
             due = c + VEL_LATENCY
-            if dc != 0 and window >= self.p.min_window:
+            if dc != 0 and window >= self._min_window:
                 pipe.append((due, 1, dc, window))
-                self._c_ref = self.count
+                self._c_ref = count
                 self._ref_t = c + 2 - min(age_edge + 2, AGE_MAX)
-            elif age_edge >= self.p.stop_cycles:
+            elif age_edge >= self._stop_cycles:
                 pipe.append((due, 0, 0, 1))
             else:
                 pipe.append((due, 2, abs(dc) + 1, age_ref))
@@ -365,6 +447,8 @@ class ModelLoop:
         self.nodes = [FastNode(encoder=enc) for _ in range(self.n)]
         counts = plant.encoder_counts().tolist()
         self.encoders = [EncoderEvents(enc, c) for c in counts]
+        for node, encoder in zip(self.nodes, self.encoders, strict=True):
+            node.attach(encoder)
         self._samplers = [e.sample for e in self.encoders]
         self._static = np.array(counts, dtype=np.int64)
         self._uploads = list(uploads)
