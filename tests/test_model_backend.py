@@ -201,3 +201,41 @@ def test_model_equals_compiled_bit_for_bit(controller):
     for rc, rm in zip(m_c.records[:-1], m_m.records[:-1], strict=True):
         assert list(rc.events) == list(rm.events)
         assert abs(rc.events["D_sent"] - rm.events["D_sent"]) < 500
+
+
+def test_model_reports_a_comm_d_near_the_commit_phase():
+    """A master slow enough that its Comm D reaches the nodes within the model's margin of
+    the commit phase: the gateware may commit it this period or the next, so the model says
+    it cannot vouch for the result. A Comm D well after the phase is late on both backends,
+    counted, committed a period later, and the runs are still identical."""
+    from cosim.closed_loop import Gains, node_uploads
+    from cosim.model import ModelLoop
+    from cosim.track import _trajectory, run_loop
+    from master.cycle import Master, MasterTiming
+    from models.plant import Plant
+    from models.robot import load_robot
+
+    robot = load_robot("mrm3")
+
+    def parts(force_cycles):
+        master = Master(robot, "vdc", _trajectory(robot), robot.counts_per_rev,
+                        MasterTiming(force_cycles=force_cycles))
+        plant = Plant(robot, seed=0)
+        plant.reset(robot.home)
+        return master, plant, node_uploads(robot, "vdc", Gains())
+
+    master, plant, uploads = parts(6_800)
+    near = ModelLoop(robot, master, plant, 50_000, uploads)
+    near.run(120_000)
+    assert any("commit phase" in v for v in near.violations)
+
+    runs = {}
+    for backend in ("compiled", "model"):
+        master, plant, uploads = parts(9_000)
+        result, _ = run_loop(robot, backend, master, plant, 50_000, uploads, 150_000)
+        runs[backend] = (result, master)
+    (compiled, m_c), (model, m_m) = runs["compiled"], runs["model"]
+    assert model.violations == []
+    assert model.trace_sha256 == compiled.trace_sha256
+    # periods 0 and 1 of each node, as period 2's Comm A reports them
+    assert m_m.node_totals()["late_d"] == m_c.node_totals()["late_d"] == 2 * 3
