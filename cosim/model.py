@@ -32,7 +32,6 @@ import hashlib
 import numpy as np
 
 from hdl.link import packet_ref as ref
-from hdl.link.packet_ref import PacketType
 from hdl.node.core_ref import _TIME_MAX, NodeModel
 from hdl.node.encoder_ref import AGE_MAX, DC_MAX, VEL_LATENCY, EncoderParams, velocity_word
 from hdl.node.fixed import FORCE, WORD_MAX, WORD_MIN
@@ -47,8 +46,8 @@ from mrm.errors import InputError
 
 from .closed_loop import LoopResult
 
-__all__ = ["EncoderEvents", "FastNode", "fast_joint_tick", "part_b_table", "ModelLoop",
-           "ModelAssumptionError", "LINK_UP_CYCLE"]
+__all__ = ["EncoderEvents", "FastNode", "fast_joint_tick", "ModelLoop", "ModelAssumptionError",
+           "LINK_UP_CYCLE"]
 
 #: Cycle at which the modelled link reaches Run (the gateware: about 21.4 µs at standard timers).
 LINK_UP_CYCLE = 1_100
@@ -76,7 +75,7 @@ def _sat(v: int) -> int:
 
 
 def fast_joint_tick(j: JointModel, mode: int, q: int, qd: int, tn: int, tau_D: int, qd0: int,
-                    vd0: int, ad0: int, part_b: tuple | None = None) -> int:
+                    vd0: int, ad0: int) -> int:
     """:meth:`JointModel.tick <hdl.node.joint_ref.JointModel.tick>` with every rounding
     written out (formats' binary points folded into constant shifts); returns ``τ``.
 
@@ -85,8 +84,7 @@ def fast_joint_tick(j: JointModel, mode: int, q: int, qd: int, tn: int, tau_D: i
     the destination's LSB, saturated to ±2^23 (written inline: this runs a million times per
     simulated second and node). LSBs: POS −4, CNT 0, VEL −19, ACC −14, FORCE −13, SGN −23, LAMC
     −30, LAM −12, IVS −8, IVLC −20, IM −20, VISC −16, GAIN −12, KP −24, KI −32, IHI 10, TS −26,
-    CT −48, ANG −26, KC −6. ``part_b``: Part B's result ``(v_des, q_des)`` for this ``tn``
-    if known (:func:`part_b_table`).
+    CT −48, ANG −26, KC −6.
     """
     p = j.params
     if q < -8388608:
@@ -133,9 +131,6 @@ def fast_joint_tick(j: JointModel, mode: int, q: int, qd: int, tn: int, tau_D: i
     else:
         tau = tau_D
     # Part B: the reference for the next tick
-    if part_b is not None:
-        j.v_des, j.q_des = part_b
-        return tau
     ts = (tn * p.cT + 2097152) >> 22
     if ts < -8388608:
         ts = -8388608
@@ -164,28 +159,9 @@ def fast_joint_tick(j: JointModel, mode: int, q: int, qd: int, tn: int, tau_D: i
     return tau
 
 
-def part_b_table(params, qd0: int, vd0: int, ad0: int, tns) -> dict:
-    """Part B of :func:`fast_joint_tick` for many ``tn`` at once (numpy, int64 is wide
-    enough: every intermediate is below 2^53): ``{tn: (v_des, q_des)}``.
-
-    Within a period the Comm D words are fixed and ``tn`` runs over the tick grid, so a node
-    needs one table per Comm D instead of six roundings per tick.
-    """
-    lo, hi = -(1 << 23), (1 << 23) - 1
-    tn = np.asarray(tns, dtype=np.int64)
-    ts = np.clip((tn * params.cT + (1 << 21)) >> 22, lo, hi)
-    tsh = np.clip((tn * params.cTh + (1 << 21)) >> 22, lo, hi)
-    v0 = np.int64(vd0) << 21
-    v = np.clip((v0 + ad0 * ts + (1 << 20)) >> 21, lo, hi)
-    h = np.clip((v0 + ad0 * tsh + (1 << 20)) >> 21, lo, hi)
-    dq = np.clip((h * ts + (1 << 18)) >> 19, lo, hi)
-    q = np.clip(((np.int64(qd0) << 28) + dq * params.Kc + (1 << 27)) >> 28, lo, hi)
-    return dict(zip(tn.tolist(), zip(v.tolist(), q.tolist(), strict=True), strict=True))
-
-
 _CYCLES = tuple(joint_microcode().cycles(m) for m in JOINT_MODES)
-_TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX, _PERIOD = (int(c) for c in (
-    Config.TICK, Config.MODE, Config.TIMEOUT, Config.TAU_MIN, Config.TAU_MAX, Config.PERIOD))
+_TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX = (int(c) for c in (
+    Config.TICK, Config.MODE, Config.TIMEOUT, Config.TAU_MIN, Config.TAU_MAX))
 
 
 class FastNode(NodeModel):
@@ -195,13 +171,6 @@ class FastNode(NodeModel):
     ``encoder``'s :meth:`EncoderEvents.tick_sample` serves the plain ticks."""
 
     _fast_sample = None
-    _pb_d = None
-    _pb: dict = {}
-
-    def packet(self, now, ptype, payload, period=None, enc_errors=0, sample=None):
-        if ptype in (PacketType.PARAM, PacketType.CONFIG):
-            self._pb_d = None                   # parameters or the tick grid may change
-        return NodeModel.packet(self, now, ptype, payload, period, enc_errors, sample)
 
     def attach(self, encoder: EncoderEvents) -> None:
         self._sample = encoder.sample
@@ -262,13 +231,8 @@ class FastNode(NodeModel):
         mode = cfg[_MODE]
         tn = tt + tick
         d = self.d_words
-        if d is not self._pb_d:
-            self._pb_d = d
-            self._pb = part_b_table(self.joint.params, d[1], d[2], d[3],
-                                    range(tick, cfg[_PERIOD] + tick, tick))
-        tn = tn if tn < _TIME_MAX else _TIME_MAX
-        tau = fast_joint_tick(self.joint, mode, count, qd, tn, d[0], d[1], d[2], d[3],
-                              self._pb.get(tn))
+        tau = fast_joint_tick(self.joint, mode, count, qd, tn if tn < _TIME_MAX else _TIME_MAX,
+                              d[0], d[1], d[2], d[3])
         done = now + _CYCLES[mode]
         self._started = now
         self._busy_until = done + 1
