@@ -7,7 +7,7 @@ import json
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("bench", help="simulated cycles/s and real-time factor per backend")
-    p.add_argument("--backend", action="append", choices=["compiled", "pysim"],
+    p.add_argument("--backend", action="append", choices=["model", "compiled", "pysim"],
                    help="backend(s) to measure (default: all)")
     p.add_argument("--robot", default="mrm3")
     p.add_argument("--json", action="store_true", help="machine-readable output")
@@ -17,7 +17,7 @@ def register(subparsers) -> None:
 def _bench(args) -> int:
     from cosim.bench import bench_backend
 
-    backends = args.backend or ["compiled", "pysim"]
+    backends = args.backend or ["model", "compiled", "pysim"]
     out = {"robot": args.robot, "backends": {}}
     for name in backends:
         out["backends"][name] = bench_backend(name, args.robot)
