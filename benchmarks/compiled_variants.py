@@ -42,6 +42,8 @@ VARIANTS = {
                              "cflags": "-march=native"},
     "tied-o3-xfast-threads2": {"opt": "-O3", "verilator_args": [*_XFAST, "--threads", "2"]},
     "tied-o3-xfast-inline": {"opt": "-O3", "verilator_args": [*_XFAST, "--inline-mult", "-1"]},
+    # a --trace build (what a VCD window needs), tracing off
+    "tied-o3-xfast-trace": {"opt": "-O3", "verilator_args": _XFAST, "trace": True},
     "prof": {"reset_port": True, "opt": "-O2", "verilator_args": ["--prof-cfuncs"],
              "cflags": "-g"},
     "tied-prof": {"opt": "-O2", "verilator_args": ["--prof-cfuncs"], "cflags": "-g"},

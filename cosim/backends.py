@@ -177,9 +177,9 @@ class CompiledBackend:
         parts, lo = [], 0
         while lo < n:
             cycle = self.model.cycles
-            if self._raw is None and cycle == self.vcd.start:
+            if self._raw is None and self.vcd.start <= cycle < self.vcd.stop:
                 self._open()
-            elif self._raw is not None and cycle == self.vcd.stop:
+            elif self._raw is not None and cycle >= self.vcd.stop:
                 self.finish()
             edge = self.vcd.start if self._raw is None else self.vcd.stop
             hi = n if edge <= cycle or self._vcd_done else min(n, lo + edge - cycle)
@@ -317,8 +317,10 @@ def _pysim_names(design, vcd: VcdWindow) -> list[tuple[tuple[str, ...], str, obj
     for _fragment, info in design.fragments.items():
         scope = tuple(info.name[1:])
         for signal, name in info.signal_names.items():
-            # the time grid is the clock: one sample per cycle says nothing about clk or rst
-            if id(signal) not in clocks and vcd.matches(".".join([*scope, name])):
+            # the time grid is the clock: one sample per cycle says nothing about clk or rst;
+            # names from "$" are Amaranth's anonymous signals (as in filter_vcd)
+            if (id(signal) not in clocks and not name.startswith("$")
+                    and vcd.matches(".".join([*scope, name]))):
                 out.append((scope, name, signal))
     return out
 
