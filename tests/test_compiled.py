@@ -115,3 +115,25 @@ def test_unknown_port_is_named(model):
 def test_build_failure_is_reported():
     with pytest.raises(BuildError, match="not found"):
         CompiledModel(name="x", verilog_text="module y(clk); input clk; endmodule\n")
+
+
+def test_reset_is_tied_low_unless_a_reset_port_is_asked_for(model):
+    """The default build ties ``rst`` low in a harness (Verilator folds the reset logic away);
+    ``reset_port=True`` keeps it as an input with a synchronous reset, as in Amaranth."""
+    assert "rst" not in model.ports and "clk" in model.ports
+    with_rst = CompiledModel(MacDemo(), "mac_demo", reset_port=True)
+    assert "rst" in with_rst.ports
+    with_rst.set("a", 3)
+    with_rst.set("b", 4)
+    with_rst.tick(2)
+    assert with_rst.get("acc") == 24
+    with_rst.set("rst", 1)
+    with_rst.tick()
+    with_rst.set("rst", 0)
+    assert with_rst.get("acc") == 0
+
+
+def test_trace_needs_a_trace_build(model, tmp_path):
+    with pytest.raises(RuntimeError, match="trace=True"):
+        model.trace_open(tmp_path / "x.vcd")
+    assert not (tmp_path / "x.vcd").exists()
