@@ -3,7 +3,9 @@
 Run on purpose (each build takes 2-3 minutes on this machine), not in CI::
 
     MRM_CACHE_DIR=/tmp/s-cache python benchmarks/compiled_variants.py record
-    MRM_CACHE_DIR=/tmp/s-cache python benchmarks/compiled_variants.py compare base o3 xfast
+    MRM_CACHE_DIR=/tmp/s-cache python benchmarks/compiled_variants.py compare tied tied-o3-xfast
+    git show fadb99e:cosim/compiled.py > /tmp/compiled_v1.py
+    python benchmarks/compiled_variants.py bench --legacy /tmp/compiled_v1.py
 
 ``record`` runs the 3-module VDC closed loop (start-up, uploads, then ``--cycles`` of the
 A/B/C/D cycle) on the ``compiled`` backend and stores every chunk's per-cycle inputs. ``compare``
@@ -11,7 +13,8 @@ builds each named variant (cached), replays the recorded inputs chunk by chunk t
 :meth:`cosim.compiled.CompiledModel.run` (the calls the closed loop makes, without plant and
 master), checks that every variant returns the same outputs bit for bit as the first, and prints
 the replay's cycles per second, best of ``--rounds`` rounds taken in turn (the machine is shared
-and noisy: only ratios within one run mean anything).
+and noisy: only ratios within one run mean anything). ``bench`` runs ``mrm bench``'s compiled
+window alternately with an older engine (``--legacy``) and the current one.
 """
 
 from __future__ import annotations
@@ -160,6 +163,40 @@ def compare(names, path: Path, rounds: int) -> int:
     return 0 if all(d == ref for d in digests.values()) else 1
 
 
+def bench(legacy: Path, rounds: int) -> int:
+    """``mrm bench``'s compiled window, alternating the legacy engine and the current one."""
+    import importlib.util
+
+    import cosim.compiled as cc
+    from cosim.bench import bench_backend
+
+    spec = importlib.util.spec_from_file_location("compiled_legacy", legacy)
+    old = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = old
+    spec.loader.exec_module(old)
+
+    class Legacy(old.CompiledModel):
+        def __init__(self, *args, trace=False, **kwargs):     # no trace option back then
+            super().__init__(*args, **kwargs)
+
+    current = cc.CompiledModel
+    results = {"before": [], "after": []}
+    try:
+        for _ in range(rounds):
+            for name, cls in (("before", Legacy), ("after", current)):
+                cc.CompiledModel = cls
+                r = bench_backend("compiled", "mrm3")
+                results[name].append(r["cycles_per_s"])
+                print(f"{name:6s} {r['cycles_per_s']:10,.0f} cycles/s  RTF {r['rtf']:6.0f}",
+                      flush=True)
+    finally:
+        cc.CompiledModel = current
+    med = {k: float(np.median(v)) for k, v in results.items()}
+    print(f"median {med['before']:,.0f} -> {med['after']:,.0f} cycles/s "
+          f"(x{med['after'] / med['before']:.2f})")
+    return 0
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -171,7 +208,13 @@ def main(argv=None) -> int:
     c.add_argument("--stim", type=Path, default=STIM)
     c.add_argument("--rounds", type=int, default=3)
     c.add_argument("--legacy", type=Path, help="an older cosim/compiled.py, for 'legacy'")
+    b = sub.add_parser("bench")
+    b.add_argument("--legacy", type=Path, required=True,
+                   help="an older cosim/compiled.py (git show fadb99e:cosim/compiled.py)")
+    b.add_argument("--rounds", type=int, default=3)
     args = p.parse_args(argv)
+    if args.cmd == "bench":
+        return bench(args.legacy, args.rounds)
     global LEGACY
     LEGACY = getattr(args, "legacy", None)
     if args.cmd == "record":
