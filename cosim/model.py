@@ -159,6 +159,52 @@ def fast_joint_tick(j: JointModel, mode: int, q: int, qd: int, tn: int, tau_D: i
     return tau
 
 
+
+def part_b(j: JointModel, tn: int, qd0: int, vd0: int, ad0: int) -> None:
+    """Part B of :func:`fast_joint_tick` alone: ``(q_des, v_des)`` for the tick ``tn`` cycles
+    after the period start (the same statements)."""
+    p = j.params
+    ts = (tn * p.cT + 2097152) >> 22
+    if ts < -8388608:
+        ts = -8388608
+    elif ts > 8388607:
+        ts = 8388607
+    tsh = (tn * p.cTh + 2097152) >> 22
+    if tsh < -8388608:
+        tsh = -8388608
+    elif tsh > 8388607:
+        tsh = 8388607
+    v0 = vd0 << 21
+    v = (v0 + ad0 * ts + 1048576) >> 21
+    j.v_des = -8388608 if v < -8388608 else 8388607 if v > 8388607 else v
+    h = (v0 + ad0 * tsh + 1048576) >> 21
+    if h < -8388608:
+        h = -8388608
+    elif h > 8388607:
+        h = 8388607
+    dq = (h * ts + 262144) >> 19
+    if dq < -8388608:
+        dq = -8388608
+    elif dq > 8388607:
+        dq = 8388607
+    qq = ((qd0 << 28) + dq * p.Kc + 134217728) >> 28
+    j.q_des = -8388608 if qq < -8388608 else 8388607 if qq > 8388607 else qq
+
+
+def pid_integral(j: JointModel, q: int) -> None:
+    """The PID integral's update of :func:`fast_joint_tick` alone (mode 1, count ``q``): what a
+    tick whose torque nobody observes still has to do."""
+    if q < -8388608:
+        q = -8388608
+    elif q > 8388607:
+        q = 8388607
+    s = j.i_lo + j.q_des - (q << 4)
+    c = _sat((s + (1 << 13)) >> 14)
+    j.i_lo = _sat(s - (c << 14))
+    hi = _sat(j.i_hi + c)
+    p = j.params
+    j.i_hi = min(max(hi, p.ilo), p.ihi)
+
 _CYCLES = tuple(joint_microcode().cycles(m) for m in JOINT_MODES)
 _TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX = (int(c) for c in (
     Config.TICK, Config.MODE, Config.TIMEOUT, Config.TAU_MIN, Config.TAU_MAX))
@@ -168,13 +214,33 @@ class FastNode(NodeModel):
     """:class:`~hdl.node.core_ref.NodeModel` with its control tick on
     :func:`fast_joint_tick` (same behaviour; the tick is what a long run spends its time on).
 
-    ``encoder``'s :meth:`EncoderEvents.tick_sample` serves the plain ticks."""
+    ``encoder``'s :meth:`EncoderEvents.tick_sample` serves the plain ticks.
+
+    With :attr:`lazy` set, a plain tick whose torque nobody can observe (the next tick lands
+    its own torque before any event or the caller reads it) skips the torque: in VDC and torque
+    mode it only records the arguments of its Part B (:attr:`_deferred`, applied by the next
+    tick that computes), in PID mode it updates the integral and the reference. The strobe,
+    the watchdog, the overrun check and the landing time stay as they are. Torque words,
+    state and replies equal the eager path's (``lazy=False``) bit for bit
+    (tests/test_model_backend.py)."""
 
     _fast_sample = None
+    lazy = False
+    _deferred = None        # (tn, q_d0, q̇_d0, q̈_d0) of a Part B not yet applied to the joint
 
     def attach(self, encoder: EncoderEvents) -> None:
         self._sample = encoder.sample
         self._fast_sample = encoder.tick_sample
+
+    def _materialize(self) -> None:
+        d = self._deferred
+        if d is not None:
+            self._deferred = None
+            part_b(self.joint, d[0], d[1], d[2], d[3])
+
+    def _param(self, bank: int, addr: int, w: int) -> None:
+        self._materialize()                 # a host write comes after the Part B before it
+        NodeModel._param(self, bank, addr, w)
 
     def _tick(self, now, sample, tt, ramped=False):       # the event loop's ticks
         self._fast_tick(now, lambda c: sample(c)[:2], tt, ramped)
@@ -191,6 +257,7 @@ class FastNode(NodeModel):
         fast = self._fast_sample or (lambda c: sample(c)[:2])
         cfg = self.config
         tick = self._fast_tick
+        dead = self._dead_tick if self.lazy else None
         while True:
             nb = self._nb
             special = nb
@@ -201,14 +268,66 @@ class FastNode(NodeModel):
             if self.arm_pending and self._pre_seen != nb and nb - 1 < special:
                 special = nb - 1
             lim = special if special < until else until
-            while self._nt < lim:
-                nt = self._nt
-                tick(nt, fast, nt - self._lb)
+            if dead is not None:
+                step = cfg[_TICK]
+                cyc = _CYCLES[cfg[_MODE]]
+                # a tick is dead when the next one is in this run of plain ticks, starts after
+                # it finished (no overrun) and lands its torque (no watchdog trip before)
+                safe = step > cyc and (not self.armed or self.tripped)
+                trip = self.last_packet + 2 + cfg[_TIMEOUT] - step - cyc
+                while self._nt < lim:
+                    nt = self._nt
+                    if nt + step < lim and step > cyc and (safe or nt < trip):
+                        dead(nt, fast, nt - self._lb)
+                    else:
+                        tick(nt, fast, nt - self._lb)
+            else:
+                while self._nt < lim:
+                    nt = self._nt
+                    tick(nt, fast, nt - self._lb)
             if special >= until:
                 break
             NodeModel.run(self, special + 1)
         if until > self._done:
             self._done = until
+
+    def _dead_tick(self, now: int, sample, tt: int) -> None:
+        """:meth:`_fast_tick` for a tick whose torque is overwritten before it is observed."""
+        landing = self._landing
+        if landing is not None and now >= landing[0]:
+            self.torque = landing[1]
+            self._landing = None
+        armed = self.armed
+        cfg = self.config
+        if (armed and not self.tripped and now >= self.last_packet + 2 + cfg[_TIMEOUT]) or \
+                self._prime_due is not None:
+            self._watch(now)
+        tick = cfg[_TICK]
+        self._nt = now + tick
+        if armed and self.tripped:
+            self._ramp()
+        count, _ = sample(now)
+        if now < self._busy_until:
+            self.overruns = min(self.overruns + 1, 0xFFFF)
+            return
+        mode = cfg[_MODE]
+        tn = tt + tick
+        if tn > _TIME_MAX:
+            tn = _TIME_MAX
+        d = self.d_words
+        if mode == 1:
+            self._materialize()
+            pid_integral(self.joint, count)
+            part_b(self.joint, tn, d[1], d[2], d[3])
+        else:
+            self._deferred = (tn, d[1], d[2], d[3])
+        done = now + _CYCLES[mode]
+        self._started = now
+        self._busy_until = done + 1
+        if not armed:
+            self._landing = (done + 1, 0)
+        elif not (self.tripped or done >= self.last_packet + 2 + cfg[_TIMEOUT]):
+            self._landing = (done + 1, None)        # overwritten by the next tick's
 
     def _fast_tick(self, now: int, sample, tt: int, ramped: bool = False) -> None:
         landing = self._landing
@@ -231,6 +350,8 @@ class FastNode(NodeModel):
         mode = cfg[_MODE]
         tn = tt + tick
         d = self.d_words
+        if self._deferred is not None:
+            self._materialize()
         tau = fast_joint_tick(self.joint, mode, count, qd, tn if tn < _TIME_MAX else _TIME_MAX,
                               d[0], d[1], d[2], d[3])
         done = now + _CYCLES[mode]
@@ -294,17 +415,30 @@ class EncoderEvents:
         prev[0] = self._raw
         prev[1:] = counts[:-1]
         idx = np.flatnonzero(counts != prev)
-        if len(idx):
-            new = counts[idx].tolist()
-            old = prev[idx].tolist()
-            for i, n, o in zip(idx.tolist(), new, old, strict=True):
-                lo = min(n, o)
-                line = 0 if (lo & 3) in (0, 2) else 1
-                level = (((n & 3) >> 1) ^ (n & 1)) if line == 0 else (n & 3) >> 1
-                self._pending[line].append((start + i, level))
-        self._raw = int(counts[-1])
-        self._known = start + len(counts) - 1
-        self._resolve()
+        changes = list(zip(idx.tolist(), counts[idx].tolist(), strict=True)) if len(idx) else ()
+        self.feed_changes(start, len(counts), changes)
+
+    def feed_changes(self, start: int, n: int, changes) -> None:
+        """Cycles ``start … start + n − 1`` given as their count changes: ``(i, count)`` means
+        the raw count is ``count`` from cycle ``start + i`` on (increasing ``i``, each a
+        change; :meth:`models.plant.Plant.encoder_changes`). Same as :meth:`feed` on the
+        per-cycle counts."""
+        if start != self._known + 1:
+            raise ValueError(f"feed must continue at cycle {self._known + 1}, not {start}")
+        if changes:
+            pending = self._pending
+            o = self._raw
+            for i, n_ in changes:
+                lo = n_ if n_ < o else o
+                if (lo & 3) in (0, 2):
+                    pending[0].append((start + i, ((n_ & 3) >> 1) ^ (n_ & 1)))
+                else:
+                    pending[1].append((start + i, (n_ & 3) >> 1))
+                o = n_
+            self._raw = o
+        self._known = start + n - 1
+        if self._pending[0] or self._pending[1]:
+            self._resolve()
 
     def _resolve(self) -> None:
         f = self.p.filter_cycles
@@ -425,10 +559,16 @@ class ModelLoop:
     strict : bool
         Raise :class:`ModelAssumptionError` at the first violated condition instead of
         recording it in :attr:`violations`.
+    lazy : bool
+        Compute only the ticks whose torque is observed (:attr:`FastNode.lazy`) and feed the
+        encoder interfaces the plant's count changes (:meth:`Plant.encoder_changes
+        <models.plant.Plant.encoder_changes>`) instead of per-cycle arrays. ``False`` is the
+        eager path: every tick computed, per-cycle counts; both give the same results bit
+        for bit.
     """
 
     def __init__(self, robot: Robot, master: Master, plant: Plant, start_cycle: int, uploads,
-                 encoder: EncoderParams | None = None, strict: bool = False):
+                 encoder: EncoderParams | None = None, strict: bool = False, lazy: bool = True):
         self.robot = robot
         self.n = robot.n
         self.master = master
@@ -444,7 +584,10 @@ class ModelLoop:
         self.cycle = 0
         self.frames = []
         enc = encoder or EncoderParams()
+        self.lazy = bool(lazy)
         self.nodes = [FastNode(encoder=enc) for _ in range(self.n)]
+        for node in self.nodes:
+            node.lazy = self.lazy
         counts = plant.encoder_counts().tolist()
         self.encoders = [EncoderEvents(enc, c) for c in counts]
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
@@ -553,11 +696,17 @@ class ModelLoop:
             node.run(end - 1, sample)
             self._torque[k] = FORCE.decode(node.torque_at(end - 1))
 
-    def _chunk(self, n: int, counts: np.ndarray | None) -> None:
+    def _chunk(self, n: int, counts: np.ndarray | list | None) -> None:
+        """``n`` cycles; ``counts``: per-cycle counts (n, joints), per-joint change lists
+        (lazy path) or None (the lines at rest)."""
         start = self.cycle
         end = start + n
-        for k, enc in enumerate(self.encoders):
-            enc.feed(start, np.full(n, self._static[k]) if counts is None else counts[:, k])
+        if self.lazy:
+            for k, enc in enumerate(self.encoders):
+                enc.feed_changes(start, n, () if counts is None else counts[k])
+        else:
+            for k, enc in enumerate(self.encoders):
+                enc.feed(start, np.full(n, self._static[k]) if counts is None else counts[:, k])
         self._run_nodes(end)
         if self._replies:
             self._replies.sort(key=lambda r: r[0])
@@ -604,11 +753,11 @@ class ModelLoop:
                 self._queue(action, self.cycle)
             tau = self._torque.copy()
             step(tau)
-            cyc = self.plant.encoder_cycles()
+            cyc = self.plant.encoder_changes() if self.lazy else self.plant.encoder_cycles().counts
             t_rec[i] = (self.cycle - self.start_cycle) / 50e6
             q_rec[i] = self.plant.q
             tau_rec[i] = tau
-            self._chunk(s, cyc.counts)
+            self._chunk(s, cyc)
         for k, node in enumerate(self.nodes):
             if node.tripped:
                 self._violate(f"node {k + 1}: the watchdog tripped")

@@ -30,8 +30,8 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["CYCLE", "counts_per_rad", "joint_counts", "quadrature_levels", "EncoderCycles",
-           "EncoderOverspeed", "cycle_counts", "cycle_counts_sampled", "decode_quadrature",
-           "max_legal_speed"]
+           "EncoderOverspeed", "cycle_counts", "count_changes", "cycle_counts_sampled",
+           "decode_quadrature", "max_legal_speed"]
 
 CYCLE = 20e-9
 """FPGA clock period, s (50 MHz)."""
@@ -122,16 +122,45 @@ def cycle_counts(q0, v0, acc, q1, dt: float, cycles: int, k) -> np.ndarray:
         start of the step and its first cycle).
     """
     q0 = np.asarray(q0, dtype=float)
-    c0 = joint_counts(q0, k)
-    c1 = joint_counts(q1, k)
+    c0, changes = count_changes(q0, v0, acc, q1, dt, cycles, k)
     out = np.empty((cycles, c0.size), dtype=np.int64)
     out[:] = c0
+    for j, events in enumerate(changes):
+        for m, c in events:
+            out[m:, j] = c
+    return out
+
+
+def count_changes(q0, v0, acc, q1, dt: float, cycles: int, k) -> tuple[np.ndarray, list]:
+    """The cycles of one plant step where each joint's count changes (what
+    :func:`cycle_counts` returns, as events: the same evaluations, no per-cycle array for
+    joints with few changes).
+
+    Parameters are those of :func:`cycle_counts`.
+
+    Returns
+    -------
+    c0 : ndarray of int64, shape (n,)
+        Count at the start of the step (before cycle 0).
+    changes : list of n lists of (int, int)
+        Per joint, ``(cycle, new count)`` in increasing cycle order: the count is the new one
+        from that cycle on (row ``cycle`` of :func:`cycle_counts` onwards).
+
+    Raises
+    ------
+    EncoderOverspeed
+        As :func:`cycle_counts`.
+    """
+    q0 = np.asarray(q0, dtype=float)
+    c0 = joint_counts(q0, k)
+    c1 = joint_counts(q1, k)
     v0 = np.asarray(v0, dtype=float)
     acc = np.asarray(acc, dtype=float)
     k = np.asarray(k, dtype=float)
     q0l, v0l, accl, kl = q0.tolist(), v0.tolist(), acc.tolist(), k.tolist()
     c0l, c1l = c0.tolist(), c1.tolist()
     step = dt / cycles
+    changes: list = [[] for _ in range(c0.size)]
     dense = []
     for j in range(c0.size):
         turning = accl[j] != 0.0 and 0.0 < -v0l[j] / accl[j] < dt
@@ -149,13 +178,17 @@ def cycle_counts(q0, v0, acc, q1, dt: float, cycles: int, k) -> np.ndarray:
                     f"joint {j + 1}: count jumps by {c - prev} in cycle {m}; the joint is "
                     f"faster than the encoder interface allows "
                     f"({float(max_legal_speed(kl[j])):.1f} rad/s)")
-            out[m:, j] = c
             prev = c
+        changes[j] = events
     if dense:
         idx = np.array(dense)
-        out[:, idx] = cycle_counts_sampled(q0[idx], v0[idx], acc[idx], np.asarray(q1)[idx], dt,
-                                           cycles, k[idx])
-    return out
+        sampled = cycle_counts_sampled(q0[idx], v0[idx], acc[idx], np.asarray(q1)[idx], dt,
+                                       cycles, k[idx])
+        prev = np.concatenate([c0[idx][None, :], sampled[:-1]], axis=0)
+        for col, j in enumerate(dense):
+            rows = np.flatnonzero(sampled[:, col] != prev[:, col])
+            changes[j] = list(zip(rows.tolist(), sampled[rows, col].tolist(), strict=True))
+    return c0, changes
 
 
 _FEW_CHANGES = 2

@@ -42,8 +42,8 @@ import pinocchio as pin
 
 from models.actuators import ACTUATORS, ActuatorSpec
 from models.drive import CurrentLoop, FrictionParams, solve_stick_slip
-from models.encoder import CYCLE, EncoderCycles, counts_per_rad, cycle_counts, joint_counts, \
-    quadrature_levels
+from models.encoder import CYCLE, EncoderCycles, count_changes, counts_per_rad, cycle_counts, \
+    joint_counts, quadrature_levels
 from mrm.errors import InputError, require_finite, require_nonnegative, require_positive
 
 __all__ = ["Perturbation", "PlantConfig", "PlantTruth", "true_parameters", "perturb_inertia",
@@ -619,6 +619,28 @@ class Plant:
         a, b = quadrature_levels(c)
         return EncoderCycles(c, a, b)
 
+
+    def encoder_changes(self) -> list:
+        """The count changes of the last step, per joint: what :meth:`encoder_cycles` shows,
+        as events (no per-cycle arrays; for consumers that only need the changes).
+
+        Returns
+        -------
+        list of n lists of (int, int)
+            Per joint, ``(cycle, new count)`` in increasing cycle order, cycle ``0 …
+            cycles_per_step − 1`` of the step; the count before the first change is the
+            previous step's last (or :meth:`encoder_counts` before the step).
+
+        Raises
+        ------
+        RuntimeError, models.encoder.EncoderOverspeed
+            As :meth:`encoder_cycles`.
+        """
+        if not self._stepped:
+            raise RuntimeError("no step taken since the last reset")
+        return count_changes(np.array(self._q_start), np.array(self._v_start),
+                             np.array(self._a_prev), np.array(self._q), self.dt,
+                             self.cycles_per_step, self._k)[1]
 
 def _cholesky_solve(A: list, b: list) -> list | None:
     """Solve ``A x = b`` for a small symmetric positive definite ``A`` (lists); None if not SPD."""

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from models.actuators import ACTUATORS
-from models.encoder import CYCLE, EncoderOverspeed, counts_per_rad, cycle_counts, \
-    cycle_counts_sampled, decode_quadrature, joint_counts, max_legal_speed, quadrature_levels
+from models.encoder import CYCLE, EncoderOverspeed, count_changes, counts_per_rad, \
+    cycle_counts, cycle_counts_sampled, decode_quadrature, joint_counts, max_legal_speed, \
+    quadrature_levels
 
 K = counts_per_rad(np.array([800_000]))
 
@@ -120,7 +121,15 @@ def test_bisection_equals_sampling_every_cycle():
         turning += int(np.sum((acc != 0) & (-v0 / np.where(acc != 0, acc, 1) > 0)
                               & (-v0 / np.where(acc != 0, acc, 1) < dt)))
         fast = cycle_counts(q0, v0, acc, q1, dt, 500, k)
-        np.testing.assert_array_equal(fast, cycle_counts_sampled(q0, v0, acc, q1, dt, 500, k))
+        sampled = cycle_counts_sampled(q0, v0, acc, q1, dt, 500, k)
+        np.testing.assert_array_equal(fast, sampled)
+        # the change events are exactly the cycles where the sampled count differs
+        c0, changes = count_changes(q0, v0, acc, q1, dt, 500, k)
+        prev = np.vstack([c0[None, :], sampled[:-1]])
+        for j in range(6):
+            rows = np.flatnonzero(sampled[:, j] != prev[:, j])
+            assert changes[j] == list(zip(rows.tolist(), sampled[rows, j].tolist(),
+                                              strict=True)), trial
     assert turning > 50
 
 
@@ -128,7 +137,7 @@ def test_overspeed_is_reported_not_hidden():
     k = K
     v_max = max_legal_speed(k)[0]
     assert v_max == pytest.approx(1.0 / (CYCLE * 800_000 / (2.0 * math.pi)))
-    for fn in (cycle_counts, cycle_counts_sampled):
+    for fn in (cycle_counts, cycle_counts_sampled, count_changes):
         with pytest.raises(EncoderOverspeed, match="faster than the encoder"):
             fn(np.array([0.0]), np.array([1.5 * v_max]), np.zeros(1),
                np.array([1.5 * v_max * 1e-5]), 1e-5, 500, k)

@@ -239,3 +239,136 @@ def test_model_reports_a_comm_d_near_the_commit_phase():
     assert model.trace_sha256 == compiled.trace_sha256
     # periods 0 and 1 of each node, as period 2's Comm A reports them
     assert m_m.node_totals()["late_d"] == m_c.node_totals()["late_d"] == 2 * 3
+
+
+def _quintic_loop(controller, cycles, lazy, uploads=None, hook=None):
+    """The paper's quintic on mrm3 for ``cycles`` after period 0, model backend only;
+    ``hook(loop)`` before the run."""
+    from cosim.closed_loop import Gains, node_uploads, pid_gains
+    from cosim.model import ModelLoop
+    from cosim.track import _trajectory
+    from master.cycle import Master, MasterTiming
+    from models.plant import Plant
+    from models.robot import load_robot
+
+    robot = load_robot("mrm3")
+    gains = Gains()
+    master = Master(robot, controller, _trajectory(robot), robot.counts_per_rev, MasterTiming(),
+                    lam=gains.lam, pid=pid_gains(robot, gains.pid_1khz_hz))
+    master.payloads = []
+    on_packet = master.on_packet
+
+    def record(now, src, ptype, payload):
+        master.payloads.append((now, src, ptype, bytes(payload)))
+        on_packet(now, src, ptype, payload)
+
+    master.on_packet = record
+    plant = Plant(robot, seed=0)
+    plant.reset(robot.home)
+    loop = ModelLoop(robot, master, plant, 50_000,
+                     uploads or node_uploads(robot, controller, gains), lazy=lazy)
+    if hook is not None:
+        hook(loop)
+    return loop, loop.run(cycles), master
+
+
+def _same_runs(lazy, eager):
+    (l_loop, l_res, l_m), (e_loop, e_res, e_m) = lazy, eager
+    assert l_loop.violations == e_loop.violations == []
+    np.testing.assert_array_equal(l_res.q, e_res.q)
+    np.testing.assert_array_equal(l_res.tau, e_res.tau)
+    assert l_res.trace_sha256 == e_res.trace_sha256
+    assert l_m.payloads == e_m.payloads and len(l_m.payloads) > 0
+    assert l_res.frames == e_res.frames
+    for a, b in zip(l_loop.nodes, e_loop.nodes, strict=True):
+        a._materialize()
+        assert (a.joint.q_des, a.joint.v_des, a.joint.i_lo, a.joint.i_hi, a.torque,
+                a.overruns, a.late_d, a.sync_errors) == \
+            (b.joint.q_des, b.joint.v_des, b.joint.i_lo, b.joint.i_hi, b.torque,
+             b.overruns, b.late_d, b.sync_errors)
+
+
+@pytest.mark.parametrize("controller", ["vdc", "pid-fpga", "pid-1khz"])
+def test_lazy_ticks_equal_the_eager_path(controller):
+    """200 ms of the quintic (model backend only, 10x the compiled comparison's window): the
+    lazy path (only observed ticks computed, the plant's count changes instead of per-cycle
+    arrays) gives the eager path's plant q, torques, reply payloads and final node state."""
+    cycles = 10_000_000
+    lazy = _quintic_loop(controller, cycles, True)
+    eager = _quintic_loop(controller, cycles, False)
+    _same_runs(lazy, eager)
+    assert np.ptp(lazy[1].q, axis=0).min() > 1e-3           # the joints moved
+
+
+def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
+    """PID in the node with an anti-windup bound of a few IHI words: the coarse integral sits
+    on its clip for much of the run; the lazy path's integral (updated on every tick, torque
+    only where observed) is still the eager one."""
+    from cosim.closed_loop import Gains, node_uploads, pid_gains
+    from hdl.link import packet_ref as ref
+    from hdl.node.joint_ref import JointParams
+    from hdl.node.regs import Config, config_payloads, joint_upload
+    from models.actuators import ACTUATORS
+    from models.robot import load_robot
+
+    robot = load_robot("mrm3")
+    gains = Gains()
+    pid = pid_gains(robot, gains.pid_fpga_hz)
+    arm = config_payloads({Config.ARM: 1})
+    uploads = []
+    for dest, ptype, payload in node_uploads(robot, "pid-fpga", gains):
+        if ptype == ref.PacketType.CONFIG and [payload] == arm:     # before the ARM: a tight
+            k = dest - 1                                            # integral bound
+            mod = robot.modules[k]
+            joint = JointParams.from_float(
+                counts_per_rev=mod.type.counts_per_rev, lam=gains.lam, k_j=gains.k_j,
+                inertia=ACTUATORS[mod.type.actuator].output_inertia, k_p=pid["kp"][k],
+                k_i=pid["ki"][k], k_d=pid["kd"][k], i_max=2e-8, field=f"joint{dest}")
+            assert 0 < joint.ihi <= 4
+            uploads += [(dest, ref.PacketType.PARAM, p) for p in joint_upload(joint)]
+        uploads.append((dest, ptype, payload))
+
+    class Watch:
+        """Counts the ticks that end with the coarse integral on its bound."""
+
+        def __init__(self, loop):
+            self.hits = 0
+            for node in loop.nodes:
+                joint = node.joint
+                bound = (joint.params.ilo, joint.params.ihi)
+                orig = node._fast_tick
+
+                def tick(*a, node=node, orig=orig, bound=bound, **kw):
+                    orig(*a, **kw)
+                    self.hits += node.joint.i_hi in bound
+                node._fast_tick = tick
+
+    watches = []
+    runs = [_quintic_loop("pid-fpga", 5_000_000, lazy, uploads,
+                          hook=lambda loop: watches.append(Watch(loop)))
+            for lazy in (True, False)]
+    assert watches[1].hits > 1000                    # the eager ticks saw the clip often
+    _same_runs(*runs)
+
+
+def test_feed_changes_equals_feed():
+    """The encoder interface fed count changes is the one fed per-cycle counts."""
+    rng = np.random.default_rng(11)
+    n = 40_000
+    counts = _walk(rng, n)
+    params = EncoderParams(min_window=256, stop_cycles=5_000)
+    a, b = EncoderEvents(params, int(counts[0])), EncoderEvents(params, int(counts[0]))
+    pos = 0
+    prev = int(counts[0])
+    for c in range(0, n, 50):
+        if c >= pos:
+            size = int(rng.integers(1, 900))
+            chunk = counts[pos:pos + size]
+            a.feed(pos, chunk)
+            before = np.concatenate([[prev], chunk[:-1]])
+            idx = np.flatnonzero(chunk != before)
+            b.feed_changes(pos, len(chunk), list(zip(idx.tolist(), chunk[idx].tolist(),
+                                                     strict=True)))
+            prev = int(chunk[-1])
+            pos += len(chunk)
+        assert a.sample(c) == b.sample(c), c

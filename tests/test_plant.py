@@ -357,6 +357,12 @@ def test_encoder_lines_follow_the_motion_both_ways(robot):
             plant.step(cmd)
             cyc = plant.encoder_cycles()
             assert cyc.counts.shape == (plant.cycles_per_step, robot.n)
+            changes = plant.encoder_changes()       # the same counts as change events
+            prev = np.vstack([count[None, :], cyc.counts[:-1]])
+            for i in range(robot.n):
+                rows = np.flatnonzero(cyc.counts[:, i] != prev[:, i])
+                assert changes[i] == list(zip(rows.tolist(), cyc.counts[rows, i].tolist(),
+                                                  strict=True))
             decoded = decode_quadrature(cyc.a, cyc.b, count)   # raises on illegal Gray code
             np.testing.assert_array_equal(decoded, cyc.counts)
             np.testing.assert_array_equal(cyc.counts[-1], plant.encoder_counts())
@@ -370,6 +376,8 @@ def test_encoder_cycles_needs_a_step(robot):
     plant = Plant(robot, PlantConfig(**NOMINAL))
     with pytest.raises(RuntimeError):
         plant.encoder_cycles()
+    with pytest.raises(RuntimeError):
+        plant.encoder_changes()
 
 
 # --- true versus nominal ---------------------------------------------------------------------
