@@ -12,7 +12,8 @@ nothing) holds::
     fig4_tracking.png     joint angles, desired and per controller (paper Fig. 4)
     fig5_errors.png       joint and tip errors per controller (paper Fig. 5)
     torques.png           torque commands per controller with the peak-torque limits
-    <controller>/         summary.json, trace.csv (1 ms), timeline.json, tracking.png,
+    <controller>/         summary.json, trace.csv (1 ms), timeline.json, tracking.png (every
+                          plant step),
                           timeline.png (Gantt of one period), parameters.png
 """
 
@@ -240,7 +241,9 @@ def _write_controller(folder: Path, robot, controller, config, result, summary, 
             w.writerow([repr(float(t[i]))] + [repr(float(x)) for x in q_d[i]]
                        + [repr(float(x)) for x in q[i]] + [repr(float(x)) for x in tau[i]])
     title = f"{robot.name}: quintic test, {controller} on {config.backend}"
-    plot_tracking(folder / "tracking.png", t, q_d, q, tau, title)
+    # every plant step: a 1 ms sampling would hide whatever happens inside the period
+    plot_tracking(folder / "tracking.png", result.t, profile.evaluate(result.t)[0], result.q,
+                  result.tau, title)
     try:
         record = pick_period(result.master.records, when=0.5 * config.trajectory.duration)
         plot_timeline(folder / "timeline.png", record, robot.n, config.timing.period_cycles,
@@ -285,6 +288,5 @@ def _comparison_plots(folder: Path, robot, config, runs, profile) -> None:
     plot_error_comparison(folder / "fig5_errors.png", t, {c: q_d - q for c, q in qs.items()},
                           {c: tip_error(robot, q_d, q) for c, q in qs.items()},
                           f"Tracking errors (paper Fig. 5), {sub}")
-    plot_torques(folder / "torques.png", t,
-                 {c: r.tau[::every][: len(t)] for c, (r, _) in runs.items()},
-                 f"Torque commands, {sub}", peak=robot.peak_torques)
+    plot_torques(folder / "torques.png", first.t, {c: r.tau for c, (r, _) in runs.items()},
+                 f"Torque commands (every plant step), {sub}", peak=robot.peak_torques)

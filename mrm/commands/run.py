@@ -118,9 +118,7 @@ def _track(args) -> int:
             plot_timeline(tmp / "timeline.png", record, robot.n,
                           result.master.timing.period_cycles,
                           f"{args.controller}: period {record.index} exchange")
-        every = max(1, round(1e-3 / (result.t[1] - result.t[0]))) if len(result.t) > 1 else 1
-        plot_tracking(tmp / "tracking.png", result.t[::every], q_d[::every],
-                      result.q[::every], result.tau[::every],
+        plot_tracking(tmp / "tracking.png", result.t, q_d, result.q, result.tau,
                       f"{robot.name}: quintic test, {args.controller} on {args.backend}")
     if not args.quiet:
         print(f"{args.controller} on {args.backend}: max tip error "
