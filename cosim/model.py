@@ -32,7 +32,7 @@ import hashlib
 import numpy as np
 
 from hdl.link import packet_ref as ref
-from hdl.node.core_ref import _TIME_MAX, NodeModel
+from hdl.node.core_ref import _NEVER, _TIME_MAX, NodeModel
 from hdl.node.encoder_ref import AGE_MAX, DC_MAX, VEL_LATENCY, EncoderParams, velocity_word
 from hdl.node.fixed import FORCE, WORD_MAX, WORD_MIN
 from hdl.node.joint import joint_microcode
@@ -225,12 +225,16 @@ class FastNode(NodeModel):
     (tests/test_model_backend.py)."""
 
     _fast_sample = None
+    _defer_sample = None
     lazy = False
     _deferred = None        # (tn, q_d0, q̇_d0, q̈_d0) of a Part B not yet applied to the joint
 
     def attach(self, encoder: EncoderEvents) -> None:
         self._sample = encoder.sample
         self._fast_sample = encoder.tick_sample
+        self._defer_sample = encoder.defer
+        self._defer_many = encoder._due.extend
+        self._encoder = encoder
 
     def _materialize(self) -> None:
         d = self._deferred
@@ -275,10 +279,18 @@ class FastNode(NodeModel):
                 # it finished (no overrun) and lands its torque (no watchdog trip before)
                 safe = step > cyc and (not self.armed or self.tripped)
                 trip = self.last_packet + 2 + cfg[_TIMEOUT] - step - cyc
+                count_only = self._defer_sample or (lambda c: fast(c)[0])
+                batch = self._defer_sample is not None
                 while self._nt < lim:
                     nt = self._nt
                     if nt + step < lim and step > cyc and (safe or nt < trip):
-                        dead(nt, fast, nt - self._lb)
+                        landing = self._landing
+                        if batch and not self.tripped and self._prime_due is None and \
+                                (landing is None or landing[0] <= nt):
+                            last = lim - step - 1 if safe else min(lim - step - 1, trip - 1)
+                            self._dead_run(nt, (last - nt) // step + 1, step, cyc)
+                        else:
+                            dead(nt, count_only, nt - self._lb)
                     else:
                         tick(nt, fast, nt - self._lb)
             else:
@@ -291,8 +303,79 @@ class FastNode(NodeModel):
         if until > self._done:
             self._done = until
 
-    def _dead_tick(self, now: int, sample, tt: int) -> None:
-        """:meth:`_fast_tick` for a tick whose torque is overwritten before it is observed."""
+    def _dead_run(self, first: int, k: int, step: int, cyc: int) -> None:
+        """``k`` dead ticks from cycle ``first``, ``step`` apart, at once: the state
+        :meth:`_dead_tick` would leave (not tripped, no PRIME pending, the landing before
+        ``first`` due by then). The torque between them is never observed; the strobes are
+        deferred; VDC and torque mode keep only the last Part B, PID runs its integral."""
+        last = first + (k - 1) * step
+        landing = self._landing
+        if landing is not None:
+            self.torque = landing[1]
+        val = None if self.armed else 0
+        if k >= 2:
+            self.torque = val
+        self._landing = (last + cyc + 1, val)
+        self._nt = last + step
+        self._started = last
+        self._busy_until = last + cyc + 1
+        lb = self._lb
+        d = self.d_words
+        if self.config[_MODE] != 1:
+            self._defer_many(range(first, last + 1, step))
+            tn = last - lb + step
+            self._deferred = (tn if tn < _TIME_MAX else _TIME_MAX, d[1], d[2], d[3])
+            return
+        # PID: the integral on every tick (pid_integral, then part_b's q_des; v_des only for
+        # the last), the counts read along the encoder's visible edges, the strobes deferred
+        self._materialize()
+        j = self.joint
+        p = j.params
+        cT, cTh, Kc, ilo, ihi = p.cT, p.cTh, p.Kc, p.ilo, p.ihi
+        qd0, v0, ad0 = d[1], d[2] << 21, d[3]
+        q0 = qd0 << 28
+        enc = self._encoder
+        vis = enc._visible
+        nv = len(vis)
+        k = enc._vi
+        count = enc.count
+        i_lo, i_hi, q_des = j.i_lo, j.i_hi, j.q_des
+        ts = 0
+        for t in range(first, last + 1, step):
+            while k < nv and vis[k][0] <= t:
+                count += vis[k][1]
+                k += 1
+            q = -8388608 if count < -8388608 else 8388607 if count > 8388607 else count
+            x = i_lo + q_des - (q << 4)
+            c = (x + 8192) >> 14
+            c = -8388608 if c < -8388608 else 8388607 if c > 8388607 else c
+            i_lo = x - (c << 14)
+            i_lo = -8388608 if i_lo < -8388608 else 8388607 if i_lo > 8388607 else i_lo
+            c += i_hi
+            c = -8388608 if c < -8388608 else 8388607 if c > 8388607 else c
+            c = c if c > ilo else ilo                   # min(max(hi, ilo), ihi)
+            i_hi = c if c < ihi else ihi
+            tn = t - lb + step
+            if tn > _TIME_MAX:
+                tn = _TIME_MAX
+            ts = (tn * cT + 2097152) >> 22
+            ts = -8388608 if ts < -8388608 else 8388607 if ts > 8388607 else ts
+            h = (tn * cTh + 2097152) >> 22
+            h = -8388608 if h < -8388608 else 8388607 if h > 8388607 else h
+            h = (v0 + ad0 * h + 1048576) >> 21
+            h = -8388608 if h < -8388608 else 8388607 if h > 8388607 else h
+            h = (h * ts + 262144) >> 19
+            h = -8388608 if h < -8388608 else 8388607 if h > 8388607 else h
+            h = (q0 + h * Kc + 134217728) >> 28
+            q_des = -8388608 if h < -8388608 else 8388607 if h > 8388607 else h
+        v = (v0 + ad0 * ts + 1048576) >> 21
+        j.v_des = -8388608 if v < -8388608 else 8388607 if v > 8388607 else v
+        j.i_lo, j.i_hi, j.q_des = i_lo, i_hi, q_des
+        self._defer_many(range(first, last + 1, step))
+
+    def _dead_tick(self, now: int, count_at, tt: int) -> None:
+        """:meth:`_fast_tick` for a tick whose torque is overwritten before it is observed
+        (``count_at(cycle)``: the count, the strobe deferred: :meth:`EncoderEvents.defer`)."""
         landing = self._landing
         if landing is not None and now >= landing[0]:
             self.torque = landing[1]
@@ -306,7 +389,7 @@ class FastNode(NodeModel):
         self._nt = now + tick
         if armed and self.tripped:
             self._ramp()
-        count, _ = sample(now)
+        count = count_at(now)
         if now < self._busy_until:
             self.overruns = min(self.overruns + 1, 0xFFFF)
             return
@@ -405,6 +488,7 @@ class EncoderEvents:
         self.errors_at_last = 0
         self._min_window = params.min_window
         self._stop_cycles = params.stop_cycles
+        self._due: list[int] = []               # deferred strobes (:meth:`defer`)
 
     def feed(self, start: int, counts: np.ndarray) -> None:
         """Raw counts of cycles ``start … start + len(counts) − 1`` (consecutive feeds)."""
@@ -481,6 +565,101 @@ class EncoderEvents:
         """:meth:`sample` without the error count (the control tick's path)."""
         if c == self._last_c:
             return self._last
+        if self._due:
+            self._flush(c)
+            if c == self._last_c:
+                return self._last
+        return self._strobe(c)
+
+    def defer(self, c: int) -> int:
+        """The count visible in cycle ``c``, with the velocity strobe there deferred: it takes
+        effect, exactly as :meth:`tick_sample` would have, before the next :meth:`sample` or
+        :meth:`tick_sample` (for ticks that do not use the velocity; calls in cycle order)."""
+        self._due.append(c)
+        vis = self._visible
+        i = self._vi
+        count = self.count
+        while i < len(vis) and vis[i][0] <= c:
+            count += vis[i][1]
+            i += 1
+        return count
+
+    def _flush(self, upto: int) -> None:
+        """The deferred strobes, in order, before the strobe in cycle ``upto``.
+
+        From a taken strobe ``p`` on, until the next visible edge, the count and the last edge
+        do not change, so no strobe can MEASURE (``p`` moved the reference, or its window and
+        ``dc`` stay as they were) and each one BOUNDs with the same numerator and a growing
+        ``age_ref``, or STOPs once the edge is old enough. The velocity word is non-increasing
+        in the denominator (checked over all 2^26 of them: ``y1 · 2^−p`` of
+        :func:`~hdl.node.encoder_ref.reciprocal` never increases), so of a run of such clips
+        only the last one acts, and after a STOP the velocity is 0: a run folds into one
+        clip. Runs whose ages saturate, or strobes closer than :data:`VEL_LATENCY` (a result
+        not yet visible at the next strobe), go one by one."""
+        due = self._due.copy()
+        self._due.clear()                       # (the same list: FastNode extends it)
+        m = len(due)
+        i = 0
+        vis = self._visible
+        while i < m:
+            p = self._taken
+            if p == self._last_c:
+                vi = self._vi
+                nxt = vis[vi][0] if vi < len(vis) else _NEVER
+                g, prev = i, p
+                while g < m and due[g] < nxt and due[g] - prev >= VEL_LATENCY:
+                    prev = due[g]
+                    g += 1
+                if g > i and prev - self._ref_t <= AGE_MAX and prev - self._e_last <= AGE_MAX:
+                    if g == m and upto < nxt and upto - prev >= VEL_LATENCY:
+                        self._fold(due[i], prev)        # all of them: upto sees the last
+                        return
+                    if g - i >= 2:
+                        self._fold(due[i], due[g - 2])
+                        i = g - 1
+                        continue
+            self._strobe(due[i])
+            i += 1
+
+    def _fold(self, first: int, last: int) -> None:
+        """Strobes ``first … last`` of a run (see :meth:`_flush`) with their results applied,
+        as the strobe after them (at least :data:`VEL_LATENCY` later) would see them."""
+        self._apply_pipe(first)                 # the result of the strobe before them
+        if last - self._e_last >= self._stop_cycles:
+            self.velocity = 0
+        else:
+            dc = self.count - self._c_ref
+            if dc > DC_MAX:
+                dc = DC_MAX
+            elif dc < -DC_MAX - 1:
+                dc = -DC_MAX - 1
+            self._clip(abs(dc) + 1, last - self._ref_t)
+        self._taken = last
+        self._last_c = last                     # (no call comes for it: cycles only increase)
+        self._last = (self.count, self.velocity)
+
+    def _apply_pipe(self, c: int) -> None:
+        pipe = self._pipe
+        while pipe and pipe[0][0] <= c:
+            _, case, num, den = pipe.pop(0)
+            if case == 0:
+                self.velocity = 0
+            elif case == 1:
+                self.velocity = velocity_word(num, den, self.kv)
+            else:
+                self._clip(num, den)
+
+    def _clip(self, num: int, den: int) -> None:
+        """BOUND: ``|velocity|`` at most the word of ``num / den``."""
+        mag = abs(self.velocity)
+        # The bound clips only an estimate above it; the reciprocal's relative error is
+        # < 2.5e-5, so far below the bound the exact word need not be formed.
+        if mag >= WORD_MAX or mag > num * self._kv_scale / (den or 1) * 0.999 - 2:
+            v = velocity_word(num, den, self.kv)
+            if mag > v:
+                self.velocity = v if self.velocity > 0 else -v
+
+    def _strobe(self, c: int) -> tuple[int, int]:
         vis = self._visible
         vi = self._vi
         if vi < len(vis) and vis[vi][0] <= c:

@@ -372,3 +372,59 @@ def test_feed_changes_equals_feed():
             prev = int(chunk[-1])
             pos += len(chunk)
         assert a.sample(c) == b.sample(c), c
+
+
+@pytest.mark.parametrize("seed, params", [
+    (0, EncoderParams()),
+    (1, EncoderParams(min_window=256, stop_cycles=5_000)),
+    (2, EncoderParams(filter_cycles=1, min_window=64, stop_cycles=3_000)),
+    (3, EncoderParams(filter_cycles=3, min_window=512)),
+])
+def test_deferred_strobes_equal_strobing_every_tick(seed, params):
+    """EncoderEvents.defer (the dead ticks' path: the count now, the velocity strobe folded
+    into the next sample) against strobing at every tick: the same counts at every deferred
+    tick and the same (count, velocity, errors) at every sample, through measurements, bounds,
+    stops, strobes closer than the velocity latency, and ages that saturate."""
+    from hdl.node.encoder_ref import AGE_MAX
+
+    rng = np.random.default_rng(100 + seed)
+    n = 60_000
+    counts = _walk(rng, n)
+    ref = EncoderEvents(params, int(counts[0]))
+    lazy = EncoderEvents(params, int(counts[0]))
+    strobes = sorted(set(range(0, n, 50)) | {int(x) for x in rng.integers(0, n, 300)})
+    pos = 0
+    prev = int(counts[0])
+    samples = deferred = 0
+    velocities = set()
+    for c in strobes:
+        while c >= pos:
+            size = int(rng.integers(1, 900))
+            chunk = counts[pos:pos + size]
+            ref.feed(pos, chunk)
+            before = np.concatenate([[prev], chunk[:-1]])
+            idx = np.flatnonzero(chunk != before)
+            lazy.feed_changes(pos, len(chunk), list(zip(idx.tolist(), chunk[idx].tolist(),
+                                                        strict=True)))
+            prev = int(chunk[-1])
+            pos += len(chunk)
+        want = ref.sample(c)
+        velocities.add(want[1])
+        if rng.random() < 0.85:
+            assert lazy.defer(c) == want[0], c
+            deferred += 1
+        else:
+            assert lazy.sample(c) == want, c
+            samples += 1
+    # a long rest: ages saturate (AGE_MAX cycles), strobes deferred across it
+    quiet = AGE_MAX + 3_000_000
+    ref.feed_changes(pos, quiet, ())
+    lazy.feed_changes(pos, quiet, ())
+    for c in range(pos + 50, pos + quiet, 1_000_003):
+        want = ref.sample(c)
+        velocities.add(want[1])
+        assert lazy.defer(c) == want[0]
+    c = pos + quiet - 1
+    assert lazy.sample(c) == ref.sample(c)
+    assert deferred > 900 and samples > 100
+    assert len(velocities) > 50 and 0 in velocities
