@@ -30,7 +30,8 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = ["CYCLE", "counts_per_rad", "joint_counts", "quadrature_levels", "EncoderCycles",
-           "EncoderOverspeed", "cycle_counts", "count_changes", "cycle_counts_sampled",
+           "EncoderOverspeed", "cycle_counts", "count_changes", "count_changes_lists",
+           "cycle_counts_sampled",
            "decode_quadrature", "max_legal_speed"]
 
 CYCLE = 20e-9
@@ -152,24 +153,31 @@ def count_changes(q0, v0, acc, q1, dt: float, cycles: int, k) -> tuple[np.ndarra
         As :func:`cycle_counts`.
     """
     q0 = np.asarray(q0, dtype=float)
-    c0 = joint_counts(q0, k)
-    c1 = joint_counts(q1, k)
-    v0 = np.asarray(v0, dtype=float)
-    acc = np.asarray(acc, dtype=float)
-    k = np.asarray(k, dtype=float)
-    q0l, v0l, accl, kl = q0.tolist(), v0.tolist(), acc.tolist(), k.tolist()
-    c0l, c1l = c0.tolist(), c1.tolist()
+    c0l, changes = count_changes_lists(q0.tolist(), np.asarray(v0, dtype=float).tolist(),
+                                       np.asarray(acc, dtype=float).tolist(),
+                                       np.asarray(q1, dtype=float).tolist(), dt, cycles,
+                                       np.asarray(k, dtype=float).tolist())
+    return np.array(c0l, dtype=np.int64).reshape(q0.shape), changes
+
+
+def count_changes_lists(q0, v0, acc, q1, dt: float, cycles: int, k) -> tuple[list, list]:
+    """:func:`count_changes` on lists of floats (the plant's state), start counts as a list:
+    ``floor(q · k)`` in Python floats is numpy's float64 product and floor, bit for bit."""
+    floor = math.floor
+    n = len(q0)
+    c0l = [floor(q0[j] * k[j]) for j in range(n)]
+    c1l = [floor(q1[j] * k[j]) for j in range(n)]
     step = dt / cycles
-    changes: list = [[] for _ in range(c0.size)]
+    changes: list = [[] for _ in range(n)]
     dense = []
-    for j in range(c0.size):
-        turning = accl[j] != 0.0 and 0.0 < -v0l[j] / accl[j] < dt
+    for j in range(n):
+        turning = acc[j] != 0.0 and 0.0 < -v0[j] / acc[j] < dt
         if c0l[j] == c1l[j] and not turning:
             continue                            # monotonic between equal counts: constant
-        if abs(c1l[j] - c0l[j]) > _FEW_CHANGES or (turning and abs(v0l[j]) * dt * kl[j] > 1.0):
+        if abs(c1l[j] - c0l[j]) > _FEW_CHANGES or (turning and abs(v0[j]) * dt * k[j] > 1.0):
             dense.append(j)                     # many changes: sampling every cycle is cheaper
             continue
-        events = _count_changes(q0l[j], v0l[j], accl[j], c0l[j], c1l[j], step, cycles, kl[j],
+        events = _count_changes(q0[j], v0[j], acc[j], c0l[j], c1l[j], step, cycles, k[j],
                                 turning)
         prev = c0l[j]
         for m, c in events:
@@ -177,18 +185,19 @@ def count_changes(q0, v0, acc, q1, dt: float, cycles: int, k) -> tuple[np.ndarra
                 raise EncoderOverspeed(
                     f"joint {j + 1}: count jumps by {c - prev} in cycle {m}; the joint is "
                     f"faster than the encoder interface allows "
-                    f"({float(max_legal_speed(kl[j])):.1f} rad/s)")
+                    f"({float(max_legal_speed(k[j])):.1f} rad/s)")
             prev = c
         changes[j] = events
     if dense:
         idx = np.array(dense)
-        sampled = cycle_counts_sampled(q0[idx], v0[idx], acc[idx], np.asarray(q1)[idx], dt,
-                                       cycles, k[idx])
-        prev = np.concatenate([c0[idx][None, :], sampled[:-1]], axis=0)
+        sampled = cycle_counts_sampled(np.array(q0)[idx], np.array(v0)[idx], np.array(acc)[idx],
+                                       np.array(q1)[idx], dt, cycles, np.array(k)[idx])
+        start = np.array(c0l, dtype=np.int64)[idx]
+        prev = np.concatenate([start[None, :], sampled[:-1]], axis=0)
         for col, j in enumerate(dense):
             rows = np.flatnonzero(sampled[:, col] != prev[:, col])
             changes[j] = list(zip(rows.tolist(), sampled[rows, col].tolist(), strict=True))
-    return c0, changes
+    return c0l, changes
 
 
 _FEW_CHANGES = 2

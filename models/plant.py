@@ -42,8 +42,8 @@ import pinocchio as pin
 
 from models.actuators import ACTUATORS, ActuatorSpec
 from models.drive import CurrentLoop, FrictionParams, solve_stick_slip
-from models.encoder import CYCLE, EncoderCycles, count_changes, counts_per_rad, cycle_counts, \
-    joint_counts, quadrature_levels
+from models.encoder import CYCLE, EncoderCycles, count_changes_lists, counts_per_rad, \
+    cycle_counts, joint_counts, quadrature_levels
 from mrm.errors import InputError, require_finite, require_nonnegative, require_positive
 
 __all__ = ["Perturbation", "PlantConfig", "PlantTruth", "true_parameters", "perturb_inertia",
@@ -368,6 +368,7 @@ class Plant:
         self._springs = [(i, float(amp[i]), float(tr.spring_phase[i]))
                          for i in range(n) if amp[i] != 0.0]
         self._k = counts_per_rad(tr.counts_per_rev)
+        self._kl = self._k.tolist()
         # state (Python floats) and pinocchio's preallocated inputs
         self._q = [0.0] * n
         self._v = [0.0] * n
@@ -638,9 +639,8 @@ class Plant:
         """
         if not self._stepped:
             raise RuntimeError("no step taken since the last reset")
-        return count_changes(np.array(self._q_start), np.array(self._v_start),
-                             np.array(self._a_prev), np.array(self._q), self.dt,
-                             self.cycles_per_step, self._k)[1]
+        return count_changes_lists(self._q_start, self._v_start, self._a_prev, self._q, self.dt,
+                                   self.cycles_per_step, self._kl)[1]
 
 def _cholesky_solve(A: list, b: list) -> list | None:
     """Solve ``A x = b`` for a small symmetric positive definite ``A`` (lists); None if not SPD."""
