@@ -255,8 +255,11 @@ class ClosedLoop:
         return out
 
     # --- the run ----------------------------------------------------------------------------
-    async def run(self, duration_cycles: int) -> LoopResult:
-        """Run start-up and ``duration_cycles`` of closed loop; return the trace."""
+    async def run(self, duration_cycles: int, progress=None) -> LoopResult:
+        """Run start-up and ``duration_cycles`` of closed loop; return the trace.
+
+        ``progress(t_sim, t_total)`` (simulated seconds since period 0, and of the run) is
+        called every simulated millisecond."""
         s = self.step_cycles
         uploads_sent = False
         steps = duration_cycles // s
@@ -285,6 +288,8 @@ class ClosedLoop:
             q_rec[i] = self.plant.q
             tau_rec[i] = tau
             await self._chunk(s)
+            if progress is not None and (i + 1) % 100 == 0:
+                progress((i + 1) * s / 50e6, steps * s / 50e6)
         digest = hashlib.sha256()
         digest.update(q_rec.tobytes())
         digest.update(tau_rec.tobytes())

@@ -23,8 +23,21 @@ START_CYCLE = 50_000          # period 0 at 1 ms: links up (21 µs) and uploads 
 
 def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: float = 1.5,
               seed: int = 0, gains: Gains | None = None, timing: MasterTiming | None = None,
-              plant_config: PlantConfig | None = None, progress=None):
+              plant_config: PlantConfig | None = None, progress=None, profile=None,
+              vcd: str | None = None, signals: str | None = None, vcd_path=None):
     """Run the quintic test (q_i = i·q_d, 0.1571 rad in 1 s, then hold) in closed loop.
+
+    Parameters
+    ----------
+    progress : callable ``(t_sim, t_total)``, optional
+        Called about every simulated millisecond with the simulated seconds done and to do
+        (it decides itself how often to print); ``None``: quiet.
+    profile : JointProfile, optional
+        The test trajectory (default: the paper's, :func:`cosim.preview.paper_test_profile`).
+    vcd, signals, vcd_path : str, str, path, optional
+        Waveforms: the window ``"T0:T1"`` (seconds from period 0, units ``s``/``ms``/``us``/``ns``
+        allowed) and fnmatch patterns of the signals to record into ``vcd_path``
+        (pysim and compiled only).
 
     Returns
     -------
@@ -35,7 +48,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     timing = timing or MasterTiming()
     if backend not in BACKENDS:
         raise InputError("--backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")
-    profile = paper_test_profile(robot)
+    profile = profile or paper_test_profile(robot)
     trajectory = _trajectory(robot, profile)
     master = Master(robot, controller, trajectory, robot.counts_per_rev, timing, lam=gains.lam,
                     pid=pid_gains(robot, gains.pid_1khz_hz))
@@ -46,8 +59,17 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     t0 = time.perf_counter()
     # period 0 on the nodes' timer grid (a multiple of the period from reset), after start-up
     start = -(-START_CYCLE // timing.period_cycles) * timing.period_cycles
+    window = None
+    if vcd is not None:
+        from cosim.backends import VcdWindow
+
+        if backend == "model":
+            raise InputError("--vcd", "the model backend has no signals; use pysim or compiled")
+        if vcd_path is None:
+            raise InputError("--vcd", "needs an output file")
+        window = VcdWindow.parse(vcd, vcd_path, signals=signals, offset=start / 50e6)
     result, _ = run_loop(robot, backend, master, plant, start, uploads, duration_cycles,
-                         quiet=progress is None)
+                         quiet=progress is None, vcd=window, progress=progress)
     wall = time.perf_counter() - t0
     q_d, qd_d, _, _ = profile.evaluate(result.t)
     tip_d = np.array([robot.tip_pose(q)[:3, 3] for q in q_d[::10]])
@@ -88,8 +110,12 @@ def _trajectory(robot, profile=None):
 
 
 def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
-             duration_cycles: int, record: bool = False, quiet: bool = True):
+             duration_cycles: int, record: bool = False, quiet: bool = True, vcd=None,
+             progress=None):
     """Build :class:`hdl.system.System` for ``robot`` on ``backend`` and run the closed loop.
+
+    ``vcd``: a :class:`cosim.backends.VcdWindow` to record (pysim, compiled); ``progress``:
+    ``progress(t_sim, t_total)`` about every simulated millisecond.
 
     Returns
     -------
@@ -106,28 +132,28 @@ def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
         result.violations = loop.violations
         return result, None
     if backend == "compiled":
-        be = CompiledBackend(lambda: System(robot.n), f"system{robot.n}", quiet=quiet)
+        be = CompiledBackend(lambda: System(robot.n), f"system{robot.n}", quiet=quiet, vcd=vcd)
     elif backend == "pysim":
         system = System(robot.n)
-        be = PysimBackend(system)
+        be = PysimBackend(system, vcd=vcd)
     else:
         raise InputError("--backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")
     rec = Recorder(be) if record else None
     loop = ClosedLoop(robot, rec or be, master, plant, start_cycle, uploads)
     if backend == "compiled":
-        return drive(loop.run(duration_cycles)), rec
-    from amaranth.sim import Simulator
-
+        result = drive(loop.run(duration_cycles, progress=progress))
+        be.finish()
+        return result, rec
     box = {}
 
     async def bench(ctx):
         be.bind(ctx)
-        box["result"] = await loop.run(duration_cycles)
+        box["result"] = await loop.run(duration_cycles, progress=progress)
 
-    sim = Simulator(system)
-    sim.add_clock(20e-9)
+    sim = be.simulator()
     sim.add_testbench(bench)
     sim.run()
+    be.finish()
     return box["result"], rec
 
 
