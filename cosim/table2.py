@@ -197,8 +197,8 @@ def table_markdown(summary: dict) -> str:
         v, e, r = PAPER_TABLE2[c]
         lines.append(
             f"| {_NAMES[c]} (`{c}`) | {s['max_tip_speed_m_s']:.4f} "
-            f"| {1e3 * s['max_tip_error_m']:.4f} | {s['rho_s']:.5f} | {v} | {1e3 * e:.4g} "
-            f"| {r:.5f} | {1e3 * s['max_joint_error_rad']:.4f} | {s['overruns']} "
+            f"| {1e3 * s['max_tip_error_m']:.4f} | {s['rho_s']:.6f} | {v} | {1e3 * e:.4g} "
+            f"| {r:.6f} | {1e3 * s['max_joint_error_rad']:.4f} | {s['overruns']} "
             f"| {s['link_errors']} |")
     order = summary["ordering"]
     lines += ["", "Ordering by ρ, best first: " + " < ".join(order["best_to_worst"])

@@ -113,9 +113,9 @@ def test_markdown_table_sits_beside_the_papers_numbers(done):
     rows = {line.split("|")[1].strip(): [x.strip() for x in line.split("|")[2:-1]]
             for line in md.splitlines() if line.startswith("| ") and "`" in line}
     assert rows["VDC with embedded FPGA (`vdc`)"][:7] == [
-        "0.5000", "0.1000", "0.00020", "0.5226", "0.0618", "0.00012", "0.3000"]
-    assert rows["PID with 1000 Hz (`pid-1khz`)"][3:6] == ["0.5226", "2.3", "0.00440"]
-    assert rows["PID with embedded FPGA (`pid-fpga`)"][5] == "0.00050"
+        "0.5000", "0.1000", "0.000200", "0.5226", "0.0618", "0.000120", "0.3000"]
+    assert rows["PID with 1000 Hz (`pid-1khz`)"][3:6] == ["0.5226", "2.3", "0.004400"]
+    assert rows["PID with embedded FPGA (`pid-fpga`)"][5] == "0.000500"
     assert "as in the paper" in md
 
 
