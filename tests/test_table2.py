@@ -204,3 +204,14 @@ def test_real_short_run_of_the_three_controllers(tmp_path):
         ev = p["events"]
         assert p["start_cycle"] < ev["A_done"] < ev["B_sent"] < ev["C_done"] < ev["D_sent"] \
             < p["start_cycle"] + 50_000
+
+
+def test_track_writes_its_gantt_timeline(tmp_path, capsys):
+    backend = "model" if "model" in BACKENDS else "compiled"
+    out = tmp_path / "track"
+    assert cli.main(["run", "track", "--controller", "vdc", "--backend", backend,
+                     "--duration", "0.003", "--out", str(out), "--quiet"]) == 0
+    assert capsys.readouterr() == ("", "")
+    assert (out / "timeline.png").read_bytes()[:4] == b"\x89PNG"
+    timeline = json.loads((out / "timeline.json").read_text())
+    assert any(p["complete"] for p in timeline)
