@@ -23,6 +23,22 @@ commit phase, the ARM before the boundary that should arm, no watchdog silence. 
 of these is near its edge, or a time-code resynchronises a node, is reported
 (:attr:`ModelLoop.violations`, and :class:`ModelAssumptionError` with ``strict=True``); its
 results may then differ from the gateware's by the latency error.
+
+Lazy evaluation (``ModelLoop(..., lazy=True)``, the default). The plant samples the torque
+words once per plant step (500 cycles, 10 control ticks), so a tick whose torque the next tick
+overwrites before anything reads it (the plant's sample, a boundary's snapshot, a reply, the
+watchdog's ramp) need not compute it. Such *dead* ticks run in one call per plant step and
+node: in VDC and torque mode the joint's state is ``(q_des, v_des)`` from Part B, a function of
+the committed Comm D words and the tick's time only, so only the last dead tick's Part B is
+kept (applied by the next tick that computes); in PID mode the integral carries from tick to
+tick and is updated on every one (exact integer arithmetic, same roundings, the clip where it
+binds). Their velocity strobes are deferred and folded into the next real sample
+(:meth:`EncoderEvents.defer`), and the encoder interfaces take the plant's count changes
+(:meth:`Plant.encoder_changes <models.plant.Plant.encoder_changes>`) instead of per-cycle
+arrays. ``lazy=False`` keeps the eager path (every tick, every strobe, per-cycle counts);
+both give the same plant trace, torque words, replies and node state bit for bit
+(tests/test_model_backend.py, 200 ms of the quintic per controller and a clipped PID
+integral).
 """
 
 from __future__ import annotations
@@ -46,8 +62,8 @@ from mrm.errors import InputError
 
 from .closed_loop import LoopResult
 
-__all__ = ["EncoderEvents", "FastNode", "fast_joint_tick", "ModelLoop", "ModelAssumptionError",
-           "LINK_UP_CYCLE"]
+__all__ = ["EncoderEvents", "FastNode", "fast_joint_tick", "part_b", "pid_integral", "ModelLoop",
+           "ModelAssumptionError", "LINK_UP_CYCLE"]
 
 #: Cycle at which the modelled link reaches Run (the gateware: about 21.4 µs at standard timers).
 LINK_UP_CYCLE = 1_100
