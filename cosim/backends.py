@@ -43,6 +43,23 @@ def _hdl_fingerprint() -> str:
     return digest.hexdigest()
 
 
+_IMPORTED_FINGERPRINT: str | None = None
+
+
+def _imported_fingerprint() -> str:
+    """The gateware fingerprint of the code this process runs: taken once, right after the
+    whole gateware (:mod:`hdl.system` and what it imports) is imported. Files edited later (by
+    a concurrent editor) do not change it, so a cache entry is always stored and looked up
+    under the sources the running design was built from — not the files on disk now."""
+    global _IMPORTED_FINGERPRINT
+    if _IMPORTED_FINGERPRINT is None:
+        import hdl.system  # noqa: F401 - the gateware is imported before it is fingerprinted
+        import hdl.tops  # noqa: F401
+
+        _IMPORTED_FINGERPRINT = _hdl_fingerprint()
+    return _IMPORTED_FINGERPRINT
+
+
 def system_verilog(factory, key: str) -> tuple[str, dict]:
     """Verilog of the design ``factory()`` builds and its ports' signedness, cached under
     ``key`` plus the gateware sources' fingerprint (converting the three-node system takes
@@ -54,12 +71,17 @@ def system_verilog(factory, key: str) -> tuple[str, dict]:
     from cosim.compiled import cache_dir, signed_port_map
     from mrm.output import atomic_write_text
 
-    path = cache_dir() / "verilog" / f"{key}-{_hdl_fingerprint()[:20]}.v"
+    fingerprint = _imported_fingerprint()
+    path = cache_dir() / "verilog" / f"{key}-{fingerprint[:20]}.v"
     side = path.with_suffix(".json")
     if path.exists() and side.exists():
         return path.read_text(), json.loads(side.read_text())
     design = factory()
     text = verilog.convert(design, name="system", emit_src=False)
+    if _hdl_fingerprint() != fingerprint:
+        # The sources changed while this process ran: a module imported lazily after the
+        # edit could mix old and new code, so this Verilog is used but not cached.
+        return text, signed_port_map(design)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_text(path, text)
     signed = signed_port_map(design)
@@ -396,3 +418,6 @@ def drive(coro):
     except StopIteration as stop:
         return stop.value
     raise RuntimeError("the closed loop suspended outside a simulator")
+
+
+_imported_fingerprint()     # now, while the sources on disk are the ones being imported
