@@ -86,12 +86,51 @@ def with_friction_estimates(fraction: float):
     return uploads
 
 
+def sampled_pid_radius(hz: float, period: float = 1e-3, delay: float = 25e-6,
+                       current_bandwidth: float = 1000.0) -> float:
+    """Spectral radius of the master's sampled PID loop on a rigid joint (no friction).
+
+    Plant J q̈ = τ_m, amplifier T τ̇_m = u − τ_m (T = 1/(2π·current_bandwidth)); the master
+    samples q, q̇ at the period start, applies u = −k_p q − k_d q̇ − k_i I after ``delay`` and
+    holds it for the rest of the period (and the previous u before). Gains as
+    ``cosim.closed_loop.pid_gains`` (triple pole at 2π·hz; the result does not depend on J).
+    Stable when the radius is below 1.
+    """
+    from scipy.linalg import expm
+
+    w = 2 * np.pi * hz
+    kp, ki, kd = 3 * w * w, w**3, 3 * w
+    tau_i = 1 / (2 * np.pi * current_bandwidth)
+    A = np.array([[0, 1, 0], [0, 0, 1], [0, 0, -1 / tau_i]])
+    B = np.array([0, 0, 1 / tau_i])
+
+    def flow(h):
+        M = np.zeros((4, 4))
+        M[:3, :3], M[:3, 3] = A * h, B * h
+        E = expm(M)
+        return E[:3, :3], E[:3, 3]
+
+    (A1, B1), (A2, B2) = flow(delay), flow(period - delay)
+    phi = np.zeros((5, 5))                      # state: q, q̇, τ_m, previous u, integral
+    for j in range(5):
+        z = np.zeros(5)
+        z[j] = 1.0
+        x, u_prev, integral = z[:3], z[3], z[4]
+        integral = integral + period * x[0]
+        u = -kp * x[0] - kd * x[1] - ki * integral
+        x = A2 @ (A1 @ x + B1 * u_prev) + B2 * u
+        phi[:, j] = np.r_[x, u, integral]
+    return float(np.abs(np.linalg.eigvals(phi)).max())
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--config", default=None, help="experiment TOML (default configs/table2.toml)")
-    p.add_argument("--controller", required=True, choices=CONTROLLERS)
-    p.add_argument("--gain", nargs="+", metavar=("NAME", "VALUE"), required=True,
+    p.add_argument("--controller", choices=CONTROLLERS)
+    p.add_argument("--gain", nargs="+", metavar=("NAME", "VALUE"),
                    help="a Gains field and the values to try")
+    p.add_argument("--pid-stability", action="store_true",
+                   help="print the sampled 1 kHz PID loop's stability limit and exit")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="fix another Gains field for every point")
     p.add_argument("--backend", default=None)
@@ -102,6 +141,14 @@ def main(argv=None) -> int:
                    help="what-if: upload FRACTION x the nominal joint friction as the VDC "
                    "joint estimates (not what the product uploads today)")
     args = p.parse_args(argv)
+    if args.pid_stability:
+        for hz in (5, 15, 40, 80):
+            print(f"pid_1khz_hz {hz:5g}: spectral radius {sampled_pid_radius(hz):.4f}")
+        hz = next(h for h in np.arange(1.0, 1000.0, 0.5) if sampled_pid_radius(h) >= 1.0)
+        print(f"unstable from {hz:g} Hz")
+        return 0
+    if not args.controller or not args.gain:
+        p.error("--controller and --gain are required (or --pid-stability)")
     if args.friction_comp is not None:
         import cosim.track
 
