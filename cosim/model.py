@@ -50,11 +50,13 @@ import numpy as np
 from hdl.link import packet_ref as ref
 from hdl.node.core_ref import _NEVER, _TIME_MAX, NodeModel
 from hdl.node.encoder_ref import AGE_MAX, DC_MAX, VEL_LATENCY, EncoderParams, velocity_word
-from hdl.node.fixed import FORCE, WORD_MAX, WORD_MIN
+from hdl.node.fixed import ACC, FORCE, GAIN, RHOT, SIG, THETA, VEL, WORD_MAX, WORD_MIN, \
+    theta_group
 from hdl.node.joint import joint_microcode
 from hdl.node.joint_ref import MODES as JOINT_MODES
 from hdl.node.joint_ref import JointModel
 from hdl.node.regs import Config
+from hdl.node.vdc_ref import VdcModel, link_terms
 from master.cycle import Master, Send
 from models.plant import Plant
 from models.robot import Robot
@@ -62,8 +64,8 @@ from mrm.errors import InputError
 
 from .closed_loop import LoopResult
 
-__all__ = ["EncoderEvents", "FastNode", "fast_joint_tick", "part_b", "pid_integral", "ModelLoop",
-           "ModelAssumptionError", "LINK_UP_CYCLE"]
+__all__ = ["EncoderEvents", "FastNode", "FastVdc", "fast_joint_tick", "part_b", "pid_integral",
+           "ModelLoop", "ModelAssumptionError", "LINK_UP_CYCLE"]
 
 #: Cycle at which the modelled link reaches Run (the gateware: about 21.4 µs at standard timers).
 LINK_UP_CYCLE = 1_100
@@ -220,6 +222,101 @@ def pid_integral(j: JointModel, q: int) -> None:
     hi = _sat(j.i_hi + c)
     p = j.params
     j.i_hi = min(max(hi, p.ilo), p.ihi)
+
+
+def _fx_plan(lsbs, fmt) -> tuple[tuple[int, ...], int]:
+    """Shifts of :func:`hdl.node.vdc_ref.fx` for parts with these LSBs onto ``fmt``: each part
+    ``v << shift``, the sum rounded half up by ``>> r`` (``r ≥ 0``)."""
+    low = min(list(lsbs) + [fmt.lsb])
+    return tuple(lsb - low for lsb in lsbs), fmt.lsb - low
+
+
+def _y_index(parts) -> tuple:
+    """Y_TABLE summands as (sign, index into a0 a1 a2, P00 … P22, dw0 dw1 dw2)."""
+    base = {"a": 0, "P": 3, "dw": 12}
+    return tuple((sgn, base[kind] + (3 * (idx // 10) + idx % 10 if kind == "P" else idx))
+                 for sgn, kind, idx in parts)
+
+
+def _vdc_plans():
+    th = [THETA[theta_group(col)].lsb for col in range(13)]
+    rows = []
+    for row in range(6):
+        terms = [(col, _y_index(s)) for (_, col), s in link_terms(row=row)]
+        shifts, r = _fx_plan([ACC.lsb + th[col] for col, _ in terms] + [GAIN.lsb + VEL.lsb],
+                             FORCE)
+        rows.append((tuple((col, y, sh) for (col, y), sh in zip(terms, shifts[:-1],
+                                                                 strict=True)), shifts[-1], r))
+    cols = []
+    for col in range(13):
+        terms = tuple((row, _y_index(s)) for (row, _), s in link_terms(col=col))
+        cols.append((terms, _fx_plan([ACC.lsb + VEL.lsb], SIG)))
+    adapt = []
+    for j in range(13):
+        fmt = THETA[theta_group(j)]
+        adapt.append(_fx_plan([RHOT[theta_group(j)].lsb + SIG.lsb], fmt))
+    a_plan = _fx_plan([ACC.lsb, 2 * VEL.lsb, 2 * VEL.lsb, ACC.lsb], ACC)
+    p_plan = _fx_plan([2 * VEL.lsb], ACC)
+    assert _fx_plan([VEL.lsb, VEL.lsb], VEL) == ((0, 0), 0)        # e = sat(V_r − V)
+    for j in range(13):                                             # θ + δ on θ's own LSB
+        fmt = THETA[theta_group(j)]
+        assert _fx_plan([fmt.lsb, fmt.lsb], fmt) == ((0, 0), 0)
+    return tuple(rows), tuple(cols), tuple(adapt), a_plan, p_plan
+
+
+_VDC_ROWS, _VDC_COLS, _VDC_ADAPT, _VDC_A, _VDC_P = _vdc_plans()
+
+
+def _rsat(total: int, r: int) -> int:
+    if r:
+        total = (total + (1 << (r - 1))) >> r
+    return -8388608 if total < -8388608 else 8388607 if total > 8388607 else total
+
+
+class FastVdc(VdcModel):
+    """:class:`~hdl.node.vdc_ref.VdcModel` with its per-link arithmetic (``_link``: regressor
+    entries, forces, adaptation signal and update) on shift plans computed once from the
+    formats: the same sums, the same roundings (tested equal on random words)."""
+
+    def _link(self, i: int, V, V_r, dV, g):
+        th = self.theta[i]
+        (s0, s1, s2, s3), ra = _VDC_A
+        src = []
+        for k in range(3):
+            m, n = 3 + (k + 1) % 3, 3 + (k + 2) % 3
+            src.append(_rsat((dV[k] << s0) + ((V[m] * V_r[n - 3]) << s1)
+                             + ((-V[n] * V_r[m - 3]) << s2) + (g[k] << s3), ra))
+        (sp,), rp = _VDC_P
+        for m in range(3):
+            vm = V[3 + m]
+            for n in range(3):
+                src.append(_rsat((vm * V_r[3 + n]) << sp, rp))
+        src += dV[3:6]
+        e = []
+        for k in range(6):
+            x = V_r[k] - V[k]
+            e.append(-8388608 if x < -8388608 else 8388607 if x > 8388607 else x)
+        K = self.params.K[i]
+        F = []
+        for row, (terms, ke, r) in enumerate(_VDC_ROWS):
+            total = (K[row] * e[row]) << ke
+            for col, y, sh in terms:
+                total += (sum(sgn * src[idx] for sgn, idx in y) * th[col]) << sh
+            F.append(_rsat(total, r))
+        sig = []
+        for terms, ((sh,), r) in _VDC_COLS:
+            total = 0
+            for row, y in terms:
+                total += (sum(sgn * src[idx] for sgn, idx in y) * e[row]) << sh
+            sig.append(_rsat(total, r))
+        p = self.params
+        rho, lower, upper = p.rho_T[i], p.lower[i], p.upper[i]
+        new = []
+        for j, ((sh,), r) in enumerate(_VDC_ADAPT):
+            x = th[j] + _rsat((rho[j] * sig[j]) << sh, r)
+            x = -8388608 if x < -8388608 else 8388607 if x > 8388607 else x
+            new.append(min(max(x, lower[j]), upper[j]))
+        return F, new
 
 _CYCLES = tuple(joint_microcode().cycles(m) for m in JOINT_MODES)
 _TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX = (int(c) for c in (
@@ -755,10 +852,11 @@ class ModelLoop:
         Raise :class:`ModelAssumptionError` at the first violated condition instead of
         recording it in :attr:`violations`.
     lazy : bool
-        Compute only the ticks whose torque is observed (:attr:`FastNode.lazy`) and feed the
+        Compute only the ticks whose torque is observed (:attr:`FastNode.lazy`), feed the
         encoder interfaces the plant's count changes (:meth:`Plant.encoder_changes
-        <models.plant.Plant.encoder_changes>`) instead of per-cycle arrays. ``False`` is the
-        eager path: every tick computed, per-cycle counts; both give the same results bit
+        <models.plant.Plant.encoder_changes>`) instead of per-cycle arrays, and run the VDC on
+        :class:`FastVdc`. ``False`` is the eager path: every tick computed, per-cycle counts,
+        the reference :class:`~hdl.node.vdc_ref.VdcModel`; both give the same results bit
         for bit.
     """
 
@@ -783,6 +881,9 @@ class ModelLoop:
         self.nodes = [FastNode(encoder=enc) for _ in range(self.n)]
         for node in self.nodes:
             node.lazy = self.lazy
+            if self.lazy:
+                v = node.vdc
+                node.vdc = FastVdc(v.params, v.theta, v.prev_C, v.prev_qd_r, v.primed)
         counts = plant.encoder_counts().tolist()
         self.encoders = [EncoderEvents(enc, c) for c in counts]
         for node, encoder in zip(self.nodes, self.encoders, strict=True):

@@ -467,3 +467,39 @@ def test_lazy_ticks_equal_the_eager_path_when_the_watchdog_trips(controller):
     _same_runs(*runs, violations=True)
     assert any("tripped" in v for v in runs[0][0].violations)
     assert all(node.tripped for node in runs[1][0].nodes)
+
+
+def test_fast_vdc_equals_the_reference():
+    """FastVdc (the lazy path's VDC) against hdl.node.vdc_ref.VdcModel: random words,
+    extremes included so that every saturation and clip acts, ten periods in a row (the
+    estimates and the previous required velocities carry)."""
+    from cosim.model import FastVdc
+    from hdl.node.vdc_ref import VdcInputs, VdcModel, VdcParams
+
+    rng = np.random.default_rng(21)
+    lo, hi = -(1 << 23), (1 << 23) - 1
+
+    def word(bits=None):
+        if rng.random() < 0.08:
+            return int(rng.choice([lo, hi, 0, -1, 1]))
+        bits = int(rng.integers(1, 25)) if bits is None else bits
+        return int(rng.integers(-(1 << (bits - 1)), 1 << (bits - 1)))
+
+    def words(n, bits=None):
+        return [word(bits) for _ in range(n)]
+
+    for trial in range(60):
+        small = 12 if trial % 3 else None                  # most trials without saturation
+        lower = [words(13) for _ in range(2)]
+        upper = [[max(a, word()) if rng.random() < 0.9 else word() for a in row]
+                 for row in lower]
+        params = VdcParams(K=[words(6) for _ in range(2)], rho_T=[words(13) for _ in range(2)],
+                           lower=lower, upper=upper, inv_T=word())
+        theta = [words(13, small) for _ in range(2)]
+        ref = VdcModel(params, [row[:] for row in theta])
+        fast = FastVdc(params, [row[:] for row in theta])
+        for _ in range(10):
+            x = VdcInputs(word(small), words(6, small), words(6, small), word(small),
+                          word(), word(), words(3, small))
+            assert fast.step(x) == ref.step(x), trial
+            assert fast.theta == ref.theta and fast.prev_C == ref.prev_C, trial
