@@ -30,7 +30,7 @@ from master.cycle import CONTROLLERS, MasterTiming
 from models.plant import Perturbation, PlantConfig
 from mrm.errors import InputError, require_finite, require_nonnegative, require_positive
 
-__all__ = ["ExperimentConfig", "TrajectoryConfig", "load", "loads", "DEFAULT_CONFIG",
+__all__ = ["ExperimentConfig", "TrajectoryConfig", "load", "loads", "from_dict", "DEFAULT_CONFIG",
            "PAPER_AMPLITUDE", "PAPER_DURATION"]
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "table2.toml"
