@@ -388,19 +388,24 @@ class FastNode(NodeModel):
             if dead is not None:
                 step = cfg[_TICK]
                 cyc = _CYCLES[cfg[_MODE]]
-                # a tick is dead when the next one is in this run of plain ticks, starts after
-                # it finished (no overrun) and lands its torque (no watchdog trip before)
+                # A tick is dead when the next one is in this run of plain ticks, starts after
+                # it finished (no overrun) and, armed, lands its own torque (no watchdog trip
+                # before) by cycle lim, where the caller or the next event may read the torque.
+                # Disarmed both land 0; tripped neither lands, the ramp acts on the last real one.
                 safe = step > cyc and (not self.armed or self.tripped)
                 trip = self.last_packet + 2 + cfg[_TIMEOUT] - step - cyc
+                land = lim - step - cyc - 1         # the next tick lands by lim
+                if trip - 1 < land:
+                    land = trip - 1
                 count_only = self._defer_sample or (lambda c: fast(c)[0])
                 batch = self._defer_sample is not None
                 while self._nt < lim:
                     nt = self._nt
-                    if nt + step < lim and step > cyc and (safe or nt < trip):
+                    if nt + step < lim and step > cyc and (safe or nt <= land):
                         landing = self._landing
                         if batch and not self.tripped and self._prime_due is None and \
                                 (landing is None or landing[0] <= nt):
-                            last = lim - step - 1 if safe else min(lim - step - 1, trip - 1)
+                            last = lim - step - 1 if safe else land
                             self._dead_run(nt, (last - nt) // step + 1, step, cyc)
                         else:
                             dead(nt, count_only, nt - self._lb)
