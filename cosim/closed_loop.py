@@ -55,6 +55,10 @@ class Gains:
         Adaptation gain ρ of every parameter (0: no adaptation), with bounds 0.7×/1.3×.
     pid_fpga_hz, pid_1khz_hz : float
         Closed-loop pole frequency of the node's PID and of the master's 1 kHz PID.
+    friction_comp : float
+        VDC joint friction estimates ``θ̂_J`` (viscous, Coulomb) as this fraction of each
+        actuator's nominal (catalogue-level) friction; 0: none. The plant's true friction
+        differs from the nominal one by its perturbation, so 1 is a model, not the truth.
     """
 
     lam: float = 50.0
@@ -63,6 +67,7 @@ class Gains:
     adapt: float = 0.0
     pid_fpga_hz: float = 15.0
     pid_1khz_hz: float = 5.0
+    friction_comp: float = 0.0
 
 
 def _joint_inertia(robot: Robot) -> np.ndarray:
@@ -121,9 +126,12 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
         out += [(dest, ref.PacketType.PARAM, p) for p in
                 vdc_upload(theta, np.full((2, 6), gains.K), np.full((2, 13), gains.adapt),
                            lo, hi)]
+        spec = ACTUATORS[mod.type.actuator]
         joint = JointParams.from_float(
             counts_per_rev=mod.type.counts_per_rev, tick_cycles=tick_cycles, lam=gains.lam,
-            k_j=gains.k_j, inertia=ACTUATORS[mod.type.actuator].output_inertia,
+            k_j=gains.k_j, inertia=spec.output_inertia,
+            viscous=gains.friction_comp * spec.viscous_friction,
+            coulomb=gains.friction_comp * spec.coulomb_friction,
             k_p=pid["kp"][k], k_i=pid["ki"][k], k_d=pid["kd"][k], i_max=0.05,
             field=f"joint{dest}")
         out += [(dest, ref.PacketType.PARAM, p) for p in joint_upload(joint)]

@@ -9,7 +9,8 @@ folder plus its ``config.toml`` reproduces the run bit for bit::
     [plant]        models.plant.PlantConfig: dt, friction, springs, current_loop,
                    current_bandwidth (Hz, optional), [plant.perturbation] links,
                    rotor_inertia, friction, spring (relative half-widths)
-    [gains]        cosim.closed_loop.Gains: lam, k_j, K, adapt, pid_fpga_hz, pid_1khz_hz
+    [gains]        cosim.closed_loop.Gains: lam, k_j, K, adapt, pid_fpga_hz, pid_1khz_hz,
+                   friction_comp
     [timing]       master.cycle.MasterTiming: period_cycles, kinematics_cycles, force_cycles
 
 Every key is optional (defaults are the dataclasses' own); an unknown key, a wrong type or an
@@ -286,7 +287,7 @@ def _plant(table: dict) -> PlantConfig:
 # Upper bounds keep every gain inside the node's fixed-point registers with margin.
 _GAIN_LIMITS = {"lam": (False, 1000.0), "k_j": (True, 500.0), "K": (True, 5000.0),
                 "adapt": (True, 100.0), "pid_fpga_hz": (False, 200.0),
-                "pid_1khz_hz": (False, 100.0)}
+                "pid_1khz_hz": (False, 100.0), "friction_comp": (True, 2.0)}
 
 
 def _gains(table: dict) -> Gains:
