@@ -346,7 +346,7 @@ class FastNode(NodeModel):
         self._sample = encoder.sample
         self._fast_sample = encoder.tick_sample
         self._defer_sample = encoder.defer
-        self._defer_many = encoder._due.extend
+        self._defer_many = encoder.defer_range
         self._encoder = encoder
 
     def _materialize(self) -> None:
@@ -440,7 +440,7 @@ class FastNode(NodeModel):
         lb = self._lb
         d = self.d_words
         if self.config[_MODE] != 1:
-            self._defer_many(range(first, last + 1, step))
+            self._defer_many(first, last, step)
             tn = last - lb + step
             self._deferred = (tn if tn < _TIME_MAX else _TIME_MAX, d[1], d[2], d[3])
             return
@@ -489,7 +489,7 @@ class FastNode(NodeModel):
         v = (v0 + ad0 * ts + 1048576) >> 21
         j.v_des = -8388608 if v < -8388608 else 8388607 if v > 8388607 else v
         j.i_lo, j.i_hi, j.q_des = i_lo, i_hi, q_des
-        self._defer_many(range(first, last + 1, step))
+        self._defer_many(first, last, step)
 
     def _dead_tick(self, now: int, count_at, tt: int) -> None:
         """:meth:`_fast_tick` for a tick whose torque is overwritten before it is observed
@@ -607,6 +607,7 @@ class EncoderEvents:
         self._min_window = params.min_window
         self._stop_cycles = params.stop_cycles
         self._due: list[int] = []               # deferred strobes (:meth:`defer`)
+        self._due_gap = _NEVER                  # smallest gap between them
 
     def feed(self, start: int, counts: np.ndarray) -> None:
         """Raw counts of cycles ``start … start + len(counts) − 1`` (consecutive feeds)."""
@@ -693,7 +694,10 @@ class EncoderEvents:
         """The count visible in cycle ``c``, with the velocity strobe there deferred: it takes
         effect, exactly as :meth:`tick_sample` would have, before the next :meth:`sample` or
         :meth:`tick_sample` (for ticks that do not use the velocity; calls in cycle order)."""
-        self._due.append(c)
+        due = self._due
+        if due and c - due[-1] < self._due_gap:
+            self._due_gap = c - due[-1]
+        due.append(c)
         vis = self._visible
         i = self._vi
         count = self.count
@@ -701,6 +705,16 @@ class EncoderEvents:
             count += vis[i][1]
             i += 1
         return count
+
+    def defer_range(self, first: int, last: int, step: int) -> None:
+        """:meth:`defer` for cycles ``first, first + step, …, last`` (counts not wanted)."""
+        due = self._due
+        gap = first - due[-1] if due else _NEVER
+        if last > first and step < gap:
+            gap = step
+        if gap < self._due_gap:
+            self._due_gap = gap
+        due.extend(range(first, last + 1, step))
 
     def _flush(self, upto: int) -> None:
         """The deferred strobes, in order, before the strobe in cycle ``upto``.
@@ -714,11 +728,22 @@ class EncoderEvents:
         only the last one acts, and after a STOP the velocity is 0: a run folds into one
         clip. Runs whose ages saturate, or strobes closer than :data:`VEL_LATENCY` (a result
         not yet visible at the next strobe), go one by one."""
-        due = self._due.copy()
-        self._due.clear()                       # (the same list: FastNode extends it)
+        due = self._due
+        vis = self._visible
+        p = self._taken
+        last = due[-1]
+        if p == self._last_c and self._due_gap >= VEL_LATENCY and \
+                due[0] - p >= VEL_LATENCY and upto - last >= VEL_LATENCY and \
+                last - self._ref_t <= AGE_MAX and last - self._e_last <= AGE_MAX and \
+                (self._vi >= len(vis) or upto < vis[self._vi][0]):
+            self._due = []                      # the usual case: one run, no edge, fold it
+            self._due_gap = _NEVER
+            self._fold(due[0], last)
+            return
+        self._due = []
+        self._due_gap = _NEVER
         m = len(due)
         i = 0
-        vis = self._visible
         while i < m:
             p = self._taken
             if p == self._last_c:
