@@ -9,7 +9,7 @@ import pytest
 from amaranth.sim import Simulator
 
 from hdl.link.chain import get_packet, put_packet
-from hdl.link.packet_ref import Header, PacketType
+from hdl.link.packet_ref import Header, PacketType, crc16
 from hdl.node.core import NodeCore
 from hdl.node.core_ref import NodeModel
 from hdl.node.encoder_ref import EncoderParams
@@ -212,6 +212,8 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
     a = parse_comm_a(replies[0][2])
     assert a["count"] == trace[period_starts[0]][0]
     assert a["period"] == 1 and a["sync_errors"] == 0 and a["late_d"] == 0
+    ups = [p for t, p in sent if t in (PacketType.CONFIG, PacketType.PARAM)]
+    assert (a["upload_crc"], a["upload_count"]) == (crc16(b"".join(ups)), len(ups))
     F_a, F_b, status, per = parse_comm_c(replies[1][2])
     assert status & Status.FRESH and per == 1
     assert replies[1][1].seq == 1 and replies[1][1].type == PacketType.COMM_C
@@ -253,3 +255,85 @@ def test_payload_helpers_round_trip_and_refuse_bad_uploads():
         vdc_upload(theta, np.ones((2, 6)), np.zeros((2, 13)), theta * 1.1 + 1, theta * 1.2 + 2)
     with pytest.raises(InputError, match=r"vdc.K\[0\]\[0\]"):
         vdc_upload(theta, np.full((2, 6), 1e5), np.zeros((2, 13)), theta - 1, theta + 1)
+
+
+def _random_upload(rng):
+    """A CONFIG or PARAM payload of random length and bytes that leaves the node's behaviour
+    alone (CONFIG records with ids no register has; PARAM words anywhere)."""
+    n = int(rng.integers(1, 41))
+    data = bytearray(rng.integers(0, 256, n, dtype=np.uint8).tobytes())
+    if rng.random() < 0.5:
+        for k in range(0, n, 5):
+            data[k] = int(rng.choice([0, *range(13, 256)]))
+        return PacketType.CONFIG, bytes(data)
+    return PacketType.PARAM, bytes(data)
+
+
+def test_upload_crc_and_count_equal_the_link_crc_over_the_payloads():
+    """Random CONFIG / PARAM uploads with Comm D packets (not counted) between them and bytes
+    offered with idle gaps; every Comm A reports the CRC-16 of the concatenated upload payloads
+    (the link's CRC reference, computed here from the bytes) and their count, as the request
+    found them, equal to the reference model's reply; one dropped or corrupted upload changes
+    the CRC (and a dropped one the count)."""
+    from hdl.node.regs import upload_check
+
+    rng = np.random.default_rng(5)
+    plan = []                       # (type, payload) in order
+    for _ in range(4):
+        for _ in range(int(rng.integers(1, 5))):
+            plan.append(_random_upload(rng))
+            if rng.random() < 0.3:
+                plan.append((PacketType.COMM_D, rng.integers(0, 256, 40, dtype=np.uint8)
+                             .tobytes()))
+        plan.append((PacketType.COMM_A, b"\0"))
+    dut = NodeCore(encoder=ENC)
+    ends = []
+    replies = []
+
+    async def monitor(ctx):
+        c = 0
+        while len(replies) < 4:
+            _, _, valid, ready, last = await ctx.tick().sample(dut.rx.valid, dut.rx.ready,
+                                                                dut.rx.p.last)
+            if valid and ready and last:
+                ends.append(c)
+            c += 1
+
+    async def master(ctx):
+        send_rng = np.random.default_rng(6)
+        for i, (ptype, payload) in enumerate(plan):
+            await put_packet(ctx, dut.rx, Header(dest=1, src=0, type=int(ptype), seq=i),
+                             payload, rng=send_rng, p_idle=0.2)
+            if ptype == PacketType.COMM_A:
+                replies.append(await get_packet(ctx, dut.tx))
+
+    sim = Simulator(dut)
+    sim.add_clock(20e-9)
+    sim.add_testbench(monitor)
+    sim.add_testbench(master, background=True)
+    run_simulation(sim, "node_core_upload")
+
+    model = NodeModel(encoder=ENC)
+    ref_replies = []
+    for c, (ptype, payload) in zip(ends, plan, strict=True):
+        r = model.packet(c, ptype, payload, sample=lambda _c: (0, 0, 0))
+        if r is not None:
+            ref_replies.append(r)
+    assert [p for _, p in replies] == ref_replies
+    k = 0
+    for i, (ptype, _) in enumerate(plan):
+        if ptype != PacketType.COMM_A:
+            continue
+        ups = [p for t, p in plan[:i] if t in (PacketType.CONFIG, PacketType.PARAM)]
+        a = parse_comm_a(replies[k][1])
+        assert replies[k][0].seq == i
+        assert (a["upload_crc"], a["upload_count"]) == (crc16(b"".join(ups)), len(ups))
+        assert upload_check(ups) == (a["upload_crc"], a["upload_count"])
+        # what the master would expect had one upload been lost or corrupted on the way
+        j = int(rng.integers(len(ups)))
+        assert upload_check(ups[:j] + ups[j + 1:]) != (a["upload_crc"], a["upload_count"])
+        bad = bytearray(ups[j])
+        bad[int(rng.integers(len(bad)))] ^= 1 << int(rng.integers(8))
+        assert upload_check(ups[:j] + [bytes(bad)] + ups[j + 1:])[0] != a["upload_crc"]
+        k += 1
+    assert k == 4

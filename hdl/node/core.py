@@ -34,12 +34,18 @@ cycle a packet or time-code arrived (docs/node.md "Timing"):
   torque goes through the :class:`~hdl.node.watchdog.Watchdog`. A tick that finds the joint
   engine busy is skipped and counted (``overruns``).
 * Words arrive over the byte stream; a word for a busy engine waits (``rx.ready`` low).
+* Every payload byte of a CONFIG or PARAM packet goes, in arrival order, into a running
+  CRC-16/CCITT-FALSE (the link's, :mod:`hdl.link.crc`, from 0xFFFF at reset) and every such
+  packet into a 16-bit count (modulo 2^16); nothing but reset clears them. A Comm A reply
+  carries both as they stood when its request arrived, so the master can check that the node
+  took every upload (docs/node.md "Upload check").
 """
 
 from amaranth import *
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
+from hdl.link.crc import CRC16_INIT, crc16_next
 from hdl.link.packet import Beat, PacketType
 
 from .encoder import QuadratureEncoder
@@ -311,6 +317,15 @@ class NodeCore(wiring.Component):
                     with m.Case(2):
                         m.d.sync += par_addr[8:].eq(beat.data)
 
+        # Upload check: CRC of every CONFIG / PARAM payload byte in arrival order, and the
+        # number of such packets, from reset (16 flip-flops and an XOR network, 16 + a counter).
+        upl_crc = Signal(16, init=CRC16_INIT)
+        upl_cnt = Signal(16)
+        with m.If(taken & (is_c | is_p)):
+            m.d.sync += upl_crc.eq(crc16_next(upl_crc, beat.data))
+            with m.If(beat.last):
+                m.d.sync += upl_cnt.eq(upl_cnt + 1)
+
         # Words: to a register file (through the pending write) or a D shadow.
         with m.If(wdone):
             with m.If(is_b & (wk < len(COMM_B_WORDS))):
@@ -492,6 +507,8 @@ class NodeCore(wiring.Component):
         a_sync   = Signal(16)
         a_late   = Signal(16)
         a_period = Signal(8)             # (the time-code: captured with the request)
+        a_ucrc   = Signal(16)            # (upload CRC and count: captured with the request)
+        a_ucnt   = Signal(16)
         with m.If(boundary):
             m.d.sync += [
                 a_status.eq(status),
@@ -505,7 +522,7 @@ class NodeCore(wiring.Component):
         forces   = Cat(*(vdc.outputs[vmc.addr(f"F{L}{k}") - IO_BASE]
                          for L in "AB" for k in range(6)))
         payload_a = Cat(snap_count, snap_qd, a_torque, a_status, a_errors, a_period, a_overr,
-                        a_sync, a_late, C(0, 8 * PAYLOAD - 168))
+                        a_sync, a_late, a_ucrc, a_ucnt, C(0, 8 * PAYLOAD - 200))
         payload_c = Cat(forces, c_status, c_period, C(0, 8))
         # The reply is loaded into a shift register and sent from its low byte: cheaper on a
         # Virtex-II than a 40-way byte multiplexer (320 flip-flops instead of ~700 LUTs).
@@ -569,6 +586,8 @@ class NodeCore(wiring.Component):
                     reply_a.eq(1),
                     seq_a.eq(beat.header.seq),
                     a_period.eq(self.period),
+                    a_ucrc.eq(upl_crc),
+                    a_ucnt.eq(upl_cnt),
                 ]
             with m.If(ptype == PacketType.COMM_C):
                 # FRESH: the forces the reply will carry (it waits for a running VDC) come

@@ -28,7 +28,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from hdl.link.packet_ref import PacketType
+from hdl.link.crc import CRC16_INIT
+from hdl.link.packet_ref import PacketType, crc16
 
 from .encoder_ref import EncoderParams
 from .fixed import saturate
@@ -73,6 +74,9 @@ class NodeModel:
         Cycles of every period boundary so far (resynchronisations included).
     sync_errors, late_d : int
         Time-codes outside the window while armed; Comm D packets after the commit phase.
+    upload_crc, upload_count : int
+        CRC-16/CCITT-FALSE of the payload bytes of every CONFIG and PARAM packet since reset,
+        in arrival order (0xFFFF before the first), and their number modulo 2^16.
     """
 
     encoder: EncoderParams = field(default_factory=EncoderParams)
@@ -99,6 +103,8 @@ class NodeModel:
     overruns: int = 0
     sync_errors: int = 0
     late_d: int = 0
+    upload_crc: int = CRC16_INIT
+    upload_count: int = 0
     tc_value: int = 0
     forces: list = field(default_factory=lambda: [0] * 12)
     boundaries: list = field(default_factory=list)
@@ -257,6 +263,9 @@ class NodeModel:
         self._watch(now)
         payload = bytes(payload)
         reply = None
+        if ptype in (PacketType.CONFIG, PacketType.PARAM):
+            self.upload_crc = crc16(payload, self.upload_crc)
+            self.upload_count = (self.upload_count + 1) & 0xFFFF
         if ptype == PacketType.COMM_B and len(payload) == PAYLOAD:
             self.b_words = unpack_words(payload, len(COMM_B_WORDS))
             if self.prime or payload[-1] & 1:
@@ -334,7 +343,7 @@ class NodeModel:
         out += pack_words([self.snap_qd, torque])
         out += status.to_bytes(2, "little") + errors.to_bytes(2, "little")
         out += bytes([self.tc_value])
-        for v in (overruns, sync, late):
+        for v in (overruns, sync, late, self.upload_crc, self.upload_count):
             out += v.to_bytes(2, "little")
         return out + bytes(PAYLOAD - len(out))
 

@@ -12,7 +12,10 @@ COMM_A   m→s    request (any payload); the node answers with a COMM_A packet, 
                 then) · ``status`` u16 (:class:`Status`) · ``errors`` u16 (illegal encoder
                 transitions) · ``period`` u8 (last time-code) · ``overruns`` u16 (control
                 ticks skipped) · ``sync_errors`` u16 (time-codes outside the sync window
-                while armed) · ``late_d`` u16 (Comm D packets after the commit phase) · zeros
+                while armed) · ``late_d`` u16 (Comm D packets after the commit phase) ·
+                ``upload_crc`` u16, ``upload_count`` u16 (CRC-16/CCITT-FALSE of every
+                CONFIG and PARAM payload since reset, and their number; both taken with the
+                request, see :func:`upload_check`) · zeros
 COMM_B   m→s    ``q̇_r`` · ``V_C[6]`` · ``V_rC[6]`` (13 VEL words, 39 bytes) · flags u8 (bit 0:
                 restart the derivative history)
 COMM_C   m→s    request; the node answers once its VDC run for the last Comm B has its forces:
@@ -33,6 +36,7 @@ import math
 
 import numpy as np
 
+from hdl.link.crc import CRC16_INIT
 from mrm.errors import InputError
 
 from .fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, WORD, saturate, theta_group
@@ -42,7 +46,7 @@ from .vdc_ref import VdcModel, VdcParams
 __all__ = ["PAYLOAD", "COMM_B_WORDS", "COMM_D_WORDS", "Config", "Bank", "Status", "MODES",
            "pack_words", "unpack_words", "pack_comm_b", "pack_comm_d", "parse_comm_a",
            "parse_comm_c", "config_payloads", "param_payloads", "vdc_upload", "joint_upload",
-           "CONFIG_DEFAULTS"]
+           "CONFIG_DEFAULTS", "upload_check"]
 
 PAYLOAD = 40
 COMM_B_WORDS = ("qdr",) + tuple(f"VC{k}" for k in range(6)) + tuple(f"VrC{k}" for k in range(6))
@@ -136,7 +140,33 @@ def parse_comm_a(data: bytes) -> dict:
             "errors": int.from_bytes(data[12:14], "little"), "period": data[14],
             "overruns": int.from_bytes(data[15:17], "little"),
             "sync_errors": int.from_bytes(data[17:19], "little"),
-            "late_d": int.from_bytes(data[19:21], "little")}
+            "late_d": int.from_bytes(data[19:21], "little"),
+            "upload_crc": int.from_bytes(data[21:23], "little"),
+            "upload_count": int.from_bytes(data[23:25], "little")}
+
+
+def upload_check(payloads) -> tuple[int, int]:
+    """``(upload_crc, upload_count)`` a node reports after taking ``payloads``, in order.
+
+    Parameters
+    ----------
+    payloads : iterable of bytes
+        The payloads of the CONFIG and PARAM packets the node received since reset, in
+        arrival order (packets of other types do not count).
+
+    Returns
+    -------
+    (int, int)
+        CRC-16/CCITT-FALSE (:mod:`hdl.link.crc`, initial 0xFFFF) over the concatenated
+        payloads, and the number of packets modulo 2^16.
+    """
+    from hdl.link.packet_ref import crc16
+
+    crc, n = CRC16_INIT, 0
+    for p in payloads:
+        crc = crc16(bytes(p), crc)
+        n += 1
+    return crc, n & 0xFFFF
 
 
 def parse_comm_c(data: bytes) -> tuple[list[int], list[int], Status, int]:
