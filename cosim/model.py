@@ -408,13 +408,13 @@ class FastNode(NodeModel):
                             last = lim - step - 1 if safe else land
                             self._dead_run(nt, (last - nt) // step + 1, step, cyc)
                         else:
-                            dead(nt, count_only, nt - self._lb)
+                            dead(nt, count_only, nt - self.d_base)
                     else:
-                        tick(nt, fast, nt - self._lb)
+                        tick(nt, fast, nt - self.d_base)
             else:
                 while self._nt < lim:
                     nt = self._nt
-                    tick(nt, fast, nt - self._lb)
+                    tick(nt, fast, nt - self.d_base)
             if special >= until:
                 break
             NodeModel.run(self, special + 1)
@@ -437,7 +437,7 @@ class FastNode(NodeModel):
         self._nt = last + step
         self._started = last
         self._busy_until = last + cyc + 1
-        lb = self._lb
+        lb = self.d_base                  # the committed references are for this boundary
         d = self.d_words
         if self.config[_MODE] != 1:
             self._defer_many(first, last, step)

@@ -337,3 +337,28 @@ def test_upload_crc_and_count_equal_the_link_crc_over_the_payloads():
         assert upload_check(ups[:j] + [bytes(bad)] + ups[j + 1:])[0] != a["upload_crc"]
         k += 1
     assert k == 4
+
+
+def test_references_run_on_across_the_boundary_until_the_next_commit():
+    """A Comm D's references are for the start of the period it arrived in. Between the next
+    boundary and the next commit point the ticks still use them, so their time keeps counting
+    from that start: the interpolated velocity reference grows steadily through the boundary
+    (before the fix it fell back by a whole period's acceleration there)."""
+    model = NodeModel(encoder=ENC)
+    sample = lambda c: (0, 0, 0)        # noqa: E731 - a joint at rest
+    for k, (ptype, payload) in enumerate([(PacketType.CONFIG, p)
+                                          for p in config_payloads(timing_config())]
+                                         + uploads(mode=1)):
+        model.packet(10 + k, ptype, payload, sample=sample)
+    model.run(PERIOD + 1, sample)                   # ARM takes effect at the boundary
+    assert model.armed
+    d = pack_comm_d(0.0, [0.0, 0.0, 9.81], 0.0, 0.5, 40.0)      # q̈_d0 = 40 rad/s²
+    model.packet(PERIOD + 200, PacketType.COMM_D, d, sample=sample)
+    v = {}
+    for c in range(PERIOD + COMMIT + TICK, 2 * PERIOD + COMMIT, TICK):
+        model.run(c + 1, sample)
+        v[c] = model.joint.v_des
+    steps = np.diff([v[c] for c in sorted(v)])
+    assert steps.min() > 0, "the reference must not step back at the boundary"
+    assert steps.max() - steps.min() <= 2                 # rounding of the two products only
+    assert model.d_base == PERIOD

@@ -448,6 +448,15 @@ class NodeCore(wiring.Component):
             m.d.sync += prime.eq(1)
 
         # --- control ticks -------------------------------------------------------------------
+        # Cycles since the boundary the committed references are for (``ref_t``) and since
+        # the boundary of the pending Comm D's arrival period (``pend_t``), saturating.
+        ref_t  = Signal(24)
+        pend_t = Signal(24)
+
+        def sat_inc(v):
+            return Mux(v >= _TIME_MAX, _TIME_MAX, v + 1)
+
+        m.d.sync += [ref_t.eq(sat_inc(ref_t)), pend_t.eq(sat_inc(pend_t))]
         tick_cnt = Signal(16)
         tick     = Signal()
         overruns = Signal(16)
@@ -456,7 +465,7 @@ class NodeCore(wiring.Component):
         j_in = {n: Signal(signed(WORD), name=f"jin_{n}") for n in JOINT_INPUTS}
         tn = Signal(25)
         m.d.comb += [
-            tn.eq(tt + cfg_tick),
+            tn.eq(ref_t + cfg_tick),
             enc.sample.eq(tick),
             wd.tick.eq(tick),
         ]
@@ -578,9 +587,11 @@ class NodeCore(wiring.Component):
             with m.If(is_d & full):
                 with m.If(wd.armed):
                     m.d.sync += [dn.eq(ds) for dn, ds in zip(d_next, d_shadow, strict=True)]
+                    m.d.sync += pend_t.eq(sat_inc(tt))
                     m.d.comb += d_arrive.eq(1)
                 with m.Else():
                     m.d.sync += [dw.eq(ds) for dw, ds in zip(d_words, d_shadow, strict=True)]
+                    m.d.sync += ref_t.eq(sat_inc(tt))
             with m.If(ptype == PacketType.COMM_A):
                 m.d.sync += [
                     reply_a.eq(1),
@@ -602,9 +613,13 @@ class NodeCore(wiring.Component):
 
         # Comm D while armed: committed at phase COMMIT of the period (all joints on the same
         # grid); one that arrives at or after COMMIT waits for the next commit point, counted.
+        # Its references are for the start of the period it arrived in: the ticks count their
+        # time from that boundary (``ref_t``), across the next boundary until the next commit,
+        # so a commit point later than the boundary never sends the reference back a period.
         with m.If(phase == cfg_commit):
             with m.If(d_pending):
                 m.d.sync += [dw.eq(dn) for dw, dn in zip(d_words, d_next, strict=True)]
+                m.d.sync += ref_t.eq(sat_inc(pend_t))
             m.d.sync += d_pending.eq(d_arrive)
         with m.Elif(d_arrive):
             m.d.sync += d_pending.eq(1)

@@ -86,6 +86,8 @@ class NodeModel:
     d_words: list = field(default_factory=lambda: [0, 0, 0, 0])
     d_next: list = field(default_factory=lambda: [0, 0, 0, 0])
     d_pending: bool = False
+    d_base: int = 0                       # boundary the committed references are for
+    d_next_base: int = 0                  # boundary of the pending Comm D's arrival period
     g_words: list = field(default_factory=lambda: [0, 0, 0])
     b_words: list = field(default_factory=lambda: [0] * 13)
     snap_count: int = 0
@@ -158,11 +160,12 @@ class NodeModel:
             if c == nb:
                 self._boundary(c, sample)
             elif c == self._nt:
-                self._tick(c, sample, c - self._lb)
+                self._tick(c, sample, c - self.d_base)
             if c == commit:
                 self._commit_seen = self._lb
                 if self.d_pending:
                     self.d_words = list(self.d_next)
+                    self.d_base = self.d_next_base
                     self.d_pending = False
         self._done = max(self._done, until)
 
@@ -187,7 +190,7 @@ class NodeModel:
             self.joint.i_hi = 0
             self.armed, self.tripped, self.prime = True, False, True
             self.last_packet = c
-        self._tick(c, sample, 0, ramped=arm)
+        self._tick(c, sample, c - self.d_base, ramped=arm)
 
     def _ramp(self) -> None:
         ramp = self.config[Config.RAMP]
@@ -195,7 +198,8 @@ class NodeModel:
             self.torque - ramp if self.torque > 0 else self.torque + ramp
 
     def _tick(self, now: int, sample, tt: int, ramped: bool = False) -> None:
-        """Control tick at cycle ``now``, ``tt`` cycles after the period boundary."""
+        """Control tick at cycle ``now``, ``tt`` cycles after the period boundary the
+        committed references are for (the boundary of the period their Comm D arrived in)."""
         self._watch(now)
         tick = self.config[Config.TICK]
         self._nt = now + tick
@@ -287,11 +291,13 @@ class NodeModel:
                 words = [w[0], w[4], w[5], w[6]]
                 if self.armed:
                     self.d_next = words
+                    self.d_next_base = self._lb
                     self.d_pending = True
                     if self.phase(now) >= self.config[Config.COMMIT]:
                         self.late_d = min(self.late_d + 1, 0xFFFF)
                 else:
                     self.d_words = words
+                    self.d_base = self._lb
         elif ptype == PacketType.COMM_A:
             reply = self._reply_a()
         elif ptype == PacketType.COMM_C:
