@@ -50,11 +50,12 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         raise InputError("--backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")
     profile = profile or paper_test_profile(robot)
     trajectory = _trajectory(robot, profile)
+    uploads = node_uploads(robot, controller, gains, period_cycles=timing.period_cycles)
+    # the master checks every Comm A against the uploads (CRC and count per node)
     master = Master(robot, controller, trajectory, robot.counts_per_rev, timing, lam=gains.lam,
-                    pid=pid_gains(robot, gains.pid_1khz_hz))
+                    pid=pid_gains(robot, gains.pid_1khz_hz), uploads=uploads)
     plant = Plant(robot, plant_config or PlantConfig(), seed=seed)
     plant.reset(robot.home)
-    uploads = node_uploads(robot, controller, gains, period_cycles=timing.period_cycles)
     duration_cycles = int(round(duration * 50e6))
     t0 = time.perf_counter()
     # period 0 on the nodes' timer grid (a multiple of the period from reset), after start-up
@@ -86,7 +87,10 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         "max_tip_speed_m_s": float(speed.max()),
         "max_joint_error_rad": float(np.abs(q_d - result.q).max()),
         "overruns": master.overruns, "missing_replies": master.missing,
-        "unexpected_replies": master.unexpected,
+        "unexpected_replies": master.unexpected, "late_replies": master.late,
+        "upload_errors": master.upload_error_total(),
+        "upload_errors_per_node": [master.upload_errors[k] for k in range(1, robot.n + 1)],
+        "tripped_nodes": sorted(master.tripped),
         "node_counters": master.node_totals(),
         "model_violations": list(getattr(result, "violations", [])),
         "link_errors": result.crc_errors,

@@ -14,11 +14,22 @@ received, and sends what the master returns. Per period p, starting at cycle
    at the period start (PID modes skip B and C: Comm D follows Comm A directly).
 
 Everything the master knows about the robot is nominal: Table 1 parameters, the kinematics,
-encoder counts and the nodes' velocity words. Replies that are missing at the period's end,
-late or malformed are counted (``overruns``, ``missing``), never silently absorbed. The nodes'
-own counters, reported in every Comm A (control ticks skipped, time-codes outside the sync
-window, Comm D packets after the commit phase, illegal encoder transitions), are kept per node
+encoder counts and the nodes' velocity words. Every reply is checked, never silently absorbed:
+the harness drops frames whose link CRC fails (and counts them); a reply must come from a
+node, be of the kind the master is waiting for in this period and well formed (else
+``unexpected``), answer this period's request — the sequence number of the request, where the
+harness passes it, and the period (time-code) the node echoes (else ``late``, and ignored) —
+and come before the period ends (else the period is an ``overrun`` and the replies not in are
+``missing``; so is a period whose Comm D was still waiting to be sent). The nodes' own
+counters, reported in every Comm A (control ticks skipped, time-codes outside the sync window,
+Comm D packets after the commit phase, illegal encoder transitions), are kept per node
 (:attr:`Master.node_counters`); a run with any of them non-zero says so.
+
+Uploads. Given the CONFIG and PARAM packets sent to the nodes before the run
+(:meth:`Master.expect_uploads`), the master computes what each node must report in every
+Comm A — the CRC-16 of those payloads in order and their number
+(:func:`hdl.node.regs.upload_check`) — and counts every Comm A that disagrees
+(:attr:`Master.upload_errors`, per node): an upload lost, corrupted or reordered on the way.
 
 The nodes act on their own period timer (docs/node.md "Timing"): the master's period grid
 must be the nodes' (``period_cycles`` = CONFIG PERIOD, period 0 at a multiple of it from the
@@ -34,7 +45,8 @@ import numpy as np
 
 from hdl.link.packet_ref import BROADCAST, PacketType
 from hdl.node.fixed import FORCE, VEL
-from hdl.node.regs import Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c
+from hdl.node.regs import (Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c,
+                           upload_check)
 from master.vdc import propagate_forces, propagate_velocities
 from models.robot import Robot
 
@@ -107,11 +119,13 @@ class Master:
     pid : dict, optional
         ``kp``, ``ki``, ``kd`` arrays (N·m/rad, N·m/(rad·s), N·m·s/rad) of the 1 kHz PID.
     clock_hz : float
+    uploads : list of (dest, type, payload), optional
+        The packets sent to the nodes before the run (:meth:`expect_uploads`).
     """
 
     def __init__(self, robot: Robot, controller: str, trajectory, counts_per_rev,
                  timing: MasterTiming | None = None, lam: float = 50.0, pid=None,
-                 clock_hz: float = 50e6):
+                 clock_hz: float = 50e6, uploads=None):
         if controller not in CONTROLLERS:
             raise ValueError(f"controller must be one of {CONTROLLERS}, not {controller!r}")
         self.robot = robot
@@ -128,6 +142,13 @@ class Master:
         self.overruns = 0        # periods whose exchange did not finish within the period
         self.missing = 0         # replies that never came
         self.unexpected = 0      # replies that were not asked for, or malformed
+        self.late = 0            # replies to an earlier period's request (ignored)
+        #: node -> Comm A replies whose upload CRC or count differed from the expected
+        self.upload_errors: dict[int, int] = {}
+        #: node -> (CRC, count) every Comm A must report; None: no check
+        self.expected_uploads: dict[int, tuple[int, int]] | None = None
+        #: nodes that reported a watchdog trip in a Comm A
+        self.tripped: set[int] = set()
         #: node -> the counters of its last Comm A (cumulative in the node)
         self.node_counters: dict[int, dict] = {}
         self._seq = 0
@@ -136,6 +157,26 @@ class Master:
         self._rec: PeriodRecord | None = None
         self._a = {}
         self._c = {}
+        self._req = {}           # packet type -> sequence number of this period's request
+        if uploads is not None:
+            self.expect_uploads(uploads)
+
+    def expect_uploads(self, uploads) -> None:
+        """Check every Comm A against the uploads ``[(dest, type, payload), ...]`` sent to the
+        nodes since their reset, in order (CONFIG and PARAM count; broadcasts go to every
+        node). Replaces any earlier expectation; clears :attr:`upload_errors`."""
+        from hdl.link.packet_ref import BROADCAST as _ALL
+
+        kinds = (PacketType.CONFIG, PacketType.PARAM)
+        self.expected_uploads = {
+            k: upload_check([bytes(p) for d, t, p in uploads
+                             if t in kinds and d in (k, _ALL)])
+            for k in range(1, self.n + 1)}
+        self.upload_errors = {k: 0 for k in range(1, self.n + 1)}
+
+    def upload_error_total(self) -> int:
+        """Comm A replies, over all nodes, whose upload check failed."""
+        return int(sum(self.upload_errors.values()))
 
     def node_totals(self) -> dict:
         """Sum over the nodes of each of :data:`NODE_COUNTERS`, as last reported."""
@@ -167,42 +208,75 @@ class Master:
         return Send("packet", dest, int(ptype), bytes(payload), self._seq)
 
     def _new_period(self, index: int, start: int) -> list[Send]:
-        if self._rec is not None and not self._rec.complete:
+        rec = self._rec
+        if rec is not None and (not rec.complete or self._pending):
+            # replies not in, or a Comm D still waiting: the exchange missed its period
             self.overruns += 1
-            self.missing += (self.n - len(self._a)) + (
-                0 if self.controller != "vdc" else self.n - len(self._c))
+            if not rec.complete:
+                self.missing += (self.n - len(self._a)) + (
+                    0 if self.controller != "vdc" else self.n - len(self._c))
+            rec.complete = False
         self._rec = PeriodRecord(index, start)
         self.records.append(self._rec)
         self._a, self._c = {}, {}
         self._pending = []
-        return [Send("timecode", time=index & 0x3F),
-                self._packet(BROADCAST, PacketType.COMM_A, b"\0")]
+        request = self._packet(BROADCAST, PacketType.COMM_A, b"\0")
+        self._req = {PacketType.COMM_A: request.seq}
+        return [Send("timecode", time=index & 0x3F), request]
 
     # --- replies ---------------------------------------------------------------------------
-    def on_packet(self, now: int, src: int, ptype: int, payload: bytes) -> None:
-        """A good packet from node ``src`` (1-based) arrived complete at cycle ``now``."""
+    def on_packet(self, now: int, src: int, ptype: int, payload: bytes,
+                  seq: int | None = None) -> None:
+        """A good packet from node ``src`` (1-based) arrived complete at cycle ``now``.
+
+        ``seq``: the sequence number of its header (the node echoes its request's), if the
+        harness has it; a reply to an earlier request is counted ``late`` and ignored."""
         rec = self._rec
         if rec is None or not 1 <= src <= self.n:
             self.unexpected += 1
             return
+        if seq is not None and ptype in self._req and seq != self._req[ptype]:
+            self.late += 1
+            return
         try:
-            if ptype == PacketType.COMM_A and src not in self._a:
-                self._a[src] = a = parse_comm_a(payload)
-                self.node_counters[src] = {k: a[k] for k in NODE_COUNTERS}
-                rec.arrivals[("A", src)] = now
-                if len(self._a) == self.n:
-                    rec.events["A_done"] = now
-                    self._after_a(now)
-            elif ptype == PacketType.COMM_C and src not in self._c and self.controller == "vdc":
-                self._c[src] = parse_comm_c(payload)
-                rec.arrivals[("C", src)] = now
-                if len(self._c) == self.n:
-                    rec.events["C_done"] = now
-                    self._after_c(now)
+            if ptype == PacketType.COMM_A:
+                a = parse_comm_a(payload)
+                if a["period"] != rec.index & 0x3F:     # the node answered another period
+                    self.late += 1
+                elif src in self._a:
+                    self.unexpected += 1
+                else:
+                    self._on_a(now, src, a)
+            elif ptype == PacketType.COMM_C and self.controller == "vdc":
+                c = parse_comm_c(payload)
+                if c[3] != rec.index & 0x3F:
+                    self.late += 1
+                elif src in self._c or PacketType.COMM_C not in self._req:
+                    self.unexpected += 1
+                else:
+                    self._c[src] = c
+                    rec.arrivals[("C", src)] = now
+                    if len(self._c) == self.n:
+                        rec.events["C_done"] = now
+                        self._after_c(now)
             else:
                 self.unexpected += 1
         except ValueError:
             self.unexpected += 1
+
+    def _on_a(self, now: int, src: int, a: dict) -> None:
+        rec = self._rec
+        self._a[src] = a
+        self.node_counters[src] = {k: a[k] for k in NODE_COUNTERS}
+        if a["status"] & Status.TRIPPED:
+            self.tripped.add(src)
+        exp = self.expected_uploads
+        if exp is not None and (a["upload_crc"], a["upload_count"]) != exp[src]:
+            self.upload_errors[src] += 1
+        rec.arrivals[("A", src)] = now
+        if len(self._a) == self.n:
+            rec.events["A_done"] = now
+            self._after_a(now)
 
     def _references(self, t: float):
         q_d, qd_d, qdd_d = self.trajectory(t)
@@ -225,7 +299,9 @@ class Master:
             actions = [self._packet(k + 1, PacketType.COMM_B,
                                     pack_comm_b(qd_r[k], kin[k].V_C, kin[k].Vr_C, prime))
                        for k in range(self.n)]
-            actions.append(self._packet(BROADCAST, PacketType.COMM_C, b"\0"))
+            request = self._packet(BROADCAST, PacketType.COMM_C, b"\0")
+            self._req[PacketType.COMM_C] = request.seq
+            actions.append(request)
             rec.events["B_sent"] = send_at
             self._later(send_at, actions)
             return
