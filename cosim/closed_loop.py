@@ -228,8 +228,8 @@ class ClosedLoop:
                     self.crc_errors += 1
                     continue
                 self.frames.append((cyc, header.src, header.type))
-                self.master.on_packet(cyc, header.src, header.type, bytes(payload),
-                                      seq=header.seq)
+                if not self.master.stale(header.type, header.seq):   # else counted late
+                    self.master.on_packet(cyc, header.src, header.type, bytes(payload))
 
     async def _chunk(self, n: int) -> dict:
         inputs = {"enc_a": self._enc_a[:n], "enc_b": self._enc_b[:n]}

@@ -225,18 +225,27 @@ class Master:
         return [Send("timecode", time=index & 0x3F), request]
 
     # --- replies ---------------------------------------------------------------------------
+    def stale(self, ptype: int, seq: int) -> bool:
+        """Whether a reply of type ``ptype`` whose header carries ``seq`` answers an earlier
+        request than this period's (the node echoes its request's sequence number); such a
+        reply is counted ``late`` and must not be passed to :meth:`on_packet`. For harnesses
+        that see the header (the model backend has none: :meth:`on_packet` still checks the
+        period the reply echoes)."""
+        if ptype in self._req and seq != self._req[ptype]:
+            self.late += 1
+            return True
+        return False
+
     def on_packet(self, now: int, src: int, ptype: int, payload: bytes,
                   seq: int | None = None) -> None:
         """A good packet from node ``src`` (1-based) arrived complete at cycle ``now``.
 
-        ``seq``: the sequence number of its header (the node echoes its request's), if the
-        harness has it; a reply to an earlier request is counted ``late`` and ignored."""
+        ``seq``: the sequence number of its header, if known (:meth:`stale`)."""
         rec = self._rec
         if rec is None or not 1 <= src <= self.n:
             self.unexpected += 1
             return
-        if seq is not None and ptype in self._req and seq != self._req[ptype]:
-            self.late += 1
+        if seq is not None and self.stale(ptype, seq):
             return
         try:
             if ptype == PacketType.COMM_A:
