@@ -147,6 +147,8 @@ class VcdWindow:
             raise InputError("--vcd", f"needs 0 <= T0 < T1, not {spec!r}")
         start = int(round(t0 * CLOCK_HZ))
         stop = max(start + 1, int(round(t1 * CLOCK_HZ)))
+        if signals is not None and any(not p.strip() for p in str(signals).split(",")):
+            raise InputError("--signals", f"comma-separated non-empty patterns, not {signals!r}")
         return cls(start, stop, Path(path), signals or "*")
 
     def matches(self, name: str) -> bool:

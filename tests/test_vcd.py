@@ -194,3 +194,18 @@ def test_pysim_vcd_needs_the_backends_simulator(tmp_path):
     be = PysimBackend(Demo(), vcd=VcdWindow(0, 5, tmp_path / "x.vcd"))
     with pytest.raises(RuntimeError, match="simulator"):
         be.bind(object())
+
+
+@pytest.mark.parametrize("argv, field", [
+    (["--backend", "model", "--vcd", "0:1ms"], "--vcd"),
+    (["--backend", "compiled", "--vcd", "5:3"], "--vcd"),
+    (["--backend", "pysim", "--vcd", "1ms:2ms", "--signals", "torque*,,"], "--signals"),
+    (["--backend", "compiled", "--signals", "torque*"], "--signals"),
+])
+def test_track_refuses_bad_waveform_requests_before_running(tmp_path, capsys, argv, field):
+    from mrm.cli import main
+
+    out = tmp_path / "out"
+    assert main(["run", "track", "--quiet", "--out", str(out), *argv]) == 2
+    assert field in capsys.readouterr().err
+    assert not out.exists()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 from pathlib import Path
 
 from mrm import __version__
@@ -31,6 +32,12 @@ def register(subparsers) -> None:
     pt.add_argument("--duration", type=float, default=1.5, help="simulated seconds")
     pt.add_argument("--seed", type=int, default=0, help="plant perturbation seed")
     pt.add_argument("--out", default="results/track", help="result folder (replaced)")
+    pt.add_argument("--vcd", default=None, metavar="T0:T1",
+                    help="write OUT/waves.vcd of this window only (times from period 0, e.g. "
+                    "0.5ms:0.6ms; pysim and compiled backends)")
+    pt.add_argument("--signals", default=None, metavar="PATTERN",
+                    help="comma-separated globs of the signals in the VCD, dotted below the "
+                    "top (e.g. 'torque*,node1.core.*'; default: all)")
     pt.add_argument("--quiet", action="store_true", help="print nothing but errors")
     pt.set_defaults(func=_track)
     p2 = sub.add_parser("table2", help="the paper's Table 2: pid-1khz, pid-fpga and vdc on the "
@@ -88,29 +95,57 @@ def _preview(args) -> int:
 
 
 def _track(args) -> int:
-    from cosim.plots import pick_period, plot_timeline, plot_tracking
-    from cosim.preview import paper_test_profile
-    from cosim.table2 import Progress, timeline_json
+    from cosim.table2 import Progress
     from cosim.track import run_track
     from models.robot import load_robot
     from mrm.errors import require_positive
-    from mrm.output import atomic_output_dir, write_json
 
     robot = load_robot(args.robot)
     duration = require_positive(args.duration, "--duration")
+    if args.signals is not None and args.vcd is None:
+        raise InputError("--signals", "selects the signals of a --vcd window; give --vcd too")
     progress = None if args.quiet else Progress([args.controller], duration)
     if progress is not None:
         progress.begin(args.controller)
-    result, summary = run_track(robot, args.controller, args.backend, duration, args.seed,
-                                progress=progress)
-    summary["version"] = __version__
+    vcd_tmp = None
+    if args.vcd is not None:
+        import tempfile
+
+        fd, name = tempfile.mkstemp(prefix=".waves.", suffix=".vcd")
+        os.close(fd)
+        vcd_tmp = Path(name)
+    try:
+        result, summary = run_track(robot, args.controller, args.backend, duration, args.seed,
+                                    progress=progress, vcd=args.vcd, signals=args.signals,
+                                    vcd_path=vcd_tmp)
+        summary["version"] = __version__
+        _write_track(args, robot, result, summary, duration, vcd_tmp)
+    finally:
+        if vcd_tmp is not None:
+            vcd_tmp.unlink(missing_ok=True)
+    return 0
+
+
+def _write_track(args, robot, result, summary, duration, vcd_tmp) -> None:
+    import shutil
+
+    from cosim.plots import pick_period, plot_timeline, plot_tracking
+    from cosim.preview import paper_test_profile
+    from cosim.table2 import timeline_json
+    from mrm.output import atomic_output_dir, write_json
+
     q_d = paper_test_profile(robot).evaluate(result.t)[0]
     with atomic_output_dir(args.out) as tmp:
         write_json(tmp / "summary.json", summary)
         write_json(tmp / "config.json", {
             "command": "mrm run track", "controller": args.controller,
             "backend": args.backend, "robot": robot.describe(), "seed": args.seed,
-            "duration_s": duration, "version": __version__})
+            "duration_s": duration, "vcd": args.vcd, "signals": args.signals,
+            "version": __version__})
+        if vcd_tmp is not None:
+            if vcd_tmp.stat().st_size == 0:
+                raise InputError("--vcd", "the window is not inside the run (nothing recorded)")
+            shutil.copyfile(vcd_tmp, tmp / "waves.vcd")
         write_json(tmp / "timeline.json", timeline_json(result.master.records))
         records = result.master.records
         if any(r.complete for r in records):
@@ -124,9 +159,10 @@ def _track(args) -> int:
         print(f"{args.controller} on {args.backend}: max tip error "
               f"{1e3 * summary['max_tip_error_m']:.4f} mm, rho {summary['rho_s']:.6f} s, "
               f"overruns {summary['overruns']}, link errors {summary['link_errors']}, "
+              f"upload errors {summary.get('upload_errors', 0)}, "
+              f"late replies {summary.get('late_replies', 0)}, "
               f"A/B/C/D done at {summary['phases_us']} µs; RTF {summary['rtf']:.0f}")
-        print(f"results in {args.out}/")
-    return 0
+        print(f"results in {args.out}/" + (" (waves.vcd: the --vcd window)" if vcd_tmp else ""))
 
 
 def _table2(args) -> int:
