@@ -925,7 +925,7 @@ class ModelLoop:
         self._down_free = 0                     # master → node 1 link free from this cycle
         self._up_free = 0                       # node 1 → master link free from this cycle
         self._inbox: list[list] = [[] for _ in range(self.n)]   # (cycle, order, kind, data)
-        self._replies: list = []                # (cycle at master, src, type, payload)
+        self._replies: list = []                # (cycle at master, src, type, payload, seq)
         self._b_arrival = [-1] * self.n
         self._torque = np.zeros(self.n)
 
@@ -952,11 +952,12 @@ class ModelLoop:
                 self._inbox[k].append((t + _FIRST_HOP + _HOP * k, 1, "packet",
                                        (action.ptype, action.payload, action.seq)))
 
-    def _reply(self, k: int, ready: int, ptype: int, payload: bytes) -> None:
+    def _reply(self, k: int, ready: int, ptype: int, payload: bytes, seq: int) -> None:
+        """Queue a reply; like the gateware's, its header echoes the request's ``seq``."""
         t = max(ready + _REPLY + _FIRST_HOP + _HOP * k, self._up_free) + \
             _frame_cycles(len(payload))
         self._up_free = t
-        self._replies.append((t, k + 1, ptype, payload))
+        self._replies.append((t, k + 1, ptype, payload, seq))
 
     # --- one chunk of cycles -----------------------------------------------------------------
     def _check_packet(self, k: int, node: NodeModel, c: int, ptype: int) -> None:
@@ -1008,7 +1009,7 @@ class ModelLoop:
                             self._violate(f"node {k + 1}: time-code at phase {ph_before}, "
                                           f"near the sync window {window}")
                         continue
-                    ptype, payload, _seq = data
+                    ptype, payload, seq = data
                     node.run(c + 1)
                     self._check_packet(k, node, c, ptype)
                     if ptype == ref.PacketType.COMM_B:
@@ -1017,7 +1018,7 @@ class ModelLoop:
                     if reply is not None:
                         ready = c if ptype == ref.PacketType.COMM_A else \
                             max(c, self._b_arrival[k] + _MARK)
-                        self._reply(k, ready, ptype, reply)
+                        self._reply(k, ready, ptype, reply, seq)
                 del box[:i]
             node.run(end - 1, sample)
             self._torque[k] = FORCE.decode(node.torque_at(end - 1))
@@ -1038,10 +1039,11 @@ class ModelLoop:
             self._replies.sort(key=lambda r: r[0])
             i = 0
             while i < len(self._replies) and self._replies[i][0] < end:
-                c, src, ptype, payload = self._replies[i]
+                c, src, ptype, payload, seq = self._replies[i]
                 i += 1
                 self.frames.append((c, src, ptype))
-                self.master.on_packet(c, src, ptype, bytes(payload))
+                if not self.master.stale(ptype, seq):       # else counted late
+                    self.master.on_packet(c, src, ptype, bytes(payload))
             del self._replies[:i]
         self.cycle = end
 

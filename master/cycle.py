@@ -228,9 +228,9 @@ class Master:
     def stale(self, ptype: int, seq: int) -> bool:
         """Whether a reply of type ``ptype`` whose header carries ``seq`` answers an earlier
         request than this period's (the node echoes its request's sequence number); such a
-        reply is counted ``late`` and must not be passed to :meth:`on_packet`. For harnesses
-        that see the header (the model backend has none: :meth:`on_packet` still checks the
-        period the reply echoes)."""
+        reply is counted ``late`` and must not be passed to :meth:`on_packet`. Both harnesses
+        (``cosim.closed_loop``, ``cosim.model``) call it; :meth:`on_packet` also checks the
+        period the reply echoes."""
         if ptype in self._req and seq != self._req[ptype]:
             self.late += 1
             return True
