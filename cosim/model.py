@@ -1048,9 +1048,10 @@ class ModelLoop:
         self.cycle = end
 
     # --- the run -------------------------------------------------------------------------------
-    def run(self, duration_cycles: int) -> LoopResult:
+    def run(self, duration_cycles: int, progress=None) -> LoopResult:
         """Start-up and ``duration_cycles`` of closed loop; the trace, as
-        :meth:`cosim.closed_loop.ClosedLoop.run` returns it."""
+        :meth:`cosim.closed_loop.ClosedLoop.run` returns it. ``progress(t_sim, t_total)`` is
+        called every simulated millisecond, as there."""
         s = self.step_cycles
         uploads_sent = False
         steps = duration_cycles // s
@@ -1086,6 +1087,8 @@ class ModelLoop:
             q_rec[i] = self.plant.q
             tau_rec[i] = tau
             self._chunk(s, cyc)
+            if progress is not None and (i + 1) % 100 == 0:
+                progress((i + 1) * s / 50e6, steps * s / 50e6)
         for k, node in enumerate(self.nodes):
             if node.tripped:
                 self._violate(f"node {k + 1}: the watchdog tripped")

@@ -132,7 +132,7 @@ def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
         from cosim.model import ModelLoop
 
         loop = ModelLoop(robot, master, plant, start_cycle, uploads)
-        result = loop.run(duration_cycles)
+        result = loop.run(duration_cycles, progress=progress)
         result.violations = loop.violations
         return result, None
     if backend == "compiled":

@@ -516,3 +516,12 @@ def test_lazy_ticks_equal_the_eager_path_off_the_plant_grid(controller, start):
     _same_runs(*runs, violations=True)
     phases = {b % 50 for node in runs[0][0].nodes for b in node.boundaries[1:]}
     assert phases - {0}                                 # ticks off the step's grid
+
+
+def test_progress_is_reported_every_simulated_millisecond():
+    from cosim.track import run_track
+
+    calls = []
+    run_track("mrm3", "vdc", "model", duration=0.003,
+              progress=lambda t, total: calls.append((round(t, 6), round(total, 6))))
+    assert calls == [(0.001, 0.003), (0.002, 0.003), (0.003, 0.003)]
