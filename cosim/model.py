@@ -148,39 +148,14 @@ def fast_joint_tick(j: JointModel, mode: int, q: int, qd: int, tn: int, tau_D: i
         j.i_hi = min(max(hi, p.ilo), p.ihi)
     else:
         tau = tau_D
-    # Part B: the reference for the next tick
-    ts = (tn * p.cT + 2097152) >> 22
-    if ts < -8388608:
-        ts = -8388608
-    elif ts > 8388607:
-        ts = 8388607
-    tsh = (tn * p.cTh + 2097152) >> 22
-    if tsh < -8388608:
-        tsh = -8388608
-    elif tsh > 8388607:
-        tsh = 8388607
-    v0 = vd0 << 21
-    v = (v0 + ad0 * ts + 1048576) >> 21
-    j.v_des = -8388608 if v < -8388608 else 8388607 if v > 8388607 else v
-    h = (v0 + ad0 * tsh + 1048576) >> 21
-    if h < -8388608:
-        h = -8388608
-    elif h > 8388607:
-        h = 8388607
-    dq = (h * ts + 262144) >> 19
-    if dq < -8388608:
-        dq = -8388608
-    elif dq > 8388607:
-        dq = 8388607
-    qq = ((qd0 << 28) + dq * p.Kc + 134217728) >> 28
-    j.q_des = -8388608 if qq < -8388608 else 8388607 if qq > 8388607 else qq
+    part_b(j, tn, qd0, vd0, ad0)        # Part B: the reference for the next tick
     return tau
 
 
 
 def part_b(j: JointModel, tn: int, qd0: int, vd0: int, ad0: int) -> None:
-    """Part B of :func:`fast_joint_tick` alone: ``(q_des, v_des)`` for the tick ``tn`` cycles
-    after the period start (the same statements)."""
+    """Part B of :func:`fast_joint_tick` (which calls it; dead ticks call it alone):
+    ``(q_des, v_des)`` for the tick ``tn`` cycles after the start of the references' period."""
     p = j.params
     ts = (tn * p.cT + 2097152) >> 22
     if ts < -8388608:
