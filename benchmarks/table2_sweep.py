@@ -54,38 +54,6 @@ def _final_error(config, result) -> np.ndarray:
     return profile.evaluate(result.t[-1:])[0][0] - result.q[-1]
 
 
-def with_friction_estimates(fraction: float):
-    """What-if (not the product path): ``node_uploads`` whose joint words also carry the
-    nominal friction (``fraction`` × the actuator's Coulomb and viscous values) as the VDC joint
-    regressor's estimates ``θ̂_J,1``, ``θ̂_J,2``. ``cosim.closed_loop.node_uploads`` uploads none
-    today; the gateware supports them (``hdl/node/joint_ref.py``)."""
-    from hdl.node.regs import joint_upload
-    from cosim import closed_loop
-    from models.actuators import ACTUATORS
-
-    original = closed_loop.node_uploads
-
-    def uploads(robot, controller, gains, tick_cycles=50, **kwargs):
-        out = original(robot, controller, gains, tick_cycles=tick_cycles, **kwargs)
-        pid = closed_loop.pid_gains(robot, gains.pid_fpga_hz)
-        for k, mod in enumerate(robot.modules):
-            spec = ACTUATORS[mod.type.actuator]
-            kw = dict(counts_per_rev=mod.type.counts_per_rev, tick_cycles=tick_cycles,
-                      lam=gains.lam, k_j=gains.k_j, inertia=spec.output_inertia,
-                      k_p=pid["kp"][k], k_i=pid["ki"][k], k_d=pid["kd"][k], i_max=0.05,
-                      field=f"joint{k + 1}")
-            plain = joint_upload(closed_loop.JointParams.from_float(**kw))
-            rich = joint_upload(closed_loop.JointParams.from_float(
-                **kw, viscous=fraction * spec.viscous_friction,
-                coulomb=fraction * spec.coulomb_friction))
-            for i, (dest, ptype, payload) in enumerate(out):
-                if dest == k + 1 and payload in plain:
-                    out[i] = (dest, ptype, rich[plain.index(payload)])
-        return out
-
-    return uploads
-
-
 def sampled_pid_radius(hz: float, period: float = 1e-3, delay: float = 25e-6,
                        current_bandwidth: float = 1000.0) -> float:
     """Spectral radius of the master's sampled PID loop on a rigid joint (no friction).
@@ -138,8 +106,8 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=None)
     p.add_argument("--json", default=None, help="write the points here as JSON")
     p.add_argument("--friction-comp", type=float, default=None, metavar="FRACTION",
-                   help="what-if: upload FRACTION x the nominal joint friction as the VDC "
-                   "joint estimates (not what the product uploads today)")
+                   help="VDC joint friction estimates as FRACTION x the nominal friction "
+                   "(shorthand for --set friction_comp=FRACTION)")
     args = p.parse_args(argv)
     if args.pid_stability:
         for hz in (5, 15, 40, 80):
@@ -149,10 +117,6 @@ def main(argv=None) -> int:
         return 0
     if not args.controller or not args.gain:
         p.error("--controller and --gain are required (or --pid-stability)")
-    if args.friction_comp is not None:
-        import cosim.track
-
-        cosim.track.node_uploads = with_friction_estimates(args.friction_comp)
     base = load(args.config).with_overrides(backend=args.backend, seed=args.seed,
                                             duration=args.duration)
     name, values = args.gain[0], [float(v) for v in args.gain[1:]]
@@ -160,10 +124,12 @@ def main(argv=None) -> int:
     for item in args.set:
         key, _, value = item.partition("=")
         fixed[key] = float(value)
+    if args.friction_comp is not None:
+        fixed["friction_comp"] = args.friction_comp
     points = []
     print(f"# {args.controller} on {base.backend}, seed {base.seed}, {base.duration:g} s, "
           f"fixed {fixed or 'nothing'}; varying {name}; friction estimates "
-          f"{args.friction_comp or 0:g} x nominal", flush=True)
+          f"{fixed.get('friction_comp', base.gains.friction_comp):g} x nominal", flush=True)
     print(f"# {name:>10} {'rho_s':>10} {'tip_mm':>9} {'joint_mrad':>10} {'final_mrad':>10} "
           f"{'max|tau| N m':>22} overruns wall_s", flush=True)
     for v in values:
@@ -173,7 +139,7 @@ def main(argv=None) -> int:
         config = replace(from_dict(data), controllers=(args.controller,))
         r = _point(config, args.controller)
         points.append({"controller": args.controller, name: v, **fixed,
-                       "friction_comp": args.friction_comp or 0.0, **r})
+                       "friction_comp": data["gains"]["friction_comp"], **r})
         tau = " ".join(f"{x:6.2f}" for x in r["max_abs_torque_Nm"])
         print(f"  {v:10g} {r['rho_s']:10.3g} {1e3 * r['max_tip_error_m']:9.4f} "
               f"{1e3 * r['max_joint_error_rad']:10.4f} {1e3 * r['final_joint_error_rad']:10.4f} "

@@ -366,19 +366,14 @@ class _VcdOut:
         self._widths = [len(sig) for sig in self.signals]
         self._last: list | None = None
         self._ids = [_vcd_id(k) for k in range(len(self.signals))]
-        lines = ["$timescale 1ps $end", "$scope module system $end"]
-        cur: tuple[str, ...] = ()
-        for scope, name, k in sorted(self._vars, key=lambda v: v[0]):
-            common = 0
-            while common < min(len(cur), len(scope)) and cur[common] == scope[common]:
-                common += 1
-            lines += ["$upscope $end"] * (len(cur) - common)
-            lines += [f"$scope module {s} $end" for s in scope[common:]]
-            cur = scope
+        from cosim.compiled import vcd_header
+
+        def var(name, k):
             w = self._widths[k]
             rng = f" [{w - 1}:0]" if w > 1 else ""
-            lines.append(f"$var wire {w} {self._ids[k]} {name}{rng} $end")
-        lines += ["$upscope $end"] * len(cur) + ["$upscope $end", "$enddefinitions $end"]
+            return f"$var wire {w} {self._ids[k]} {name}{rng} $end"
+
+        lines = vcd_header("system", [(scope, var(name, k)) for scope, name, k in self._vars])
         self._file.write("\n".join(lines) + "\n")
 
     def sample(self, cycle: int, values) -> None:

@@ -33,7 +33,7 @@ from models.plant import Plant
 from models.robot import Robot
 from mrm.errors import InputError
 
-__all__ = ["Gains", "ClosedLoop", "LoopResult", "node_uploads", "EEP", "EOP"]
+__all__ = ["Gains", "ClosedLoop", "LoopResult", "node_uploads", "startup_sends", "EEP", "EOP"]
 
 EOP, EEP = ref.EOP, ref.EEP
 _RX_CHUNK_OUTPUTS = ("rx_valid", "rx_char")
@@ -137,6 +137,18 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
         out += [(dest, ref.PacketType.PARAM, p) for p in joint_upload(joint)]
         out += [(dest, ref.PacketType.CONFIG, p) for p in config_payloads({Config.ARM: 1})]
     return out
+
+
+def startup_sends(uploads, master: Master, q0, seq: int) -> tuple[list[Send], int]:
+    """What the master sends once the link is up, before period 0: every upload ``(dest, type,
+    payload)`` with sequence numbers counting on from ``seq``, then its initial Comm D (at the
+    plant's posture ``q0``). Returns the sends and the last sequence number used. Both loops
+    (this one and ``cosim.model.ModelLoop``) start the same way."""
+    sends = []
+    for dest, ptype, payload in uploads:
+        seq = (seq + 1) & 0xFF
+        sends.append(Send("packet", dest, int(ptype), payload, seq))
+    return sends + list(master.initial_packets(q0)), seq
 
 
 @dataclass
@@ -277,10 +289,9 @@ class ClosedLoop:
         tau_rec = np.zeros((steps, self.n))
         while self.cycle < self.start_cycle:
             if self._link_up and not uploads_sent:
-                for dest, ptype, payload in self._uploads:
-                    self._seq = (self._seq + 1) & 0xFF
-                    self._queue(Send("packet", dest, int(ptype), payload, self._seq))
-                for a in self.master.initial_packets(self.plant.q):
+                sends, self._seq = startup_sends(self._uploads, self.master, self.plant.q,
+                                                 self._seq)
+                for a in sends:
                     self._queue(a)
                 uploads_sent = True
             await self._chunk(s)

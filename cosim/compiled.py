@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["CompiledModel", "Port", "verilator_path", "cache_dir", "BuildError",
-           "signed_port_map", "filter_vcd", "DEFAULT_ARGS"]
+           "signed_port_map", "filter_vcd", "vcd_header", "DEFAULT_ARGS"]
 
 _WRAPPER_VERSION = "2"
 
@@ -487,6 +487,24 @@ def _signed_array(raw: np.ndarray, port: Port) -> np.ndarray:
     return v
 
 
+def vcd_header(top: str, variables) -> list[str]:
+    """VCD header lines (ps timescale): ``variables`` are ``(scope, var)`` pairs, ``scope`` a
+    tuple of module names below ``top``, ``var`` the ``$var … $end`` line; nested scopes are
+    opened and closed in sorted scope order. Shared by both backends' VCD writers."""
+    out = ["$timescale 1ps $end", f"$scope module {top} $end"]
+    cur: tuple[str, ...] = ()
+    for scope, var in sorted(variables, key=lambda v: v[0]):
+        common = 0
+        while common < min(len(cur), len(scope)) and cur[common] == scope[common]:
+            common += 1
+        out += ["$upscope $end"] * (len(cur) - common)
+        out += [f"$scope module {s} $end" for s in scope[common:]]
+        cur = scope
+        out.append(var)
+    out += ["$upscope $end"] * len(cur)
+    return out + ["$upscope $end", "$enddefinitions $end"]
+
+
 def filter_vcd(src, dst, top: str, keep, period_ps: int = 20_000) -> list[str]:
     """Rewrite a raw VCD of :meth:`CompiledModel.trace_open` for users.
 
@@ -532,18 +550,8 @@ def filter_vcd(src, dst, top: str, keep, period_ps: int = 20_000) -> list[str]:
         i = end + 1
     kept = [k for k in kept if k[3] not in clocks]
     ids = {k[3] for k in kept}
-    out = ["$timescale 1ps $end", f"$scope module {top} $end"]
-    cur: tuple[str, ...] = ()
-    for rel, vtype, size, ident, name in sorted(kept, key=lambda k: k[0]):
-        common = 0
-        while common < min(len(cur), len(rel)) and cur[common] == rel[common]:
-            common += 1
-        out += ["$upscope $end"] * (len(cur) - common)
-        out += [f"$scope module {s} $end" for s in rel[common:]]
-        cur = rel
-        out.append(f"$var {vtype} {size} {ident} {name} $end")
-    out += ["$upscope $end"] * len(cur)
-    out += ["$upscope $end", "$enddefinitions $end"]
+    out = vcd_header(top, [(rel, f"$var {vtype} {size} {ident} {name} $end")
+                           for rel, vtype, size, ident, name in kept])
     for line in body.splitlines()[1:]:          # the rest of the "$enddefinitions $end" line
         line = line.strip()
         if not line:

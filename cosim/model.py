@@ -62,7 +62,7 @@ from models.plant import Plant
 from models.robot import Robot
 from mrm.errors import InputError
 
-from .closed_loop import LoopResult
+from .closed_loop import LoopResult, startup_sends
 
 __all__ = ["EncoderEvents", "FastNode", "FastVdc", "fast_joint_tick", "part_b", "pid_integral",
            "ModelLoop", "ModelAssumptionError", "LINK_UP_CYCLE"]
@@ -468,7 +468,11 @@ class FastNode(NodeModel):
 
     def _dead_tick(self, now: int, count_at, tt: int) -> None:
         """:meth:`_fast_tick` for a tick whose torque is overwritten before it is observed
-        (``count_at(cycle)``: the count, the strobe deferred: :meth:`EncoderEvents.defer`)."""
+        (``count_at(cycle)``: the count, the strobe deferred: :meth:`EncoderEvents.defer`).
+
+        Its first lines (landing, watchdog, next tick, ramp, overrun) are :meth:`_fast_tick`'s,
+        written out in both on purpose: these two run once per control tick (a million times
+        per simulated second and node) and a shared helper costs a call each; change both."""
         landing = self._landing
         if landing is not None and now >= landing[0]:
             self.torque = landing[1]
@@ -1035,11 +1039,9 @@ class ModelLoop:
         tau_rec = np.zeros((steps, self.n))
         while self.cycle < self.start_cycle:
             if self.cycle >= LINK_UP_CYCLE and not uploads_sent:
-                for dest, ptype, payload in self._uploads:
-                    self._seq = (self._seq + 1) & 0xFF
-                    self._queue(Send("packet", dest, int(ptype), payload, self._seq),
-                                self.cycle)
-                for a in self.master.initial_packets(self.plant.q):
+                sends, self._seq = startup_sends(self._uploads, self.master, self.plant.q,
+                                                 self._seq)
+                for a in sends:
                     self._queue(a, self.cycle)
                 uploads_sent = True
             self._chunk(s, None)
