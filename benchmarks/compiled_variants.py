@@ -72,7 +72,7 @@ def record(cycles: int, path: Path) -> None:
     from cosim.backends import CompiledBackend, drive
     from cosim.closed_loop import ClosedLoop, Gains, node_uploads, pid_gains
     from cosim.preview import paper_test_profile
-    from hdl.system import System
+    from cosim.track import loop_system, loop_system_key
     from master.cycle import Master, MasterTiming
     from models.plant import Plant
     from models.robot import load_robot
@@ -88,7 +88,8 @@ def record(cycles: int, path: Path) -> None:
                     pid=pid_gains(robot, 5.0))
     plant = Plant(robot, seed=0)
     plant.reset(robot.home)
-    be = _Taping(CompiledBackend(lambda: System(robot.n), f"system{robot.n}", quiet=False))
+    be = _Taping(CompiledBackend(lambda: loop_system(robot.n), loop_system_key(robot.n),
+                                 quiet=False))
     model = be.backend.model
     text, signed = model.verilog, {p.name: p.signed for p in model.ports.values()}
     loop = ClosedLoop(robot, be, master, plant, 50_000, node_uploads(robot, "vdc", Gains()))

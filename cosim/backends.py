@@ -93,6 +93,15 @@ _TIME_RE = re.compile(r"^\s*([0-9]*\.?[0-9]+(?:[eE][-+]?[0-9]+)?)\s*(s|ms|us|µs
 _UNIT = {None: 1.0, "s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
 
 
+def parse_time(text: str, field: str) -> float:
+    """Seconds from ``"0.0012"``, ``"1.2ms"``, ``"40us"``, ``"20ns"``; ``InputError(field)``
+    for anything else."""
+    m = _TIME_RE.match(str(text))
+    if m is None:
+        raise InputError(field, f"{text!r} is not a time (e.g. 0.0012, 1.2ms, 40us)")
+    return float(m.group(1)) * _UNIT[m.group(2)]
+
+
 @dataclass(frozen=True)
 class VcdWindow:
     """A waveform request: the cycles ``[start, stop)`` and the signals to record.
@@ -138,10 +147,7 @@ class VcdWindow:
             raise InputError("--vcd", f"must be T0:T1 (seconds, or with ms/us/ns), not {spec!r}")
         times = []
         for part in parts:
-            m = _TIME_RE.match(part)
-            if m is None:
-                raise InputError("--vcd", f"{part!r} is not a time (e.g. 0.0012, 1.2ms, 40us)")
-            times.append(float(m.group(1)) * _UNIT[m.group(2)] + offset)
+            times.append(parse_time(part, "--vcd") + offset)
         t0, t1 = times
         if not t1 > t0 >= 0:
             raise InputError("--vcd", f"needs 0 <= T0 < T1, not {spec!r}")

@@ -33,7 +33,8 @@ from models.plant import Plant
 from models.robot import Robot
 from mrm.errors import InputError
 
-__all__ = ["Gains", "ClosedLoop", "LoopResult", "node_uploads", "startup_sends", "EEP", "EOP"]
+__all__ = ["Gains", "ClosedLoop", "LoopResult", "LineFault", "FAULT_KINDS", "node_uploads",
+           "startup_sends", "EEP", "EOP"]
 
 EOP, EEP = ref.EOP, ref.EEP
 _RX_CHUNK_OUTPUTS = ("rx_valid", "rx_char")
@@ -151,6 +152,90 @@ def startup_sends(uploads, master: Master, q0, seq: int) -> tuple[list[Send], in
     return sends + list(master.initial_packets(q0)), seq
 
 
+#: Line faults :class:`LineFault` can inject (``hdl.link.chain.line_fault_layout`` controls).
+FAULT_KINDS = {
+    "cut": "both wires cut (D and S read 0 in every slot): a broken cable",
+    "bit": "D and S inverted in the cycle's first slot: one bit's value flipped, framing kept",
+    "stuck-d": "the D wire stuck at 0 (S still toggles)",
+}
+
+
+@dataclass(frozen=True)
+class LineFault:
+    """A fault on one line of the chain during a closed-loop run (pysim and compiled).
+
+    Attributes
+    ----------
+    node : int
+        The line above node ``node`` (1-based): from the master port or node ``node − 1``.
+    direction : str
+        ``"down"`` (towards the node) or ``"up"`` (from it towards the master).
+    kind : str
+        One of :data:`FAULT_KINDS`.
+    cycle : int
+        First faulty cycle, counted from period 0 (20 ns each).
+    cycles : int
+        How long it lasts, cycles.
+    """
+
+    node: int
+    direction: str
+    kind: str
+    cycle: int
+    cycles: int = 1
+
+    def __post_init__(self):
+        if isinstance(self.node, bool) or not isinstance(self.node, int) or self.node < 1:
+            raise InputError("fault.node", f"must be a node number from 1, not {self.node!r}")
+        if self.direction not in ("down", "up"):
+            raise InputError("fault.direction", f"must be 'down' or 'up', not {self.direction!r}")
+        if self.kind not in FAULT_KINDS:
+            raise InputError("fault.kind", f"must be one of {', '.join(FAULT_KINDS)}, "
+                             f"not {self.kind!r}")
+        for name in ("cycle", "cycles"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < (1 if name == "cycles" else 0):
+                raise InputError(f"fault.{name}", f"must be an integer "
+                                 f"{'≥ 1' if name == 'cycles' else '≥ 0'}, not {v!r}")
+
+    @classmethod
+    def parse(cls, spec: str, field: str = "--line-fault") -> LineFault:
+        """``KIND:DIRECTION:NODE@TIME[+DURATION]``, times from period 0 with optional units:
+        ``bit:up:2@2.006ms`` (one cycle), ``cut:down:2@10ms+2us``. ``InputError(field)``."""
+        from cosim.backends import parse_time
+
+        text = str(spec)
+        where, _, when = text.partition("@")
+        parts = where.split(":")
+        if not when or len(parts) != 3:
+            raise InputError(field, f"must be KIND:DIRECTION:NODE@TIME[+DURATION] "
+                             f"(e.g. bit:up:2@2.006ms), not {text!r}")
+        kind, direction, node = (p.strip() for p in parts)
+        if not node.isdigit():
+            raise InputError(field, f"the node must be a number, not {node!r} in {text!r}")
+        at, _, length = when.partition("+")
+        cycle = round(parse_time(at, field) * 50e6)
+        cycles = max(1, round(parse_time(length, field) * 50e6)) if length else 1
+        try:
+            return cls(int(node), direction, kind, cycle, cycles)
+        except InputError as e:
+            raise InputError(field, f"{e.message} (in {text!r})") from None
+
+    @property
+    def port(self) -> str:
+        """The :class:`hdl.system.System` input it drives."""
+        return f"fault_{self.direction}{self.node}"
+
+    def value(self, slots: int = 3) -> int:
+        """The raw value of a ``line_fault_layout(slots)`` port while the fault lasts."""
+        fields = ("clear_d", "set_d", "flip_d", "clear_s", "set_s", "flip_s")
+        every = (1 << slots) - 1
+        on = {"cut": {"clear_d": every, "clear_s": every},
+              "bit": {"flip_d": 1, "flip_s": 1},
+              "stuck-d": {"clear_d": every}}[self.kind]
+        return sum(on.get(f, 0) << (slots * i) for i, f in enumerate(fields))
+
+
 @dataclass
 class LoopResult:
     """Trace of a closed-loop run, one row per plant step after the brakes released."""
@@ -159,8 +244,8 @@ class LoopResult:
     q: np.ndarray                 # (steps, n) true joint angles, rad
     tau: np.ndarray               # (steps, n) torque commands applied, N·m
     master: Master
-    link_errors: int
-    crc_errors: int
+    link_errors: int              # the master port's codec errors (five classes, summed)
+    crc_errors: int               # frames the master dropped: CRC, length or EEP
     frames: list = field(default_factory=list)   # (cycle, src, type) of every good frame
     trace_sha256: str = ""
     violations: list = field(default_factory=list)   # model backend: conditions not met
@@ -179,10 +264,13 @@ class ClosedLoop:
     start_cycle : int
         Cycle of period 0 (after link start-up and uploads).
     uploads : list of (dest, type, payload)
+    faults : sequence of LineFault
+        Line faults to inject; the backend's system must have been built with
+        ``line_faults=True`` (``line_slots`` slots per line).
     """
 
     def __init__(self, robot: Robot, backend, master: Master, plant: Plant,
-                 start_cycle: int, uploads):
+                 start_cycle: int, uploads, faults=(), line_slots: int = 3):
         self.robot = robot
         self.n = robot.n
         self.backend = backend
@@ -198,8 +286,14 @@ class ClosedLoop:
         self._rx: list[int] = []
         self._timecode: int | None = None
         self.crc_errors = 0
+        self.link_errors = 0              # the master port's codec errors (System.link_errors)
         self.frames = []
         self._uploads = list(uploads)
+        self._faults = list(faults)
+        for f in self._faults:
+            if f.node > self.n:
+                raise InputError("fault.node", f"the robot has {self.n} nodes, not {f.node}")
+        self._line_slots = line_slots
         self._torque = np.zeros(self.n)
         self._enc_a = np.zeros(self.step_cycles, dtype=np.int64)
         self._enc_b = np.zeros(self.step_cycles, dtype=np.int64)
@@ -261,7 +355,9 @@ class ClosedLoop:
             inputs["time_in"] = np.full(n, self._timecode, dtype=np.int64)
             self._timecode = None
         inputs["tick_in"] = tick
-        names = [*_RX_CHUNK_OUTPUTS, "tx_level", "running"] + \
+        if self._faults:
+            self._fault_inputs(inputs, n)
+        names = [*_RX_CHUNK_OUTPUTS, "tx_level", "running", "link_errors"] + \
             [f"torque{k + 1}" for k in range(self.n)]
         out = await self.backend.run(n, inputs, names)
         valid = np.nonzero(out["rx_valid"])[0]
@@ -269,11 +365,23 @@ class ClosedLoop:
             self._take_rx(self.cycle + valid, out["rx_char"][valid])
         self._tx_level = int(out["tx_level"][-1])
         self._link_up = bool(out["running"][-1])
+        self.link_errors = int(out["link_errors"][-1])
         # torque words at the next cycle's edge are the ones sampled last in this chunk
         self._torque = np.array([FORCE.decode(int(out[f"torque{j + 1}"][-1]))
                                  for j in range(self.n)])
         self.cycle += n
         return out
+
+    def _fault_inputs(self, inputs: dict, n: int) -> None:
+        """Every fault port, every chunk (an input not passed keeps its last value)."""
+        for k in range(1, self.n + 1):
+            for d in ("down", "up"):
+                inputs[f"fault_{d}{k}"] = np.zeros(n, dtype=np.int64)
+        for f in self._faults:
+            first = self.start_cycle + f.cycle
+            lo, hi = max(first, self.cycle), min(first + f.cycles, self.cycle + n)
+            if lo < hi:
+                inputs[f.port][lo - self.cycle:hi - self.cycle] |= f.value(self._line_slots)
 
     # --- the run ----------------------------------------------------------------------------
     async def run(self, duration_cycles: int, progress=None) -> LoopResult:
@@ -313,6 +421,6 @@ class ClosedLoop:
         digest = hashlib.sha256()
         digest.update(q_rec.tobytes())
         digest.update(tau_rec.tobytes())
-        return LoopResult(t_rec, q_rec, tau_rec, self.master, 0, self.crc_errors,
+        return LoopResult(t_rec, q_rec, tau_rec, self.master, self.link_errors, self.crc_errors,
                           self.frames, digest.hexdigest())
 

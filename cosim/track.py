@@ -15,7 +15,7 @@ from models.plant import Plant, PlantConfig
 from models.robot import load_robot
 from mrm.errors import InputError
 
-__all__ = ["run_track", "BACKENDS"]
+__all__ = ["run_track", "BACKENDS", "link_errors_detail", "loop_system", "loop_system_key"]
 
 BACKENDS = ("compiled", "pysim", "model")
 START_CYCLE = 50_000          # period 0 at 1 ms: links up (21 µs) and uploads done well before
@@ -24,7 +24,7 @@ START_CYCLE = 50_000          # period 0 at 1 ms: links up (21 µs) and uploads 
 def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: float = 1.5,
               seed: int = 0, gains: Gains | None = None, timing: MasterTiming | None = None,
               plant_config: PlantConfig | None = None, progress=None, profile=None,
-              vcd: str | None = None, signals: str | None = None, vcd_path=None):
+              vcd: str | None = None, signals: str | None = None, vcd_path=None, faults=()):
     """Run the quintic test (q_i = i·q_d, 0.1571 rad in 1 s, then hold) in closed loop.
 
     Parameters
@@ -38,6 +38,9 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         Waveforms: the window ``"T0:T1"`` (seconds from period 0, units ``s``/``ms``/``us``/``ns``
         allowed) and fnmatch patterns of the signals to record into ``vcd_path``
         (pysim and compiled only).
+    faults : sequence of cosim.closed_loop.LineFault
+        Line faults to inject (pysim and compiled); the summary's ``link_errors`` and
+        ``link_error_detail`` say where they were counted.
 
     Returns
     -------
@@ -70,7 +73,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
             raise InputError("--vcd", "needs an output file")
         window = VcdWindow.parse(vcd, vcd_path, signals=signals, offset=start / 50e6)
     result, _ = run_loop(robot, backend, master, plant, start, uploads, duration_cycles,
-                         quiet=progress is None, vcd=window, progress=progress)
+                         quiet=progress is None, vcd=window, progress=progress, faults=faults)
     wall = time.perf_counter() - t0
     q_d, qd_d, _, _ = profile.evaluate(result.t)
     tip_d = np.array([robot.tip_pose(q)[:3, 3] for q in q_d[::10]])
@@ -79,6 +82,9 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
                       for q, v in zip(q_d[::10], qd_d[::10], strict=True)])
     err = np.linalg.norm(tip_d - tip, axis=1)
     phases = _phases_us(master)
+    link_detail = link_errors_detail(result)
+    link_total = (link_detail["master_rx_dropped"] + link_detail["master_port"]
+                  + sum(link_detail["nodes"].values()))
     summary = {
         "controller": controller, "backend": backend, "robot": robot.name, "seed": seed,
         "duration_s": duration,
@@ -93,13 +99,30 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         "tripped_nodes": sorted(master.tripped),
         "node_counters": master.node_totals(),
         "model_violations": list(getattr(result, "violations", [])),
-        "link_errors": result.crc_errors,
+        "link_errors": link_total,
+        "link_error_detail": link_detail,
         "phases_us": phases,
         "trace_sha256": result.trace_sha256,
         "wall_s": wall,
         "rtf": wall / (duration + start / 50e6),
     }
     return result, summary
+
+
+def link_errors_detail(result) -> dict:
+    """Where the link faults of a run were counted.
+
+    ``master_rx_dropped``: frames the master dropped (CRC, length, EEP); ``master_port``: the
+    master port codec's errors (five classes summed); ``nodes``: each of
+    :data:`hdl.node.regs.LINK_HEALTH` summed over the nodes, as last reported in Comm A;
+    ``per_node``: the same per node (keys "1".."N"). The summary's ``link_errors`` is the sum
+    of all of them (0: no fault anywhere on the chain).
+    """
+    m = result.master
+    return {"master_rx_dropped": int(result.crc_errors),
+            "master_port": int(result.link_errors),
+            "nodes": m.link_totals(),
+            "per_node": {str(k): dict(v) for k, v in sorted(m.node_link.items())}}
 
 
 def _trajectory(robot, profile=None):
@@ -115,35 +138,37 @@ def _trajectory(robot, profile=None):
 
 def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
              duration_cycles: int, record: bool = False, quiet: bool = True, vcd=None,
-             progress=None):
+             progress=None, faults=()):
     """Build :class:`hdl.system.System` for ``robot`` on ``backend`` and run the closed loop.
 
     ``vcd``: a :class:`cosim.backends.VcdWindow` to record (pysim, compiled); ``progress``:
-    ``progress(t_sim, t_total)`` about every simulated millisecond.
+    ``progress(t_sim, t_total)`` about every simulated millisecond; ``faults``: line faults
+    to inject (:class:`cosim.closed_loop.LineFault`; pysim and compiled).
 
     Returns
     -------
     (LoopResult, Recorder or None)
         With ``record``, the recorder holds every per-cycle output the loop sampled.
     """
-    from hdl.system import System
-
     if backend == "model":
         from cosim.model import ModelLoop
 
+        if faults:
+            raise InputError("--line-fault", "the model backend's link is ideal: inject line "
+                             "faults on compiled or pysim")
         loop = ModelLoop(robot, master, plant, start_cycle, uploads)
         result = loop.run(duration_cycles, progress=progress)
         result.violations = loop.violations
         return result, None
     if backend == "compiled":
-        be = CompiledBackend(lambda: System(robot.n), f"system{robot.n}", quiet=quiet, vcd=vcd)
+        be = CompiledBackend(lambda: loop_system(robot.n), loop_system_key(robot.n),
+                             quiet=quiet, vcd=vcd)
     elif backend == "pysim":
-        system = System(robot.n)
-        be = PysimBackend(system, vcd=vcd)
+        be = PysimBackend(loop_system(robot.n), vcd=vcd)
     else:
         raise InputError("--backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")
     rec = Recorder(be) if record else None
-    loop = ClosedLoop(robot, rec or be, master, plant, start_cycle, uploads)
+    loop = ClosedLoop(robot, rec or be, master, plant, start_cycle, uploads, faults=faults)
     if backend == "compiled":
         result = drive(loop.run(duration_cycles, progress=progress))
         be.finish()
@@ -159,6 +184,19 @@ def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
     sim.run()
     be.finish()
     return box["result"], rec
+
+
+def loop_system(n: int):
+    """The design every closed-loop run simulates: :class:`hdl.system.System` of ``n`` nodes
+    with its line-fault inputs (held at zero unless a run injects faults)."""
+    from hdl.system import System
+
+    return System(n, line_faults=True)
+
+
+def loop_system_key(n: int) -> str:
+    """The compiled-model cache key of :func:`loop_system`."""
+    return f"system{n}-faults"
 
 
 def _phases_us(master) -> dict:

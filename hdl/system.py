@@ -16,7 +16,8 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from .link.chars import Char, ErrorCounts, LinkState
+from .link.chain import faulty_line, line_fault_layout
+from .link.chars import ERROR_CLASSES, Char, ErrorCounts, LinkState, saturating_sum
 from .master_port import MasterPort
 from .node.fixed import WORD
 from .node.top import SlaveNode
@@ -47,6 +48,9 @@ class System(wiring.Component):
     tx_valid, tx_char, tx_level, tx_overflow, rx_valid, rx_char, tick_in, time_in,
     running, state, errors :
         The master port's (see :class:`~hdl.master_port.MasterPort`).
+    link_errors : Out(16)
+        The master port's ``errors``, the five classes summed (saturating): one narrow word a
+        harness can sample every cycle (the nodes report theirs in Comm A).
     enc_a, enc_b : In(n_nodes)
         Encoder lines, bit k for node k+1.
     torque1 … torqueN : Out(signed(24))
@@ -54,11 +58,18 @@ class System(wiring.Component):
     status1 … statusN : Out(16)
     count1 … countN : Out(signed(32))
         Live encoder counts of the nodes.
+    fault_down1 … fault_downN, fault_up1 … fault_upN : In(line_fault_layout(slots))
+        Only with ``line_faults``: fault injection on the line above node k (from the master
+        port or node k − 1), towards node k (``down``) or from it (``up``), as
+        :class:`~hdl.link.chain.Chain`'s; all zero: good wires. A co-simulation testbench
+        capability (``cosim``), not part of the robot's gateware.
     """
 
-    def __init__(self, n_nodes: int, *, codec: dict | None = None, encoder=None):
+    def __init__(self, n_nodes: int, *, codec: dict | None = None, encoder=None,
+                 line_faults: bool = False):
         check_n_nodes(n_nodes)
         self.n_nodes = n_nodes
+        self.line_faults = bool(line_faults)
         self.master = MasterPort(codec=codec)
         self.nodes = [SlaveNode(codec=codec, encoder=encoder) for _ in range(n_nodes)]
         members = {
@@ -73,6 +84,7 @@ class System(wiring.Component):
             "running":     Out(1),
             "state":       Out(LinkState),
             "errors":      Out(ErrorCounts),
+            "link_errors": Out(16),
             "enc_a":       In(n_nodes),
             "enc_b":       In(n_nodes),
         }
@@ -80,6 +92,10 @@ class System(wiring.Component):
             members[f"torque{k}"] = Out(signed(WORD))
             members[f"status{k}"] = Out(16)
             members[f"count{k}"] = Out(signed(32))
+            if self.line_faults:
+                layout = line_fault_layout(self.master.codec.slots)
+                members[f"fault_down{k}"] = In(layout)
+                members[f"fault_up{k}"] = In(layout)
         super().__init__(members)
 
     def elaborate(self, platform):
@@ -90,6 +106,7 @@ class System(wiring.Component):
         for name in ("tx_level", "tx_overflow", "rx_valid", "rx_char", "running", "state",
                      "errors"):
             m.d.comb += getattr(self, name).eq(getattr(master, name))
+        m.d.comb += self.link_errors.eq(saturating_sum(master.errors[f] for f in ERROR_CLASSES))
         upstream = master.line
         for k, node in enumerate(self.nodes):
             m.submodules[f"node{k + 1}"] = node
@@ -100,11 +117,19 @@ class System(wiring.Component):
                 getattr(self, f"torque{k + 1}").eq(node.torque),
                 getattr(self, f"status{k + 1}").eq(node.status),
                 getattr(self, f"count{k + 1}").eq(node.count),
-                # upstream port's outputs drive the node's inputs and vice versa
-                node.up.d_in.eq(upstream.d_out),
-                node.up.s_in.eq(upstream.s_out),
-                upstream.d_in.eq(node.up.d_out),
-                upstream.s_in.eq(node.up.s_out),
+            ]
+            # upstream port's outputs drive the node's inputs and vice versa
+            down_d, down_s = upstream.d_out, upstream.s_out
+            up_d, up_s = node.up.d_out, node.up.s_out
+            if self.line_faults:
+                down, up = getattr(self, f"fault_down{k + 1}"), getattr(self, f"fault_up{k + 1}")
+                down_d, down_s = faulty_line(down_d, down, "d"), faulty_line(down_s, down, "s")
+                up_d, up_s = faulty_line(up_d, up, "d"), faulty_line(up_s, up, "s")
+            m.d.comb += [
+                node.up.d_in.eq(down_d),
+                node.up.s_in.eq(down_s),
+                upstream.d_in.eq(up_d),
+                upstream.s_in.eq(up_s),
             ]
             upstream = node.down
         return m

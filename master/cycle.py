@@ -23,7 +23,10 @@ and come before the period ends (else the period is an ``overrun`` and the repli
 ``missing``; so is a period whose Comm D was still waiting to be sent). The nodes' own
 counters, reported in every Comm A (control ticks skipped, time-codes outside the sync window,
 Comm D packets after the commit phase, illegal encoder transitions), are kept per node
-(:attr:`Master.node_counters`); a run with any of them non-zero says so.
+(:attr:`Master.node_counters`); a run with any of them non-zero says so. So is each node's
+view of the link — its two codecs' error totals, the frames its depacketizer dropped, the
+packets its router discarded (:data:`hdl.node.regs.LINK_HEALTH`, :attr:`Master.node_link`,
+:meth:`Master.link_totals`): a fault anywhere on the chain is counted where it happened.
 
 Uploads. Given the CONFIG and PARAM packets sent to the nodes before the run
 (:meth:`Master.expect_uploads`), the master computes what each node must report in every
@@ -45,8 +48,8 @@ import numpy as np
 
 from hdl.link.packet_ref import BROADCAST, PacketType
 from hdl.node.fixed import FORCE, VEL
-from hdl.node.regs import (Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c,
-                           upload_check)
+from hdl.node.regs import (LINK_HEALTH, Status, pack_comm_b, pack_comm_d, parse_comm_a,
+                           parse_comm_c, upload_check)
 from master.vdc import propagate_forces, propagate_velocities
 from models.robot import Robot
 
@@ -151,6 +154,8 @@ class Master:
         self.tripped: set[int] = set()
         #: node -> the counters of its last Comm A (cumulative in the node)
         self.node_counters: dict[int, dict] = {}
+        #: node -> its link counters (:data:`~hdl.node.regs.LINK_HEALTH`) in its last Comm A
+        self.node_link: dict[int, dict] = {}
         self._seq = 0
         self._pending: list[tuple[int, list[Send]]] = []   # (cycle, actions)
         self._integral = np.zeros(self.n)
@@ -181,6 +186,11 @@ class Master:
     def node_totals(self) -> dict:
         """Sum over the nodes of each of :data:`NODE_COUNTERS`, as last reported."""
         return {k: int(sum(c[k] for c in self.node_counters.values())) for k in NODE_COUNTERS}
+
+    def link_totals(self) -> dict:
+        """Sum over the nodes of each link counter (:data:`~hdl.node.regs.LINK_HEALTH`), as
+        last reported (each is cumulative since the node's reset)."""
+        return {k: int(sum(c[k] for c in self.node_link.values())) for k in LINK_HEALTH}
 
     # --- scheduling ------------------------------------------------------------------------
     def begin(self, start_cycle: int) -> None:
@@ -277,6 +287,7 @@ class Master:
         rec = self._rec
         self._a[src] = a
         self.node_counters[src] = {k: a[k] for k in NODE_COUNTERS}
+        self.node_link[src] = {k: a[k] for k in LINK_HEALTH}
         if a["status"] & Status.TRIPPED:
             self.tripped.add(src)
         exp = self.expected_uploads

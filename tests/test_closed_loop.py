@@ -24,6 +24,9 @@ def test_every_period_completes_the_exchange_inside_the_period(vdc_run):
     assert len(master.records) == 4
     assert summary["overruns"] == 0 and summary["missing_replies"] == 0
     assert summary["unexpected_replies"] == 0 and summary["link_errors"] == 0
+    # every node reported its link counters (cumulative from reset: start-up counted nothing)
+    assert sorted(master.node_link) == [1, 2, 3]
+    assert all(v == 0 for c in master.node_link.values() for v in c.values())
     for rec in master.records[:-1]:
         ev = rec.events
         assert rec.complete

@@ -25,9 +25,9 @@ from .packet import Beat, Header
 from .packet_ref import DEFAULT_MAX_PAYLOAD
 from .params import rejecting
 
-__all__ = ["Chain", "line_fault_layout", "char_value", "char_int", "beat_value", "beat_fields",
-           "put_chars", "get_chars", "put_packet", "get_packet", "master_send", "master_receive",
-           "node_send", "node_receive", "read_stats"]
+__all__ = ["Chain", "line_fault_layout", "faulty_line", "char_value", "char_int", "beat_value",
+           "beat_fields", "put_chars", "get_chars", "put_packet", "get_packet", "master_send",
+           "master_receive", "node_send", "node_receive", "read_stats"]
 
 
 _CHAR = Char.as_shape()
@@ -152,7 +152,7 @@ def line_fault_layout(slots: int) -> data.StructLayout:
                               ("clear_d", "set_d", "flip_d", "clear_s", "set_s", "flip_s")})
 
 
-def _faulty(src, fault, line):
+def faulty_line(src, fault, line):
     """Drive ``src`` (a line word) through the ``fault`` controls of line ``"d"`` or ``"s"``."""
     clear, set_, flip = (getattr(fault, f"{op}_{line}") for op in ("clear", "set", "flip"))
     return ((src & ~clear) | set_) ^ flip
@@ -250,8 +250,8 @@ class Chain(wiring.Component):
             up_d, up_s = node.up.d_out, node.up.s_out
             if self._line_faults:
                 down, up = self.fault_down[k - 1], self.fault_up[k - 1]
-                down_d, down_s = _faulty(down_d, down, "d"), _faulty(down_s, down, "s")
-                up_d, up_s = _faulty(up_d, up, "d"), _faulty(up_s, up, "s")
+                down_d, down_s = faulty_line(down_d, down, "d"), faulty_line(down_s, down, "s")
+                up_d, up_s = faulty_line(up_d, up, "d"), faulty_line(up_s, up, "s")
             m.d.comb += [
                 node.address.eq(k),
                 node.up.d_in.eq(down_d),

@@ -14,10 +14,12 @@ The parity bit ``P`` of a character covers the data or control bits of the *prev
 character and the ``P`` and flag bits of the current one; their sum is odd (§7.4).
 """
 
+from amaranth import Mux, Value
 from amaranth.lib import data, enum
 
 __all__ = [
     "CharKind", "Char", "ControlCode", "DataChar", "ControlChar", "LinkState", "ErrorCounts",
+    "ERROR_CLASSES", "saturating_sum", "saturating_sum_ref",
     "NULL_BITS", "TIME_BITS", "DATA_BITS", "CONTROL_BITS",
     "MAX_CREDIT", "FCT_CREDIT",
 ]
@@ -82,6 +84,25 @@ class ErrorCounts(data.Struct):
     escape:     16  # ESC followed by ESC, EOP or EEP
     credit:     16  # FCT beyond 56 outstanding, or an N-char beyond the credit given
     sequence:   16  # FCT, N-char or time-code in a state where the standard forbids it
+
+
+#: The fields of :class:`ErrorCounts`, in layout order.
+ERROR_CLASSES = ("disconnect", "parity", "escape", "credit", "sequence")
+
+def saturating_sum(values, width: int = 16) -> Value:
+    """Sum of unsigned ``values`` saturated at ``2**width - 1`` (combinational).
+
+    How a node reports several saturating counters as one (its link's error classes in Comm A);
+    the reference is :func:`saturating_sum_ref`.
+    """
+    total = sum(Value.cast(v).as_unsigned() for v in values)
+    top = (1 << width) - 1
+    return Mux(total >= top, top, total)[:width]
+
+
+def saturating_sum_ref(values, width: int = 16) -> int:
+    """Reference of :func:`saturating_sum`."""
+    return min(sum(int(v) for v in values), (1 << width) - 1)
 
 
 #: Line bits of a data character, a control character, a NULL and a time-code.

@@ -39,14 +39,19 @@ cycle a packet or time-code arrived (docs/node.md "Timing"):
   packet into a 16-bit count (modulo 2^16); nothing but reset clears them. A Comm A reply
   carries both as they stood when its request arrived, so the master can check that the node
   took every upload (docs/node.md "Upload check").
+* The link's health goes into every Comm A too, as it stands when the request arrives: the
+  error totals of the upstream and downstream codecs (the five classes of
+  :class:`~hdl.link.chars.ErrorCounts` summed, saturating), the frames the depacketizer dropped
+  (CRC, length, EEP) and the packets the router discarded (docs/node.md "Link health").
 """
 
 from amaranth import *
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
+from hdl.link.chars import ERROR_CLASSES, ErrorCounts, saturating_sum
 from hdl.link.crc import CRC16_INIT, crc16_next
-from hdl.link.packet import Beat, PacketType
+from hdl.link.packet import Beat, PacketType, RxStats
 
 from .encoder import QuadratureEncoder
 from .encoder_ref import EncoderParams
@@ -54,7 +59,7 @@ from .fixed import WORD
 from .isa import IO_BASE
 from .joint import INPUTS as JOINT_INPUTS
 from .joint import JointUnit
-from .regs import COMM_B_WORDS, CONFIG_DEFAULTS, MODES, PAYLOAD, Bank, Config
+from .regs import COMM_B_WORDS, CONFIG_DEFAULTS, MODES, PAYLOAD, RX_DROPS, Bank, Config
 from .trig import SinCos
 from .vdc import VdcUnit
 from .watchdog import Watchdog
@@ -92,6 +97,12 @@ class NodeCore(wiring.Component):
         Live encoder count.
     velocity : Out(signed(24))
         Live velocity estimate (VEL word).
+    up_errors, down_errors : In(ErrorCounts)
+        The link codecs' error counters (from :class:`~hdl.link.node.LinkNode`).
+    rx_stats : In(RxStats)
+        The depacketizer's counters.
+    dropped : In(16)
+        The router's discarded packets.
     """
 
     rx:           In(stream.Signature(Beat))
@@ -104,6 +115,10 @@ class NodeCore(wiring.Component):
     status:       Out(16)
     count:        Out(signed(32))
     velocity:     Out(signed(WORD))
+    up_errors:    In(ErrorCounts)
+    down_errors:  In(ErrorCounts)
+    rx_stats:     In(RxStats)
+    dropped:      In(16)
 
     def __init__(self, *, encoder: EncoderParams | None = None):
         self._enc = encoder or EncoderParams()
@@ -518,6 +533,10 @@ class NodeCore(wiring.Component):
         a_period = Signal(8)             # (the time-code: captured with the request)
         a_ucrc   = Signal(16)            # (upload CRC and count: captured with the request)
         a_ucnt   = Signal(16)
+        a_uperr  = Signal(16)            # (link health: captured with the request)
+        a_dnerr  = Signal(16)
+        a_rxdrop = Signal(16)
+        a_rtdrop = Signal(16)
         with m.If(boundary):
             m.d.sync += [
                 a_status.eq(status),
@@ -531,7 +550,8 @@ class NodeCore(wiring.Component):
         forces   = Cat(*(vdc.outputs[vmc.addr(f"F{L}{k}") - IO_BASE]
                          for L in "AB" for k in range(6)))
         payload_a = Cat(snap_count, snap_qd, a_torque, a_status, a_errors, a_period, a_overr,
-                        a_sync, a_late, a_ucrc, a_ucnt, C(0, 8 * PAYLOAD - 200))
+                        a_sync, a_late, a_ucrc, a_ucnt, a_uperr, a_dnerr, a_rxdrop, a_rtdrop,
+                        C(0, 8 * PAYLOAD - 264))
         payload_c = Cat(forces, c_status, c_period, C(0, 8))
         # The reply is loaded into a shift register and sent from its low byte: cheaper on a
         # Virtex-II than a 40-way byte multiplexer (320 flip-flops instead of ~700 LUTs).
@@ -599,6 +619,10 @@ class NodeCore(wiring.Component):
                     a_period.eq(self.period),
                     a_ucrc.eq(upl_crc),
                     a_ucnt.eq(upl_cnt),
+                    a_uperr.eq(saturating_sum(self.up_errors[f] for f in ERROR_CLASSES)),
+                    a_dnerr.eq(saturating_sum(self.down_errors[f] for f in ERROR_CLASSES)),
+                    a_rxdrop.eq(saturating_sum(self.rx_stats[f] for f in RX_DROPS)),
+                    a_rtdrop.eq(self.dropped),
                 ]
             with m.If(ptype == PacketType.COMM_C):
                 # FRESH: the forces the reply will carry (it waits for a running VDC) come

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from hdl.link.chars import ERROR_CLASSES, saturating_sum_ref
 from hdl.link.crc import CRC16_INIT
 from hdl.link.packet_ref import PacketType, crc16
 
@@ -36,8 +37,8 @@ from .fixed import saturate
 from .joint import joint_microcode
 from .joint_ref import MODES as JOINT_MODES
 from .joint_ref import JointInputs, JointModel, JointParams
-from .regs import (COMM_B_WORDS, COMM_D_WORDS, CONFIG_DEFAULTS, PAYLOAD, Bank, Config, Status,
-                   pack_words, unpack_words)
+from .regs import (COMM_B_WORDS, COMM_D_WORDS, CONFIG_DEFAULTS, PAYLOAD, RX_DROPS, Bank, Config,
+                   Status, pack_words, unpack_words)
 from .trig_ref import sin_cos
 from .vdc import vdc_microcode
 from .vdc_ref import VdcInputs, VdcModel, VdcParams
@@ -77,6 +78,10 @@ class NodeModel:
     upload_crc, upload_count : int
         CRC-16/CCITT-FALSE of the payload bytes of every CONFIG and PARAM packet since reset,
         in arrival order (0xFFFF before the first), and their number modulo 2^16.
+    link_health : tuple of 4 int
+        What the next Comm A reports of the link (:meth:`set_link`): the upstream and
+        downstream codecs' error totals, frames dropped by the depacketizer, packets
+        discarded by the router.
     """
 
     encoder: EncoderParams = field(default_factory=EncoderParams)
@@ -107,6 +112,7 @@ class NodeModel:
     late_d: int = 0
     upload_crc: int = CRC16_INIT
     upload_count: int = 0
+    link_health: tuple = (0, 0, 0, 0)
     tc_value: int = 0
     forces: list = field(default_factory=lambda: [0] * 12)
     boundaries: list = field(default_factory=list)
@@ -349,9 +355,30 @@ class NodeModel:
         out += pack_words([self.snap_qd, torque])
         out += status.to_bytes(2, "little") + errors.to_bytes(2, "little")
         out += bytes([self.tc_value])
-        for v in (overruns, sync, late, self.upload_crc, self.upload_count):
+        for v in (overruns, sync, late, self.upload_crc, self.upload_count, *self.link_health):
             out += v.to_bytes(2, "little")
         return out + bytes(PAYLOAD - len(out))
+
+    def set_link(self, up_errors=None, down_errors=None, rx_stats=None,
+                 dropped: int = 0) -> None:
+        """The counters of the node's :class:`~hdl.link.node.LinkNode` as they stand now.
+
+        Parameters
+        ----------
+        up_errors, down_errors : dict, optional
+            :class:`~hdl.link.chars.ErrorCounts` fields of the upstream and downstream codec
+            (missing: zero).
+        rx_stats : dict, optional
+            :class:`~hdl.link.packet.RxStats` fields of the depacketizer.
+        dropped : int
+            The router's discarded packets.
+        """
+        up, down, rx = up_errors or {}, down_errors or {}, rx_stats or {}
+        self.link_health = (
+            saturating_sum_ref(up.get(f, 0) for f in ERROR_CLASSES),
+            saturating_sum_ref(down.get(f, 0) for f in ERROR_CLASSES),
+            saturating_sum_ref(rx.get(f, 0) for f in RX_DROPS),
+            int(dropped) & 0xFFFF)
 
     def _reply_c(self) -> bytes:
         out = pack_words(self.forces)

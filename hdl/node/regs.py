@@ -15,7 +15,11 @@ COMM_A   m→s    request (any payload); the node answers with a COMM_A packet, 
                 while armed) · ``late_d`` u16 (Comm D packets after the commit phase) ·
                 ``upload_crc`` u16, ``upload_count`` u16 (CRC-16/CCITT-FALSE of every
                 CONFIG and PARAM payload since reset, and their number; both taken with the
-                request, see :func:`upload_check`) · zeros
+                request, see :func:`upload_check`) · link health, taken with the request:
+                ``up_link_errors``, ``down_link_errors`` u16 (the upstream and downstream
+                codecs' error counters, five classes summed) · ``rx_dropped`` u16 (frames
+                the depacketizer dropped: CRC, length, EEP) · ``router_dropped`` u16
+                (packets the router discarded) · zeros
 COMM_B   m→s    ``q̇_r`` · ``V_C[6]`` · ``V_rC[6]`` (13 VEL words, 39 bytes) · flags u8 (bit 0:
                 restart the derivative history)
 COMM_C   m→s    request; the node answers once its VDC run for the last Comm B has its forces:
@@ -46,9 +50,14 @@ from .vdc_ref import VdcModel, VdcParams
 __all__ = ["PAYLOAD", "COMM_B_WORDS", "COMM_D_WORDS", "Config", "Bank", "Status", "MODES",
            "pack_words", "unpack_words", "pack_comm_b", "pack_comm_d", "parse_comm_a",
            "parse_comm_c", "config_payloads", "param_payloads", "vdc_upload", "joint_upload",
-           "CONFIG_DEFAULTS", "upload_check"]
+           "CONFIG_DEFAULTS", "upload_check", "RX_DROPS", "LINK_HEALTH"]
 
 PAYLOAD = 40
+#: The depacketizer's counters of frames it dropped (:class:`~hdl.link.packet.RxStats`),
+#: summed into Comm A's ``rx_dropped``.
+RX_DROPS = ("crc", "length", "eep")
+#: Comm A's link-health fields (bytes 25–32), each u16, saturating.
+LINK_HEALTH = ("up_link_errors", "down_link_errors", "rx_dropped", "router_dropped")
 COMM_B_WORDS = ("qdr",) + tuple(f"VC{k}" for k in range(6)) + tuple(f"VrC{k}" for k in range(6))
 COMM_D_WORDS = ("tauD", "gC0", "gC1", "gC2", "qd0", "vd0", "ad0")
 MODES = {"vdc": 0, "pid": 1, "torque": 2}
@@ -142,7 +151,9 @@ def parse_comm_a(data: bytes) -> dict:
             "sync_errors": int.from_bytes(data[17:19], "little"),
             "late_d": int.from_bytes(data[19:21], "little"),
             "upload_crc": int.from_bytes(data[21:23], "little"),
-            "upload_count": int.from_bytes(data[23:25], "little")}
+            "upload_count": int.from_bytes(data[23:25], "little"),
+            **{k: int.from_bytes(data[25 + 2 * i:27 + 2 * i], "little")
+               for i, k in enumerate(LINK_HEALTH)}}
 
 
 def upload_check(payloads) -> tuple[int, int]:

@@ -97,6 +97,10 @@ class SlaveNode(wiring.Component):
             self.torque.eq(core.torque),
             self.status.eq(core.status),
             self.count.eq(core.count),
+            core.up_errors.eq(link.up_errors),
+            core.down_errors.eq(link.down_errors),
+            core.rx_stats.eq(link.rx_stats),
+            core.dropped.eq(link.dropped),
         ]
         return m
 

@@ -38,6 +38,12 @@ def register(subparsers) -> None:
     pt.add_argument("--signals", default=None, metavar="PATTERN",
                     help="comma-separated globs of the signals in the VCD, dotted below the "
                     "top (e.g. 'torque*,node1.core.*'; default: all)")
+    pt.add_argument("--line-fault", action="append", default=[],
+                    metavar="KIND:DIR:NODE@T[+LEN]",
+                    help="inject a fault on the line above NODE, DIR down (towards it) or up, "
+                    "at T from period 0 for LEN (default one cycle); KIND cut, bit or stuck-d; "
+                    "e.g. bit:up:2@2.006ms, cut:down:3@10ms+2us (repeatable; pysim and "
+                    "compiled). summary.json says where each fault was counted")
     pt.add_argument("--quiet", action="store_true", help="print nothing but errors")
     pt.set_defaults(func=_track)
     p2 = sub.add_parser("table2", help="the paper's Table 2: pid-1khz, pid-fpga and vdc on the "
@@ -104,6 +110,15 @@ def _track(args) -> int:
     duration = require_positive(args.duration, "--duration")
     if args.signals is not None and args.vcd is None:
         raise InputError("--signals", "selects the signals of a --vcd window; give --vcd too")
+    from cosim.closed_loop import LineFault
+
+    faults = [LineFault.parse(spec) for spec in args.line_fault]
+    if faults and args.backend == "model":
+        raise InputError("--line-fault", "the model backend's link is ideal: inject line "
+                         "faults on compiled or pysim")
+    for f in faults:
+        if f.node > robot.n:
+            raise InputError("--line-fault", f"the robot has {robot.n} nodes, not {f.node}")
     progress = None if args.quiet else Progress([args.controller], duration)
     if progress is not None:
         progress.begin(args.controller)
@@ -117,7 +132,7 @@ def _track(args) -> int:
     try:
         result, summary = run_track(robot, args.controller, args.backend, duration, args.seed,
                                     progress=progress, vcd=args.vcd, signals=args.signals,
-                                    vcd_path=vcd_tmp)
+                                    vcd_path=vcd_tmp, faults=faults)
         summary["version"] = __version__
         _write_track(args, robot, result, summary, duration, vcd_tmp)
     finally:
@@ -141,6 +156,7 @@ def _write_track(args, robot, result, summary, duration, vcd_tmp) -> None:
             "command": "mrm run track", "controller": args.controller,
             "backend": args.backend, "robot": robot.describe(), "seed": args.seed,
             "duration_s": duration, "vcd": args.vcd, "signals": args.signals,
+            "line_faults": list(args.line_fault),
             "version": __version__})
         if vcd_tmp is not None:
             if vcd_tmp.stat().st_size == 0:
@@ -161,8 +177,33 @@ def _write_track(args, robot, result, summary, duration, vcd_tmp) -> None:
               f"overruns {summary['overruns']}, link errors {summary['link_errors']}, "
               f"upload errors {summary.get('upload_errors', 0)}, "
               f"late replies {summary.get('late_replies', 0)}, "
-              f"A/B/C/D done at {summary['phases_us']} µs; RTF {summary['rtf']:.0f}")
+              f"A/B/C/D done at " + _phases_text(summary["phases_us"])
+              + f"; RTF {summary['rtf']:.0f}")
+        if summary["link_errors"]:
+            print("link faults counted at: " + link_fault_places(summary["link_error_detail"]))
         print(f"results in {args.out}/" + (" (waves.vcd: the --vcd window)" if vcd_tmp else ""))
+
+
+def _phases_text(phases: dict) -> str:
+    """``A 10.34, B 30.34, … µs`` (phases without a value: ``–``)."""
+    return ", ".join(f"{k} {'–' if v is None else f'{v:.2f}'}" for k, v in phases.items()
+                     if not isinstance(v, dict)) + " µs"
+
+
+def link_fault_places(detail: dict) -> str:
+    """Where a run's link faults were counted, in words (``summary["link_error_detail"]``)."""
+    places = []
+    if detail["master_rx_dropped"]:
+        places.append(f"master dropped {detail['master_rx_dropped']} frame(s)")
+    if detail["master_port"]:
+        places.append(f"master port codec {detail['master_port']}")
+    names = {"up_link_errors": "upstream codec", "down_link_errors": "downstream codec",
+             "rx_dropped": "frames dropped", "router_dropped": "router discards"}
+    for node, counters in detail["per_node"].items():
+        for key, n in counters.items():
+            if n:
+                places.append(f"node {node} {names[key]} {n}")
+    return ", ".join(places)
 
 
 def _table2(args) -> int:
