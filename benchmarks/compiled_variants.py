@@ -50,7 +50,25 @@ VARIANTS = {
     "prof": {"reset_port": True, "opt": "-O2", "verilator_args": ["--prof-cfuncs"],
              "cflags": "-g"},
     "tied-prof": {"opt": "-O2", "verilator_args": ["--prof-cfuncs"], "cflags": "-g"},
+    # the default build of a netlist Yosys flattened and optimised first (opt -full, dead
+    # logic purged, $pmux as $mux trees); needs a `yosys` on PATH
+    "yosys-opt": {"opt": "-O3", "verilator_args": _XFAST, "yosys_opt": True},
 }
+
+YOSYS_OPT = "proc; flatten; opt -full; opt_clean -purge; pmuxtree; opt_clean"
+
+
+def _yosys_opt(verilog_text: str, top: str) -> str:
+    """``verilog_text`` through ``yosys`` (:data:`YOSYS_OPT`); the same ports, same behaviour."""
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        src, dst = Path(tmp) / "in.v", Path(tmp) / "out.v"
+        src.write_text(verilog_text)
+        subprocess.run(["yosys", "-q", "-p", f"read_verilog {src}; hierarchy -top {top}; "
+                        f"{YOSYS_OPT}; write_verilog -noattr {dst}"], check=True)
+        return dst.read_text()
 
 STIM = Path("/tmp/mrm-compiled-stimulus.pkl")
 
@@ -118,8 +136,12 @@ def _model(tape, kwargs):
         spec.loader.exec_module(mod)
         return mod.CompiledModel(None, "system", verilog_text=tape["verilog"],
                                  signed_ports=tape["signed"], quiet=False)
-    return CompiledModel(None, "system", verilog_text=tape["verilog"],
-                         signed_ports=tape["signed"], quiet=False, **kwargs)
+    kwargs = dict(kwargs)
+    text = tape["verilog"]
+    if kwargs.pop("yosys_opt", False):
+        text = tape.setdefault("_yosys_opt", _yosys_opt(text, "system"))
+    return CompiledModel(None, "system", verilog_text=text, signed_ports=tape["signed"],
+                         quiet=False, **kwargs)
 
 
 def _replay(model, chunks):
