@@ -54,6 +54,8 @@ class System(wiring.Component):
     status1 … statusN : Out(16)
     count1 … countN : Out(signed(32))
         Live encoder counts of the nodes.
+    events1 … eventsN : Out(16)
+        The nodes' observation ports (:class:`~hdl.node.regs.NodeEvent` strobes).
     """
 
     def __init__(self, n_nodes: int, *, codec: dict | None = None, encoder=None):
@@ -80,6 +82,7 @@ class System(wiring.Component):
             members[f"torque{k}"] = Out(signed(WORD))
             members[f"status{k}"] = Out(16)
             members[f"count{k}"] = Out(signed(32))
+            members[f"events{k}"] = Out(16)
         super().__init__(members)
 
     def elaborate(self, platform):
@@ -106,5 +109,6 @@ class System(wiring.Component):
                 upstream.d_in.eq(node.up.d_out),
                 upstream.s_in.eq(node.up.s_out),
             ]
+            m.d.comb += getattr(self, f"events{k + 1}").eq(node.events)
             upstream = node.down
         return m
