@@ -334,11 +334,11 @@ class NodeModel:
         elif ptype == PacketType.COMM_A:
             reply = self._reply_a()
             if self.events is not None:
-                self.events += [(now, Ev.RX_A), (now + 1, Ev.TX_A)]
+                self.events += [(now, Ev.RX_A), (self.reply_cycle(now, ptype), Ev.TX_A)]
         elif ptype == PacketType.COMM_C:
             reply = self._reply_c()
             if self.events is not None:
-                self.events += [(now, Ev.RX_C), (max(now, self._vdc_mark) + 1, Ev.TX_C)]
+                self.events += [(now, Ev.RX_C), (self.reply_cycle(now, ptype), Ev.TX_C)]
         elif ptype == PacketType.CONFIG:
             for k in range(0, len(payload) - 4, 5):
                 self._config(now, payload[k], int.from_bytes(payload[k + 1:k + 5], "little"))
@@ -348,6 +348,15 @@ class NodeModel:
                 self._param(bank, (addr + j) & 0x1FF, w)
         self.last_packet = now
         return reply
+
+    def reply_cycle(self, now: int, ptype: int) -> int:
+        """Cycle in which the reply FSM leaves Idle with the reply to a request of type
+        ``ptype`` taken in cycle ``now`` (after :meth:`packet`): the next cycle, for Comm C
+        not before the cycle after the last VDC run's MARK. Assumes the FSM idle (the
+        previous reply has left)."""
+        if ptype == PacketType.COMM_C:
+            return max(now, self._vdc_mark) + 1
+        return now + 1
 
     # --- helpers ------------------------------------------------------------------------------
     def _watch(self, now: int) -> None:
