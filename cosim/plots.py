@@ -305,8 +305,12 @@ def timeline_markers(record, n_nodes: int, clock_hz: float = 50e6) -> list[Marke
 _BAR_COLORS = {"A": "tab:green", "B→C": "tab:purple", "kinematics": "tab:grey",
                "forces": "tab:brown", "PID / references": "tab:grey",
                "A↓": "tab:olive", "A↑": "tab:green", "B↓": "tab:cyan", "VDC": "tab:red",
-               "adapt": "mistyrose", "C↑": "tab:purple", "D↓": "tab:blue"}
+               "adapt": "lightsalmon", "C↑": "tab:purple", "D↓": "tab:blue"}
 _MARKERS = {"boundary": ("|", "k"), "commit": ("v", "tab:orange")}
+# (offset from the row's centre, height): a node's compute in the lower half of its row, the
+# transfers (which overlap it: the Comm C reply leaves while the adaptation runs) in the upper
+_LANES = {"VDC": (-0.38, 0.36), "adapt": (-0.38, 0.36), "A↓": (0.02, 0.36),
+          "A↑": (0.02, 0.36), "B↓": (0.02, 0.36), "C↑": (0.02, 0.36), "D↓": (0.02, 0.36)}
 
 
 def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
@@ -331,11 +335,12 @@ def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
     """
     bars = timeline_bars(record, n_nodes, clock_hz)
     rows = ["master"] + [f"node {k}" for k in range(1, n_nodes + 1)]
-    fig, (ax,) = _figure(1, 0.6 * len(rows) + 1.5, 9.0)
+    fig, (ax,) = _figure(1, 0.6 * len(rows) + 1.5, 10.5)
     y = {r: len(rows) - 1 - i for i, r in enumerate(rows)}
     seen = set()
     for b in bars:
-        ax.broken_barh([(b.start_us, b.end_us - b.start_us)], (y[b.row] - 0.35, 0.7),
+        off, height = _LANES.get(b.label, (-0.35, 0.7))
+        ax.broken_barh([(b.start_us, b.end_us - b.start_us)], (y[b.row] + off, height),
                        facecolors=_BAR_COLORS.get(b.label, "tab:cyan"),
                        label=None if b.label in seen else b.label)
         seen.add(b.label)
@@ -361,7 +366,7 @@ def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
     right = max([end] + [mk.at_us for mk in markers])
     ax.set_xlim(-0.02 * right - 1.0, 1.08 * right + 1.0)
     ax.grid(True, axis="x", lw=0.3)
-    ax.legend(loc="lower right", fontsize=7)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
     ax.set_title(title)
     _save(fig, path)
     return fig
