@@ -12,16 +12,20 @@ on the gateware; the gateware is replaced by
 * a link whose only job is the timeline: a packet's last character reaches node k
   ``9 + 11 (k − 1)`` cycles plus its frame time (10 line bits per data character, 4 per EOP,
   3 line bits per cycle at 150 Mbit/s) after the master's link is free (a time-code before
-  it holds the link for 14 bits); the node's core then
-  takes its payload one byte per cycle, one cycle more per word written through the engines'
-  host port (13 for a Comm B, 3 for a Comm D, a PARAM's words), after any packet before it;
-  a reply leaves the node's reply FSM when :meth:`NodeModel.reply_cycle
-  <hdl.node.core_ref.NodeModel.reply_cycle>` says and reaches the master ``1 + 9 + 11 (k − 1)``
-  cycles plus its frame time later, or its frame time after the upstream link is free; a
-  time-code reaches node k after ``12 k`` cycles (docs/link.md "Per-hop latency"). These are
-  approximations: against the gateware, every node event (its observation port) lies within
-  :data:`EVENT_TOLERANCE` cycles when the master's packets leave on the same plant step in
-  both runs (tests/test_node_events.py).
+  it holds the link for 14 bits); the node's core then takes its payload one byte per cycle,
+  one cycle more per word written through the engines' host port (13 for a Comm B, 3 for a
+  Comm D, a PARAM's words), after any packet before it; a reply leaves the node's reply FSM
+  when :meth:`NodeModel.reply_cycle <hdl.node.core_ref.NodeModel.reply_cycle>` says and
+  reaches the master ``1 + 9 + 11 (k − 1)`` cycles plus its frame time later, or its frame
+  time after the upstream link is free; a time-code reaches node k after ``12 k`` cycles
+  (docs/link.md "Per-hop latency"). These are approximations: every node event (the
+  observation port, :attr:`NodeModel.events <hdl.node.core_ref.NodeModel.events>`) lies
+  within :data:`EVENT_TOLERANCE` cycles of the gateware's when the master's packets leave on
+  the same plant step in both runs — 12 is the time-code's wait for the character on the
+  line, at most 4 cycles per hop over three hops, which the packets behind it inherit; 6
+  measured over 20 ms of mrm3 (tests/test_node_events.py). The boundary, the commit and the
+  VDC's durations are exact. A Comm B or D whose master step differs between the two runs
+  (the master's compute ends within a few cycles of a 10 µs step) moves by a whole step.
 
 Why the results are nonetheless the gateware's, bit for bit: the node acts on its own period
 timer and on packet *contents* (docs/node.md "Timing"). The torque at every plant step and every
