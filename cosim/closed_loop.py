@@ -25,7 +25,7 @@ from hdl.link import packet_ref as ref
 from hdl.link.chain import char_int, char_value
 from hdl.node.fixed import FORCE
 from hdl.node.joint_ref import JointParams
-from hdl.node.regs import MODES, Config, config_payloads, joint_upload, vdc_upload
+from hdl.node.regs import MODES, Config, NodeEvent, config_payloads, joint_upload, vdc_upload
 from master.cycle import Master, Send
 from models.actuators import ACTUATORS
 from models.encoder import quadrature_levels
@@ -38,6 +38,7 @@ __all__ = ["Gains", "ClosedLoop", "LoopResult", "LineFault", "FAULT_KINDS", "nod
 
 EOP, EEP = ref.EOP, ref.EEP
 _RX_CHUNK_OUTPUTS = ("rx_valid", "rx_char")
+_NODE_EVENTS = tuple((int(f), f.name) for f in NodeEvent)
 
 
 @dataclass(frozen=True)
@@ -337,6 +338,17 @@ class ClosedLoop:
                 if not self.master.stale(header.type, header.seq):   # else counted late
                     self.master.on_packet(cyc, header.src, header.type, bytes(payload))
 
+    def _node_events(self, out: dict) -> None:
+        """The nodes' observation-port strobes of a chunk, to the master's period records (a
+        few per period: found with ``np.nonzero``)."""
+        for k in range(self.n):
+            ev = out[f"events{k + 1}"]
+            for i in np.nonzero(ev)[0].tolist():
+                bits = int(ev[i])
+                for flag, name in _NODE_EVENTS:
+                    if bits & flag:
+                        self.master.on_node_event(self.cycle + i, k + 1, name)
+
     async def _chunk(self, n: int) -> dict:
         inputs = {"enc_a": self._enc_a[:n], "enc_b": self._enc_b[:n]}
         room = max(0, 192 - self._tx_level)
@@ -358,8 +370,9 @@ class ClosedLoop:
         if self._faults:
             self._fault_inputs(inputs, n)
         names = [*_RX_CHUNK_OUTPUTS, "tx_level", "running", "link_errors"] + \
-            [f"torque{k + 1}" for k in range(self.n)]
+            [f"torque{k + 1}" for k in range(self.n)] + [f"events{k + 1}" for k in range(self.n)]
         out = await self.backend.run(n, inputs, names)
+        self._node_events(out)
         valid = np.nonzero(out["rx_valid"])[0]
         if len(valid):
             self._take_rx(self.cycle + valid, out["rx_char"][valid])

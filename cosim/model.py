@@ -9,11 +9,23 @@ on the gateware; the gateware is replaced by
 * one :class:`EncoderEvents` per node: the encoder interface (synchronizer, glitch filter,
   ×4 decoder, M/T velocity estimator) computed from the plant's per-cycle counts event by
   event, equal to :class:`~hdl.node.encoder_ref.EncoderModel` cycle for cycle;
-* a link whose only job is the timeline: a packet's last byte reaches node k
+* a link whose only job is the timeline: a packet's last character reaches node k
   ``9 + 11 (k − 1)`` cycles plus its frame time (10 line bits per data character, 4 per EOP,
-  3 line bits per cycle at 150 Mbit/s) after the master's link is free, replies come back the
-  same way through the shared upstream link, a time-code reaches node k after ``12 k``
-  cycles (docs/link.md "Per-hop latency"). These are approximations.
+  3 line bits per cycle at 150 Mbit/s) after the master's link is free (a time-code before
+  it holds the link for 14 bits); the node's core then takes its payload one byte per cycle,
+  one cycle more per word written through the engines' host port (13 for a Comm B, 3 for a
+  Comm D, a PARAM's words), after any packet before it; a reply leaves the node's reply FSM
+  when :meth:`NodeModel.reply_cycle <hdl.node.core_ref.NodeModel.reply_cycle>` says and
+  reaches the master ``1 + 9 + 11 (k − 1)`` cycles plus its frame time later, or its frame
+  time after the upstream link is free; a time-code reaches node k after ``12 k`` cycles
+  (docs/link.md "Per-hop latency"). These are approximations: every node event (the
+  observation port, :attr:`NodeModel.events <hdl.node.core_ref.NodeModel.events>`) lies
+  within :data:`EVENT_TOLERANCE` cycles of the gateware's when the master's packets leave on
+  the same plant step in both runs — 12 is the time-code's wait for the character on the
+  line, at most 4 cycles per hop over three hops, which the packets behind it inherit; 6
+  measured over 20 ms of mrm3 (tests/test_node_events.py). The boundary, the commit and the
+  VDC's durations are exact. A Comm B or D whose master step differs between the two runs
+  (the master's compute ends within a few cycles of a 10 µs step) moves by a whole step.
 
 Why the results are nonetheless the gateware's, bit for bit: the node acts on its own period
 timer and on packet *contents* (docs/node.md "Timing"). The torque at every plant step and every
@@ -65,15 +77,18 @@ from mrm.errors import InputError
 from .closed_loop import LoopResult, startup_sends
 
 __all__ = ["EncoderEvents", "FastNode", "FastVdc", "fast_joint_tick", "part_b", "pid_integral",
-           "ModelLoop", "ModelAssumptionError", "LINK_UP_CYCLE"]
+           "ModelLoop", "ModelAssumptionError", "LINK_UP_CYCLE", "EVENT_TOLERANCE"]
 
 #: Cycle at which the modelled link reaches Run (the gateware: about 21.4 µs at standard timers).
 LINK_UP_CYCLE = 1_100
 _FIRST_HOP = 9          # master tx → node 1, cycles before the first character
 _HOP = 11               # per further hop
 _TC_HOP = 12            # time-code, per hop
-_MARK = 300             # Comm B's last byte → forces ready (MARK at 282-289 cycles)
-_REPLY = 4              # request taken → reply's first character offered
+_TC_LINE = 5            # a time-code's line time (ESC + data: 14 bits), cycles
+_REPLY = 1              # reply FSM leaves Idle → reply's first character offered
+#: The modelled node events' largest distance from the gateware's, in cycles (see the module
+#: docstring; the boundary, the commit and the VDC's durations are exact).
+EVENT_TOLERANCE = 12
 _MARGIN = 500           # cycles of margin the model wants around every timing condition
 
 _PHASE = {(0, 0): 0, (1, 0): 1, (1, 1): 2, (0, 1): 3}
@@ -86,6 +101,20 @@ class ModelAssumptionError(RuntimeError):
 def _frame_cycles(payload_len: int) -> int:
     """Line time of a frame (header 4 + payload + CRC 2 data characters, EOP), cycles."""
     return -(-((4 + payload_len + 2) * 10 + 4) // 3)
+
+
+def _delivery_cycles(ptype: int, payload_len: int) -> int:
+    """Cycles from a frame's last character at the node to its last payload byte taken by the
+    core: a byte per cycle, and a cycle per word the core writes through an engine's host
+    port (its ``rx.ready`` is low while the word waits; the engines are idle then)."""
+    words = 0
+    if ptype == ref.PacketType.COMM_B and payload_len == 40:
+        words = 13
+    elif ptype == ref.PacketType.COMM_D:
+        words = min(3, max(0, payload_len // 3 - 1))
+    elif ptype == ref.PacketType.PARAM:
+        words = min(12, max(0, (payload_len - 3) // 3))
+    return payload_len + words
 
 
 def _sat(v: int) -> int:
@@ -890,6 +919,7 @@ class ModelLoop:
         self.nodes = [FastNode(encoder=enc) for _ in range(self.n)]
         for node in self.nodes:
             node.lazy = self.lazy
+            node.events = []                    # the observation port, for the timeline
             if self.lazy:
                 v = node.vdc
                 node.vdc = FastVdc(v.params, v.theta, v.prev_C, v.prev_qd_r, v.primed)
@@ -905,7 +935,7 @@ class ModelLoop:
         self._up_free = 0                       # node 1 → master link free from this cycle
         self._inbox: list[list] = [[] for _ in range(self.n)]   # (cycle, order, kind, data)
         self._replies: list = []                # (cycle at master, src, type, payload, seq)
-        self._b_arrival = [-1] * self.n
+        self._rx_free = [0] * self.n            # node k's core takes bytes from this cycle
         self._torque = np.zeros(self.n)
 
     # --- conditions ----------------------------------------------------------------------------
@@ -922,17 +952,22 @@ class ModelLoop:
             t = max(now, self._down_free)
             for k in range(self.n):
                 self._inbox[k].append((t + _TC_HOP * (k + 1), 0, "timecode", action.time))
+            self._down_free = t + _TC_LINE          # the packets behind it wait for it
             return
         t = max(now, self._down_free) + _frame_cycles(len(action.payload))
         self._down_free = t
         dests = range(self.n) if action.dest == ref.BROADCAST else [action.dest - 1]
         for k in dests:
             if 0 <= k < self.n:
-                self._inbox[k].append((t + _FIRST_HOP + _HOP * k, 1, "packet",
+                taken = max(t + _FIRST_HOP + _HOP * k, self._rx_free[k]) + \
+                    _delivery_cycles(action.ptype, len(action.payload))
+                self._rx_free[k] = taken + 1
+                self._inbox[k].append((taken, 1, "packet",
                                        (action.ptype, action.payload, action.seq)))
 
     def _reply(self, k: int, ready: int, ptype: int, payload: bytes, seq: int) -> None:
-        """Queue a reply; like the gateware's, its header echoes the request's ``seq``."""
+        """Queue a reply leaving node ``k``'s reply FSM in cycle ``ready``; like the
+        gateware's, its header echoes the request's ``seq``."""
         t = max(ready + _REPLY + _FIRST_HOP + _HOP * k, self._up_free) + \
             _frame_cycles(len(payload))
         self._up_free = t
@@ -991,16 +1026,25 @@ class ModelLoop:
                     ptype, payload, seq = data
                     node.run(c + 1)
                     self._check_packet(k, node, c, ptype)
-                    if ptype == ref.PacketType.COMM_B:
-                        self._b_arrival[k] = c
                     reply = node.packet(c, ptype, payload, sample=sample)
                     if reply is not None:
-                        ready = c if ptype == ref.PacketType.COMM_A else \
-                            max(c, self._b_arrival[k] + _MARK)
-                        self._reply(k, ready, ptype, reply, seq)
+                        self._reply(k, node.reply_cycle(c, ptype), ptype, reply, seq)
                 del box[:i]
             node.run(end - 1, sample)
             self._torque[k] = FORCE.decode(node.torque_at(end - 1))
+            if node.events:
+                self._node_events(k, node, end)
+
+    def _node_events(self, k: int, node: NodeModel, end: int) -> None:
+        """Node ``k``'s observation-port strobes before cycle ``end`` to the master (later
+        ones, such as a MARK still ahead, wait for their chunk)."""
+        later = []
+        for c, flag in node.events:
+            if c < end:
+                self.master.on_node_event(c, k + 1, flag.name)
+            else:
+                later.append((c, flag))
+        node.events = later
 
     def _chunk(self, n: int, counts: np.ndarray | list | None) -> None:
         """``n`` cycles; ``counts``: per-cycle counts (n, joints), per-joint change lists

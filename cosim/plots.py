@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["plot_tracking", "plot_joint_tracking", "plot_error_comparison", "plot_torques",
-           "plot_parameters", "plot_timeline", "timeline_bars", "pick_period", "Bar"]
+           "plot_parameters", "plot_timeline", "timeline_bars", "timeline_markers",
+           "pick_period", "Bar", "Marker"]
 
 _COLORS = {"pid-1khz": "tab:red", "pid-fpga": "tab:orange", "vdc": "tab:blue"}
 
@@ -219,14 +220,24 @@ def pick_period(records, when: float | None = None, period_s: float = 1e-3):
 def timeline_bars(record, n_nodes: int, clock_hz: float = 50e6) -> list[Bar]:
     """Bars of one period's exchange from a :class:`master.cycle.PeriodRecord`.
 
-    Rows and bars (cycles counted from ``record.start``):
+    Rows and bars (cycles counted from ``record.start``; a bar is drawn when both its ends
+    were recorded):
 
     * ``master``: ``kinematics`` from the last Comm A arrival (``A_done``) to Comm B sent
-      (VDC) or ``PID`` / ``references`` to Comm D sent (PID modes); ``forces`` from the last
+      (VDC) or ``PID / references`` to Comm D sent (PID modes); ``forces`` from the last
       Comm C arrival (``C_done``) to Comm D sent.
-    * ``node k``: ``A`` from the period start (time-code and Comm A request leave the master)
-      to node k's Comm A reply arriving; ``B→C`` from Comm B sent to node k's Comm C reply
-      arriving (transfer of B, the node's link dynamics, transfer of C).
+    * ``node k``, from its observation port (``record.node_events``, :class:`hdl.node.regs.
+      NodeEvent`): ``A↓`` period start (time-code and Comm A request leave the master) → the
+      request's last byte taken (``RX_A``); ``A↑`` its reply leaves the node's reply FSM
+      (``TX_A``) → complete at the master; ``B↓`` Comm B sent (the master hands it to its
+      link; node k's comes after those of nodes 1 … k−1) → its last byte taken (``RX_B``);
+      ``VDC`` the node's compute, ``VDC_START`` → ``VDC_DONE`` (MARK: forces ready);
+      ``adapt`` the rest of the VDC program (adaptation, history), ``VDC_DONE`` → ``VDC_END``;
+      ``C↑`` the Comm C reply leaves (``TX_C``) → complete at the master; ``D↓`` Comm D sent
+      → its last byte taken (``RX_D``). PID modes have no B, VDC or C.
+    * A node without observation-port events (a record from a harness that does not report
+      them) gets the master's view instead: ``A`` period start → its Comm A reply arriving;
+      ``B→C`` Comm B sent → its Comm C reply arriving.
     """
     per_us = clock_hz / 1e6                   # cycles per µs; dividing rounds once
 
@@ -242,16 +253,64 @@ def timeline_bars(record, n_nodes: int, clock_hz: float = 50e6) -> list[Bar]:
         bars.append(Bar("master", "kinematics", t(ev["A_done"]), t(ev["B_sent"])))
     if "C_done" in ev and "D_sent" in ev:
         bars.append(Bar("master", "forces", t(ev["C_done"]), t(ev["D_sent"])))
+    node_events = getattr(record, "node_events", {})
     for k in range(1, n_nodes + 1):
-        if ("A", k) in record.arrivals:
-            bars.append(Bar(f"node {k}", "A", 0.0, t(record.arrivals[("A", k)])))
-        if ("C", k) in record.arrivals and "B_sent" in ev:
-            bars.append(Bar(f"node {k}", "B→C", t(ev["B_sent"]), t(record.arrivals[("C", k)])))
+        row = f"node {k}"
+        arr = record.arrivals
+        if not any(node == k for _, node in node_events):
+            if ("A", k) in arr:
+                bars.append(Bar(row, "A", 0.0, t(arr[("A", k)])))
+            if ("C", k) in arr and "B_sent" in ev:
+                bars.append(Bar(row, "B→C", t(ev["B_sent"]), t(arr[("C", k)])))
+            continue
+        at = {name: c for (name, node), c in node_events.items() if node == k}
+        spans = [("A↓", record.start, at.get("RX_A")),
+                 ("A↑", at.get("TX_A"), arr.get(("A", k))),
+                 ("B↓", ev.get("B_sent"), at.get("RX_B")),
+                 ("VDC", at.get("VDC_START"), at.get("VDC_DONE")),
+                 ("adapt", at.get("VDC_DONE"), at.get("VDC_END")),
+                 ("C↑", at.get("TX_C"), arr.get(("C", k))),
+                 ("D↓", ev.get("D_sent"), at.get("RX_D"))]
+        if pid:
+            spans = [s for s in spans if s[0] not in ("B↓", "VDC", "adapt", "C↑")]
+        for label, c0, c1 in spans:
+            if c0 is not None and c1 is not None:
+                bars.append(Bar(row, label, t(c0), t(c1)))
     return bars
 
 
+@dataclass(frozen=True)
+class Marker:
+    """One instant of the Gantt timeline, µs from the period start."""
+
+    row: str          # "node k"
+    label: str        # "boundary" (the node's snapshot) or "commit" (Comm D takes effect)
+    at_us: float
+
+
+def timeline_markers(record, n_nodes: int, clock_hz: float = 50e6) -> list[Marker]:
+    """Node k's period boundary (``BOUNDARY``: its timer's phase 0, the snapshot Comm A
+    reports) and Comm D commit (``COMMIT``) in the period of ``record``, where recorded."""
+    per_us = clock_hz / 1e6
+    node_events = getattr(record, "node_events", {})
+    out = []
+    for k in range(1, n_nodes + 1):
+        for name, label in (("BOUNDARY", "boundary"), ("COMMIT", "commit")):
+            if (name, k) in node_events:
+                out.append(Marker(f"node {k}", label,
+                                  (node_events[(name, k)] - record.start) / per_us))
+    return out
+
+
 _BAR_COLORS = {"A": "tab:green", "B→C": "tab:purple", "kinematics": "tab:grey",
-               "forces": "tab:brown", "PID / references": "tab:grey"}
+               "forces": "tab:brown", "PID / references": "tab:grey",
+               "A↓": "tab:olive", "A↑": "tab:green", "B↓": "tab:cyan", "VDC": "tab:red",
+               "adapt": "lightsalmon", "C↑": "tab:purple", "D↓": "tab:blue"}
+_MARKERS = {"boundary": ("|", "k"), "commit": ("v", "tab:orange")}
+# (offset from the row's centre, height): a node's compute in the lower half of its row, the
+# transfers (which overlap it: the Comm C reply leaves while the adaptation runs) in the upper
+_LANES = {"VDC": (-0.38, 0.36), "adapt": (-0.38, 0.36), "A↓": (0.02, 0.36),
+          "A↑": (0.02, 0.36), "B↓": (0.02, 0.36), "C↑": (0.02, 0.36), "D↓": (0.02, 0.36)}
 
 
 def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
@@ -263,24 +322,35 @@ def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
     record : master.cycle.PeriodRecord
     n_nodes : int
     period_cycles : int
-        Length of the period (for the slack annotation).
+        Length of the period (for the slack annotation: the period's end less the latest end
+        of any bar or Comm D sent — with the nodes' events, the last Comm D taken by a node or
+        the last VDC program ending, whichever is later).
 
     Returns
     -------
     Figure
-        Its ``broken_barh`` collections are in the order of :func:`timeline_bars`; y tick
-        labels are the rows, master on top.
+        Its ``broken_barh`` collections are in the order of :func:`timeline_bars`; its lines
+        are the markers of :func:`timeline_markers` (in their order), then the vertical
+        lines; y tick labels are the rows, master on top.
     """
     bars = timeline_bars(record, n_nodes, clock_hz)
     rows = ["master"] + [f"node {k}" for k in range(1, n_nodes + 1)]
-    fig, (ax,) = _figure(1, 0.6 * len(rows) + 1.5, 9.0)
+    fig, (ax,) = _figure(1, 0.6 * len(rows) + 1.5, 10.5)
     y = {r: len(rows) - 1 - i for i, r in enumerate(rows)}
     seen = set()
     for b in bars:
-        ax.broken_barh([(b.start_us, b.end_us - b.start_us)], (y[b.row] - 0.35, 0.7),
+        off, height = _LANES.get(b.label, (-0.35, 0.7))
+        ax.broken_barh([(b.start_us, b.end_us - b.start_us)], (y[b.row] + off, height),
                        facecolors=_BAR_COLORS.get(b.label, "tab:cyan"),
                        label=None if b.label in seen else b.label)
         seen.add(b.label)
+    markers = timeline_markers(record, n_nodes, clock_hz)
+    for mk in markers:
+        shape, color = _MARKERS[mk.label]
+        ax.plot([mk.at_us], [y[mk.row]], linestyle="none", marker=shape, color=color,
+                markersize=11 if shape == "|" else 7,
+                label=None if mk.label in seen else f"node {mk.label}")
+        seen.add(mk.label)
     per_us = clock_hz / 1e6
     d_sent = record.events.get("D_sent")
     end = max((b.end_us for b in bars), default=0.0)
@@ -293,9 +363,10 @@ def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
     ax.set_yticks([y[r] for r in rows], rows)
     ax.set_xlabel(f"µs from the period start (20 ns grid); slack to the period end "
                   f"{slack:.2f} µs of {period_cycles / per_us:.0f} µs")
-    ax.set_xlim(-0.02 * end - 1.0, 1.08 * end + 1.0)
+    right = max([end] + [mk.at_us for mk in markers])
+    ax.set_xlim(-0.02 * right - 1.0, 1.08 * right + 1.0)
     ax.grid(True, axis="x", lw=0.3)
-    ax.legend(loc="lower right", fontsize=7)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
     ax.set_title(title)
     _save(fig, path)
     return fig

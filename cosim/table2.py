@@ -211,11 +211,20 @@ def table_markdown(summary: dict) -> str:
 
 
 def timeline_json(records) -> list:
-    """Every period's events and per-node arrivals (absolute 20 ns cycles), JSON-ready."""
-    return [{"period": r.index, "start_cycle": r.start, "complete": r.complete,
-             "events": dict(r.events),
-             "arrivals": {f"{ph}{node}": c for (ph, node), c in r.arrivals.items()}}
-            for r in records]
+    """Every period's events, per-node arrivals and the nodes' observation-port events
+    (``node_events``: node number → {NodeEvent name → first cycle in the period}), absolute
+    20 ns cycles, JSON-ready."""
+    out = []
+    for r in records:
+        nodes: dict = {}
+        for (name, node), c in sorted(getattr(r, "node_events", {}).items(),
+                                      key=lambda item: (item[0][1], item[1])):
+            nodes.setdefault(str(node), {})[name] = c
+        out.append({"period": r.index, "start_cycle": r.start, "complete": r.complete,
+                    "events": dict(r.events),
+                    "arrivals": {f"{ph}{node}": c for (ph, node), c in r.arrivals.items()},
+                    "node_events": nodes})
+    return out
 
 
 def _every_ms(t) -> int:

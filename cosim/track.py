@@ -200,7 +200,14 @@ def loop_system_key(n: int) -> str:
 
 
 def _phases_us(master) -> dict:
-    """Mean duration of each phase over complete periods, µs from the period start."""
+    """Mean over complete periods of when each phase ends, µs from the period start.
+
+    ``A``, ``B``, ``C``, ``D``: last Comm A in, Comm B sent, last Comm C in, Comm D sent;
+    ``cycle``: the last reply in. Per node (lists, node 1 first; None where a node never
+    reported the events, e.g. no VDC in the PID modes), from the nodes' observation ports:
+    ``node_compute`` the VDC's duration (``VDC_START`` → ``VDC_DONE``, µs), ``commit`` the
+    phase at which Comm D took effect (``COMMIT``, µs from the period start).
+    """
     recs = [r for r in master.records if r.complete]
     if not recs:
         return {}
@@ -210,10 +217,21 @@ def _phases_us(master) -> dict:
         vals = [v for v in vals if v is not None]
         return float(np.mean(vals)) / 50.0 if vals else None
 
+    def node(k, first, last):
+        def span(r):
+            ne = r.node_events
+            if (last, k) not in ne or (first is not None and (first, k) not in ne):
+                return None
+            return ne[(last, k)] - (r.start if first is None else ne[(first, k)])
+        return mean(span)
+
+    nodes = range(1, master.n + 1)
     return {
         "A": mean(lambda r: r.events["A_done"] - r.start if "A_done" in r.events else None),
         "B": mean(lambda r: r.events["B_sent"] - r.start if "B_sent" in r.events else None),
         "C": mean(lambda r: r.events["C_done"] - r.start if "C_done" in r.events else None),
         "D": mean(lambda r: r.events["D_sent"] - r.start if "D_sent" in r.events else None),
         "cycle": mean(lambda r: max(r.arrivals.values(), default=r.start) - r.start),
+        "node_compute": [node(k, "VDC_START", "VDC_DONE") for k in nodes],
+        "commit": [node(k, None, "COMMIT") for k in nodes],
     }

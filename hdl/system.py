@@ -63,6 +63,8 @@ class System(wiring.Component):
         port or node k − 1), towards node k (``down``) or from it (``up``), as
         :class:`~hdl.link.chain.Chain`'s; all zero: good wires. A co-simulation testbench
         capability (``cosim``), not part of the robot's gateware.
+    events1 … eventsN : Out(16)
+        The nodes' observation ports (:class:`~hdl.node.regs.NodeEvent` strobes).
     """
 
     def __init__(self, n_nodes: int, *, codec: dict | None = None, encoder=None,
@@ -96,6 +98,7 @@ class System(wiring.Component):
                 layout = line_fault_layout(self.master.codec.slots)
                 members[f"fault_down{k}"] = In(layout)
                 members[f"fault_up{k}"] = In(layout)
+            members[f"events{k}"] = Out(16)
         super().__init__(members)
 
     def elaborate(self, platform):
@@ -131,5 +134,6 @@ class System(wiring.Component):
                 upstream.d_in.eq(up_d),
                 upstream.s_in.eq(up_s),
             ]
+            m.d.comb += getattr(self, f"events{k + 1}").eq(node.events)
             upstream = node.down
         return m

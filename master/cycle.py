@@ -102,6 +102,9 @@ class PeriodRecord:
     events: dict = field(default_factory=dict)   # name -> cycle, e.g. "A_done", "B_sent"
     arrivals: dict = field(default_factory=dict)  # (phase, node) -> cycle
     complete: bool = False
+    #: (NodeEvent name, node) -> cycle of its first strobe in [start, start + period_cycles),
+    #: e.g. ("RX_B", 2): the nodes' observation ports (:meth:`Master.on_node_event`)
+    node_events: dict = field(default_factory=dict)
 
 
 class Master:
@@ -233,6 +236,25 @@ class Master:
         request = self._packet(BROADCAST, PacketType.COMM_A, b"\0")
         self._req = {PacketType.COMM_A: request.seq}
         return [Send("timecode", time=index & 0x3F), request]
+
+    # --- what the nodes did (their observation ports) -------------------------------------
+    def on_node_event(self, now: int, node: int, name: str) -> None:
+        """Node ``node`` (1-based) strobed the observation-port flag ``name`` (a
+        :class:`hdl.node.regs.NodeEvent` name) in cycle ``now``. Kept in the record of the
+        period ``[start, start + period_cycles)`` holding ``now`` as the first such cycle;
+        before period 0, or in a period without a record, ignored. The master does not act on
+        it: the harnesses (``cosim.closed_loop``, ``cosim.model``) report it for the timeline."""
+        if self.start is None or now < self.start:
+            return
+        index = (now - self.start) // self.timing.period_cycles
+        for rec in reversed(self.records):
+            if rec.index == index:
+                key = (name, node)
+                if key not in rec.node_events or now < rec.node_events[key]:
+                    rec.node_events[key] = now
+                return
+            if rec.index < index:
+                return
 
     # --- replies ---------------------------------------------------------------------------
     def stale(self, ptype: int, seq: int) -> bool:

@@ -69,6 +69,14 @@ def test_pysim_and_compiled_agree_cycle_for_cycle():
     assert pysim.frames == compiled.frames
     assert [r.events for r in pysim.master.records] == \
         [r.events for r in compiled.master.records]
+    # the node's observation port (events1, compared per cycle above) as the period records
+    # hold it: every phase of the exchange at the node, cycle for cycle
+    assert [r.node_events for r in pysim.master.records] == \
+        [r.node_events for r in compiled.master.records]
+    first = compiled.master.records[0].node_events
+    assert {name for name, _ in first} >= {"BOUNDARY", "RX_A", "TX_A", "RX_B", "VDC_START",
+                                           "VDC_DONE", "RX_C", "TX_C", "RX_D", "COMMIT"}
+    assert "events1" in rec_c.samples
 
 
 def test_bench_reports_speed_of_the_compiled_loop():

@@ -113,6 +113,7 @@ def test_comm_a_reports_the_link_counters_as_the_request_found_them():
     for (header, payload), c, counters in zip(replies, ends, plan, strict=True):
         up, down, rx, dropped = counters
         model.set_link(up, down, rx, dropped)
+        assert header.type == PacketType.COMM_A
         assert payload == model.packet(c, PacketType.COMM_A, b"\0", sample=lambda _c: (0, 0, 0))
         a = parse_comm_a(payload)
         expect = (min(sum(up.values()), 0xFFFF), min(sum(down.values()), 0xFFFF),

@@ -15,7 +15,7 @@ from hdl.node.core_ref import NodeModel
 from hdl.node.encoder_ref import EncoderParams
 from hdl.node.fixed import FORCE
 from hdl.node.joint_ref import JointParams
-from hdl.node.regs import (Config, Status, config_payloads, joint_upload, pack_comm_b,
+from hdl.node.regs import (Config, NodeEvent, Status, config_payloads, joint_upload, pack_comm_b,
                            pack_comm_d, parse_comm_a, parse_comm_c, vdc_upload)
 from models.encoder import counts_per_rad, quadrature_levels
 from models.robot import load_robot
@@ -78,6 +78,7 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
     dut = NodeCore(encoder=ENC)
     rng = np.random.default_rng(0)
     trace = {}              # cycle -> (count, velocity, torque, status, errors)
+    strobes = []            # (cycle, NodeEvent) of the observation port
     events = []             # (cycle, kind)
     replies = []            # (request type, header, payload)
     period_starts = []
@@ -93,10 +94,12 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
 
     async def monitor(ctx):
         for c in range(end):
-            _, _, cnt, vel, tq, st, valid, ready, last, ps = await ctx.tick().sample(
+            _, _, cnt, vel, tq, st, valid, ready, last, ps, ev = await ctx.tick().sample(
                 dut.count, dut.velocity, dut.torque, dut.status, dut.rx.valid, dut.rx.ready,
-                dut.rx.p.last, dut.period_start)
+                dut.rx.p.last, dut.period_start, dut.events)
             trace[c] = (cnt, vel, tq, st)
+            if ev:
+                strobes.extend((c, f) for f in NodeEvent if ev & f)
             if valid and ready and last:
                 events.append((c, "packet"))
             if ps:
@@ -169,7 +172,7 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
     run_simulation(sim, "node_core")
 
     # --- replay on the reference: every cycle's torque and status, every reply ---------------
-    model = NodeModel(encoder=ENC)
+    model = NodeModel(encoder=ENC, events=[])
     packets, tcs = iter(sent), iter(timecodes)
     by_cycle = {}
     for c, kind in events:
@@ -198,6 +201,19 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
                 if reply is not None:
                     ref_replies.append(reply)
     assert [r[2] for r in replies] == ref_replies
+    # the observation port: every strobe of the gateware is the reference's, cycle for cycle
+    # (boundaries and the resync, packets, VDC start / MARK / end, replies leaving, commits)
+    def upto(events):                   # the replay ran the model to cycle end - 2
+        return sorted(e for e in events if e[0] < end - 1)
+
+    assert upto(strobes) == upto(model.events)
+    kinds = {f for _, f in strobes}
+    assert {NodeEvent.BOUNDARY, NodeEvent.RX_A, NodeEvent.TX_A, NodeEvent.RX_D,
+            NodeEvent.COMMIT} <= kinds
+    if mode == 0:
+        assert {NodeEvent.RX_B, NodeEvent.VDC_START, NodeEvent.VDC_DONE, NodeEvent.VDC_END,
+                NodeEvent.RX_C, NodeEvent.TX_C} <= kinds
+    assert NodeEvent.RESYNC in kinds
 
     # Boundaries on the timer's grid from reset, plus the resynchronisation.
     resync = max(c for c, kind in events if kind == "timecode")

@@ -124,6 +124,37 @@ def test_timeline_bars_of_a_pid_period_skip_b_and_c():
     assert bars[0].end_us - bars[0].start_us == pytest.approx(20.0)
 
 
+def test_timeline_bars_of_a_pid_period_from_the_nodes_events():
+    """PID modes: per node A↓, A↑ and D↓ from the observation port, no B, VDC or C; the
+    boundary and commit markers; the timeline JSON keeps the events per node."""
+    from cosim.table2 import timeline_json
+
+    r = PeriodRecord(index=2, start=100_000, complete=True)
+    r.arrivals = {("A", 1): 100_200, ("A", 2): 100_355}
+    r.events = {"A_done": 100_355, "D_sent": 101_355}
+    r.node_events = {("BOUNDARY", 1): 100_000, ("RX_A", 1): 100_040, ("TX_A", 1): 100_041,
+                     ("RX_D", 1): 102_210, ("COMMIT", 1): 110_000,
+                     ("BOUNDARY", 2): 100_000, ("RX_A", 2): 100_050, ("TX_A", 2): 100_051,
+                     ("RX_D", 2): 102_375, ("COMMIT", 2): 110_000,
+                     ("VDC_START", 2): 100_300}      # not drawn in a PID period
+    bars = plots.timeline_bars(r, 2)
+    got = {(b.row, b.label): (b.start_us, b.end_us) for b in bars}
+    assert got == {
+        ("master", "PID / references"): (7.1, 27.1),
+        ("node 1", "A↓"): (0.0, 0.8), ("node 1", "A↑"): (0.82, 4.0),
+        ("node 1", "D↓"): (27.1, 44.2),
+        ("node 2", "A↓"): (0.0, 1.0), ("node 2", "A↑"): (1.02, 7.1),
+        ("node 2", "D↓"): (27.1, 47.5),
+    }
+    assert [(m.row, m.label, m.at_us) for m in plots.timeline_markers(r, 2)] == [
+        ("node 1", "boundary", 0.0), ("node 1", "commit", 200.0),
+        ("node 2", "boundary", 0.0), ("node 2", "commit", 200.0)]
+    (j,) = timeline_json([r])
+    assert j["node_events"]["2"] == {"BOUNDARY": 100_000, "RX_A": 100_050, "TX_A": 100_051,
+                                     "VDC_START": 100_300, "RX_D": 102_375, "COMMIT": 110_000}
+    assert list(j["node_events"]) == ["1", "2"]
+
+
 def test_timeline_plot_rows_bars_and_slack(tmp_path):
     rec = _vdc_record()
     fig = plots.plot_timeline(tmp_path / "g.png", rec, 3, 50_000, "period 7")

@@ -60,6 +60,7 @@ from .isa import IO_BASE
 from .joint import INPUTS as JOINT_INPUTS
 from .joint import JointUnit
 from .regs import COMM_B_WORDS, CONFIG_DEFAULTS, MODES, PAYLOAD, RX_DROPS, Bank, Config
+from .regs import NodeEvent as Ev
 from .trig import SinCos
 from .vdc import VdcUnit
 from .watchdog import Watchdog
@@ -103,6 +104,10 @@ class NodeCore(wiring.Component):
         The depacketizer's counters.
     dropped : In(16)
         The router's discarded packets.
+    events : Out(16)
+        Observation port: one-cycle :class:`~hdl.node.regs.NodeEvent` strobes (boundary,
+        packets taken, VDC start / MARK / end, replies leaving, Comm D commit). Test points
+        only: combinational copies of existing signals, nothing in the node reads them.
     """
 
     rx:           In(stream.Signature(Beat))
@@ -119,6 +124,7 @@ class NodeCore(wiring.Component):
     down_errors:  In(ErrorCounts)
     rx_stats:     In(RxStats)
     dropped:      In(16)
+    events:       Out(16)
 
     def __init__(self, *, encoder: EncoderParams | None = None):
         self._enc = encoder or EncoderParams()
@@ -556,6 +562,8 @@ class NodeCore(wiring.Component):
         # The reply is loaded into a shift register and sent from its low byte: cheaper on a
         # Virtex-II than a 40-way byte multiplexer (320 flip-flops instead of ~700 LUTs).
         r_shift = Signal(8 * PAYLOAD)
+        tx_a_ev  = Signal()              # observation port: the reply FSM leaves Idle
+        tx_c_ev  = Signal()
         m.d.comb += [
             self.tx.p.header.dest.eq(0),
             self.tx.p.header.type.eq(r_type),
@@ -565,6 +573,10 @@ class NodeCore(wiring.Component):
         ]
         with m.FSM(name="reply"):
             with m.State("Idle"):
+                m.d.comb += [
+                    tx_a_ev.eq(reply_a),
+                    tx_c_ev.eq(~reply_a & reply_c & ~vdc_go & ~vdc_wait),
+                ]
                 with m.If(reply_a):
                     m.d.sync += [
                         r_idx.eq(0),
@@ -650,4 +662,23 @@ class NodeCore(wiring.Component):
         with m.If(d_arrive & (phase >= cfg_commit) & (late_d != 0xFFFF)):
             m.d.sync += late_d.eq(late_d + 1)
 
+        # --- observation port (NodeEvent strobes; test points, nothing reads them) -------------
+        ends = taken & beat.last
+        strobes = {
+            Ev.BOUNDARY:  boundary,
+            Ev.RESYNC:    resync,
+            Ev.TIMECODE:  self.period_start,
+            Ev.RX_A:      ends & (ptype == PacketType.COMM_A),
+            Ev.RX_B:      ends & is_b & full,
+            Ev.RX_C:      ends & (ptype == PacketType.COMM_C),
+            Ev.RX_D:      ends & is_d & full,
+            Ev.VDC_START: vdc.start,
+            Ev.VDC_DONE:  vdc.mark,
+            Ev.VDC_END:   vdc.done,
+            Ev.TX_A:      tx_a_ev,
+            Ev.TX_C:      tx_c_ev,
+            Ev.COMMIT:    ((phase == cfg_commit) & d_pending) | (ends & is_d & full & ~wd.armed),
+        }
+        for ev, strobe in strobes.items():
+            m.d.comb += self.events[ev.bit_length() - 1].eq(strobe)
         return m

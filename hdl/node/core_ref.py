@@ -22,6 +22,15 @@ Internal events follow the node's period timer (free-running from reset, phase 0
 External events: :meth:`timecode` at the strobe's cycle, :meth:`packet` at the cycle its last
 byte is taken. Within one cycle, internal events come first (they see the registers as they were
 before the cycle, as the packet does).
+
+Observation port. With :attr:`NodeModel.events` a list, the model appends ``(cycle,
+NodeEvent)`` for every strobe of the gateware's ``events`` port (:class:`~hdl.node.regs.NodeEvent`),
+not necessarily in cycle order: boundaries, resyncs, time-codes, packets taken and commits when
+they happen; the VDC's start one cycle after the Comm B (the engine is idle then: a Comm B
+follows the boundary's CORDIC), its MARK and END :meth:`~hdl.node.isa.Microcode.mark_cycles`
+and :meth:`~hdl.node.isa.Microcode.cycles` after that; a reply leaving the cycle after its
+request (Comm C: after the request and the MARK), which assumes the reply FSM is idle, i.e. the
+previous reply has left (in the A/B/C/D cycle they are tens of µs apart).
 """
 
 from __future__ import annotations
@@ -39,6 +48,7 @@ from .joint_ref import MODES as JOINT_MODES
 from .joint_ref import JointInputs, JointModel, JointParams
 from .regs import (COMM_B_WORDS, COMM_D_WORDS, CONFIG_DEFAULTS, PAYLOAD, RX_DROPS, Bank, Config,
                    Status, pack_words, unpack_words)
+from .regs import NodeEvent as Ev
 from .trig_ref import sin_cos
 from .vdc import vdc_microcode
 from .vdc_ref import VdcInputs, VdcModel, VdcParams
@@ -82,6 +92,8 @@ class NodeModel:
         What the next Comm A reports of the link (:meth:`set_link`): the upstream and
         downstream codecs' error totals, frames dropped by the depacketizer, packets
         discarded by the router.
+    events : list of (int, NodeEvent) or None
+        The observation port's strobes ``(cycle, flag)`` (module docstring); None: not kept.
     """
 
     encoder: EncoderParams = field(default_factory=EncoderParams)
@@ -116,6 +128,8 @@ class NodeModel:
     tc_value: int = 0
     forces: list = field(default_factory=lambda: [0] * 12)
     boundaries: list = field(default_factory=list)
+    events: list | None = None
+    _vdc_mark: int = -1                   # cycle of the last VDC run's MARK (observation port)
     _snap: tuple = (0, 0, 0, 0, 0, 0)     # torque, status, errors, overruns, sync, late
     _busy_until: int = -1
     _started: int = -1
@@ -169,6 +183,8 @@ class NodeModel:
                 self._tick(c, sample, c - self.d_base)
             if c == commit:
                 self._commit_seen = self._lb
+                if self.d_pending and self.events is not None:
+                    self.events.append((c, Ev.COMMIT))
                 if self.d_pending:
                     self.d_words = list(self.d_next)
                     self.d_base = self.d_next_base
@@ -188,6 +204,10 @@ class NodeModel:
         self._lb = c
         self._nb = c + self.config[Config.PERIOD]
         self.boundaries.append(c)
+        if self.events is not None:
+            self.events.append((c, Ev.BOUNDARY))
+            if resync:
+                self.events.append((c, Ev.RESYNC))
         arm = self.arming
         if arm and self.armed and self.tripped:
             self._ramp()
@@ -244,6 +264,8 @@ class NodeModel:
         """Time-code strobe in cycle ``now`` with time ``value``; returns whether it
         re-synchronised the timer (arrival phase outside ``[0, SYNC_WINDOW)``)."""
         self.run(now, sample)
+        if self.events is not None:
+            self.events.append((now, Ev.TIMECODE))
         sample = self._sample or (lambda c: (0, 0, 0))
         resync = self.phase(now) >= self.config[Config.SYNC_WINDOW]
         if resync:
@@ -278,7 +300,14 @@ class NodeModel:
             self.upload_count = (self.upload_count + 1) & 0xFFFF
         if ptype == PacketType.COMM_B and len(payload) == PAYLOAD:
             self.b_words = unpack_words(payload, len(COMM_B_WORDS))
-            if self.prime or payload[-1] & 1:
+            entry = "first" if self.prime or payload[-1] & 1 else "main"
+            mc = vdc_microcode()
+            self._vdc_mark = now + 1 + mc.mark_cycles(entry)
+            if self.events is not None:
+                self.events += [(now, Ev.RX_B), (now + 1, Ev.VDC_START),
+                                (self._vdc_mark, Ev.VDC_DONE),
+                                (now + 1 + mc.cycles(entry), Ev.VDC_END)]
+            if entry == "first":
                 self.vdc.primed = False
             self.prime = False
             w = self.b_words
@@ -304,10 +333,18 @@ class NodeModel:
                 else:
                     self.d_words = words
                     self.d_base = self._lb
+                if self.events is not None:
+                    self.events.append((now, Ev.RX_D))
+                    if not self.armed:
+                        self.events.append((now, Ev.COMMIT))
         elif ptype == PacketType.COMM_A:
             reply = self._reply_a()
+            if self.events is not None:
+                self.events += [(now, Ev.RX_A), (self.reply_cycle(now, ptype), Ev.TX_A)]
         elif ptype == PacketType.COMM_C:
             reply = self._reply_c()
+            if self.events is not None:
+                self.events += [(now, Ev.RX_C), (self.reply_cycle(now, ptype), Ev.TX_C)]
         elif ptype == PacketType.CONFIG:
             for k in range(0, len(payload) - 4, 5):
                 self._config(now, payload[k], int.from_bytes(payload[k + 1:k + 5], "little"))
@@ -317,6 +354,15 @@ class NodeModel:
                 self._param(bank, (addr + j) & 0x1FF, w)
         self.last_packet = now
         return reply
+
+    def reply_cycle(self, now: int, ptype: int) -> int:
+        """Cycle in which the reply FSM leaves Idle with the reply to a request of type
+        ``ptype`` taken in cycle ``now`` (after :meth:`packet`): the next cycle, for Comm C
+        not before the cycle after the last VDC run's MARK. Assumes the FSM idle (the
+        previous reply has left)."""
+        if ptype == PacketType.COMM_C:
+            return max(now, self._vdc_mark) + 1
+        return now + 1
 
     # --- helpers ------------------------------------------------------------------------------
     def _watch(self, now: int) -> None:

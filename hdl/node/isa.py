@@ -190,6 +190,15 @@ class Microcode:
         one cycle to fetch, then one instruction per cycle, then the pipeline drains)."""
         return self.ends[entry] - self.entries[entry] + 1 + LATENCY
 
+    def mark_cycles(self, entry: str) -> int | None:
+        """Cycles from the ``start`` strobe to ``mark`` for ``entry`` (the first MARK its
+        routine reaches, counted as :meth:`cycles` counts to its END); None without a MARK."""
+        start, end = self.entries[entry], self.ends[entry]
+        for addr in range(start, end):
+            if self.instrs[addr].op == Op.MARK:
+                return addr - start + 1 + LATENCY
+        return None
+
 
 class Program:
     """Builder of an engine program: registers, statements, entry points; :meth:`compile`.

@@ -50,7 +50,7 @@ from .vdc_ref import VdcModel, VdcParams
 __all__ = ["PAYLOAD", "COMM_B_WORDS", "COMM_D_WORDS", "Config", "Bank", "Status", "MODES",
            "pack_words", "unpack_words", "pack_comm_b", "pack_comm_d", "parse_comm_a",
            "parse_comm_c", "config_payloads", "param_payloads", "vdc_upload", "joint_upload",
-           "CONFIG_DEFAULTS", "upload_check", "RX_DROPS", "LINK_HEALTH"]
+           "CONFIG_DEFAULTS", "upload_check", "RX_DROPS", "LINK_HEALTH", "NodeEvent"]
 
 PAYLOAD = 40
 #: The depacketizer's counters of frames it dropped (:class:`~hdl.link.packet.RxStats`),
@@ -102,6 +102,27 @@ class Status(enum.IntFlag):
     PRIME   = 1 << 4   # next VDC run restarts its derivative history
     MODE0   = 1 << 5   # mode, 2 bits
     MODE1   = 1 << 6
+
+
+class NodeEvent(enum.IntFlag):
+    """Bits of the node's observation port (``NodeCore.events``): one-cycle strobes, test
+    points only (combinational copies of existing signals; nothing reads them). Several bits
+    can be set in one cycle. docs/node.md "Observation port" says what each one marks.
+    """
+
+    BOUNDARY  = 1 << 0    # period boundary: timer phase 0 or a resync (the snapshot)
+    RESYNC    = 1 << 1    # the boundary was a time-code outside the sync window
+    TIMECODE  = 1 << 2    # a time-code arrived (period_start strobe)
+    RX_A      = 1 << 3    # last byte of a Comm A request taken
+    RX_B      = 1 << 4    # last byte of a full (40-byte) Comm B taken
+    RX_C      = 1 << 5    # last byte of a Comm C request taken
+    RX_D      = 1 << 6    # last byte of a full Comm D taken
+    VDC_START = 1 << 7    # the VDC engine starts (``vdc.start``)
+    VDC_DONE  = 1 << 8    # the VDC passes its MARK: forces ready (``vdc.mark``)
+    VDC_END   = 1 << 9    # the VDC program ends: adaptation and history done (``vdc.done``)
+    TX_A      = 1 << 10   # the reply FSM leaves Idle with a Comm A reply
+    TX_C      = 1 << 11   # the reply FSM leaves Idle with a Comm C reply
+    COMMIT    = 1 << 12   # Comm D's words take effect (commit phase, or arrival disarmed)
 
 
 def pack_words(words) -> bytes:

@@ -48,6 +48,8 @@ class SlaveNode(wiring.Component):
         :class:`~hdl.node.regs.Status` bits.
     count : Out(signed(32))
         Live encoder count.
+    events : Out(16)
+        The core's observation port (:class:`~hdl.node.regs.NodeEvent` strobes).
     """
 
     def __init__(self, *, codec: dict | None = None, encoder: EncoderParams | None = None):
@@ -64,6 +66,7 @@ class SlaveNode(wiring.Component):
             "torque":  Out(signed(WORD)),
             "status":  Out(16),
             "count":   Out(signed(32)),
+            "events":  Out(16),
         })
 
     @property
@@ -102,6 +105,7 @@ class SlaveNode(wiring.Component):
             core.rx_stats.eq(link.rx_stats),
             core.dropped.eq(link.dropped),
         ]
+        m.d.comb += self.events.eq(core.events)
         return m
 
 
