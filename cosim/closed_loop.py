@@ -3,11 +3,14 @@
 Time grid. The gateware runs at 50 MHz; the plant advances in fixed steps of ``plant.dt``
 (10 µs = 500 cycles). Every step: the torque words the nodes output at the step's first cycle
 drive the plant for the step (zero-order hold, the amplifier lag is in the plant); the plant's
-encoder lines for each cycle of the step go into the nodes; the master is polled and its
-packets are written into the master port's transmit FIFO (so the master acts on the 10 µs grid,
-its modelled compute time rounded up to it); received characters are assembled into frames and
-checked (CRC, length) with their arrival cycle. The same loop drives every backend that offers
-``run(n, inputs, outputs)`` with Amaranth-testbench semantics (``cosim.compiled.CompiledModel``).
+encoder lines for each cycle of the step go into the nodes. The master's packets are written
+into the master port's transmit FIFO at the cycle they are due (its modelled compute time after
+the replies it waited for): the step is run in pieces split there. The harness learns of a
+reply at the end of the piece it arrived in, so a compute time shorter than the plant step can
+be rounded up to that end (the default, 20 µs, never is). Received characters are assembled
+into frames and checked (CRC, length) with their arrival cycle. The same loop drives every
+backend that offers ``run(n, inputs, outputs)`` with Amaranth-testbench semantics
+(``cosim.compiled.CompiledModel``).
 
 Start-up. Links come up from reset (about 21.4 µs at standard timers), the master uploads
 configuration and parameters, then period 0 starts at cycle ``start_cycle``. Until then the
@@ -349,8 +352,10 @@ class ClosedLoop:
                     if bits & flag:
                         self.master.on_node_event(self.cycle + i, k + 1, name)
 
-    async def _chunk(self, n: int) -> dict:
-        inputs = {"enc_a": self._enc_a[:n], "enc_b": self._enc_b[:n]}
+    async def _chunk(self, n: int, offset: int = 0) -> dict:
+        """``n`` cycles from the plant step's cycle ``offset``."""
+        inputs = {"enc_a": self._enc_a[offset:offset + n],
+                  "enc_b": self._enc_b[offset:offset + n]}
         room = max(0, 192 - self._tx_level)
         k = min(len(self._tx), room, n)
         tx_valid = np.zeros(n, dtype=np.int64)
@@ -396,6 +401,20 @@ class ClosedLoop:
             if lo < hi:
                 inputs[f.port][lo - self.cycle:hi - self.cycle] |= f.value(self._line_slots)
 
+    async def _step(self, s: int) -> None:
+        """One plant step of ``s`` cycles, split where the master has packets due."""
+        done = 0
+        while done < s:
+            n = s - done
+            due = self.master.next_due()
+            if due is not None and self.cycle < due < self.cycle + n:
+                n = due - self.cycle
+            await self._chunk(n, done)
+            done += n
+            if done < s:
+                for action in self.master.poll(self.cycle):
+                    self._queue(action)
+
     # --- the run ----------------------------------------------------------------------------
     async def run(self, duration_cycles: int, progress=None) -> LoopResult:
         """Run start-up and ``duration_cycles`` of closed loop; return the trace.
@@ -428,7 +447,7 @@ class ClosedLoop:
             t_rec[i] = (self.cycle - self.start_cycle) / 50e6
             q_rec[i] = self.plant.q
             tau_rec[i] = tau
-            await self._chunk(s)
+            await self._step(s)
             if progress is not None and (i + 1) % 100 == 0:
                 progress((i + 1) * s / 50e6, steps * s / 50e6)
         digest = hashlib.sha256()

@@ -20,12 +20,14 @@ on the gateware; the gateware is replaced by
   time after the upstream link is free; a time-code reaches node k after ``12 k`` cycles
   (docs/link.md "Per-hop latency"). These are approximations: every node event (the
   observation port, :attr:`NodeModel.events <hdl.node.core_ref.NodeModel.events>`) lies
-  within :data:`EVENT_TOLERANCE` cycles of the gateware's when the master's packets leave on
-  the same plant step in both runs — 12 is the time-code's wait for the character on the
-  line, at most 4 cycles per hop over three hops, which the packets behind it inherit; 6
-  measured over 20 ms of mrm3 (tests/test_node_events.py). The boundary, the commit and the
-  VDC's durations are exact. A Comm B or D whose master step differs between the two runs
-  (the master's compute ends within a few cycles of a 10 µs step) moves by a whole step.
+  within :data:`EVENT_TOLERANCE` cycles of the gateware's — 12 is the time-code's wait for
+  the character on the line, at most 4 cycles per hop over three hops, which the packets
+  behind it inherit; 6 measured over 20 ms of mrm3 (tests/test_node_events.py). The
+  boundary, the commit and the VDC's durations are exact. The master's packets leave at the
+  cycle they are due in both loops (a step is split there), as long as its compute times are
+  at least a plant step (the default: 1,000 cycles); a shorter one is rounded up to the end of
+  the step its trigger arrived in here, possibly to an earlier split point in the gateware
+  loop.
 
 Why the results are nonetheless the gateware's, bit for bit: the node acts on its own period
 timer and on packet *contents* (docs/node.md "Timing"). The torque at every plant step and every
@@ -1098,9 +1100,17 @@ class ModelLoop:
                               f"at cycle {self.start_cycle} are not the master's grid")
         self.master.begin(self.start_cycle)
         poll, step = self.master.poll, self.plant.step
+        next_due = self.master.next_due
         for i in range(steps):
             for action in poll(self.cycle):
                 self._queue(action, self.cycle)
+            # packets the master computes by a cycle inside the step leave then (as the
+            # gateware loop splits its step there)
+            due = next_due()
+            while due is not None and due < self.cycle + s:
+                for action in poll(due):
+                    self._queue(action, due)
+                due = next_due()
             tau = self._torque.copy()
             step(tau)
             cyc = self.plant.encoder_changes() if self.lazy else self.plant.encoder_cycles().counts

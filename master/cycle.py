@@ -201,7 +201,8 @@ class Master:
         self.start = start_cycle
 
     def poll(self, now: int) -> list[Send]:
-        """Actions due at cycle ``now`` (called by the harness on its time grid)."""
+        """Actions due at cycle ``now`` or before (called by the harness on its time grid, and
+        at :meth:`next_due`)."""
         out = []
         if self.start is not None and now >= self.start:
             index = (now - self.start) // self.timing.period_cycles
@@ -212,6 +213,11 @@ class Master:
         for actions in due:
             out += actions
         return out
+
+    def next_due(self) -> int | None:
+        """The earliest cycle a computed packet is waiting for (None: none waits). A harness
+        that polls on a coarser grid splits its step there, so packets leave when due."""
+        return min((c for c, _ in self._pending), default=None)
 
     def _later(self, cycle: int, actions: list[Send]) -> None:
         self._pending.append((cycle, actions))
