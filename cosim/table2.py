@@ -47,7 +47,9 @@ class Progress:
 
     Call :meth:`begin` / :meth:`end` around each controller's run and pass the instance as
     ``run_track``'s ``progress``: when the harness calls it as ``progress(t_sim, t_total)``
-    (simulated seconds done and to do) it prints at most every ``every`` wall seconds.
+    (simulated seconds done and to do) it prints at most every ``every`` wall seconds. Runs
+    side by side (``run_table2(..., jobs=2)``) report through :meth:`report` instead, each
+    line naming its controller.
     """
 
     def __init__(self, controllers, duration: float, stream=None, every: float = 5.0):
@@ -55,10 +57,13 @@ class Progress:
         self.duration = duration
         self.stream = sys.stderr if stream is None else stream
         self.every = every
+        self.parallel = False
         self._wall_per_sim: float | None = None   # measured wall s per simulated s
         self._t0 = self._last = 0.0
         self._index = 0
         self._total_wall = 0.0
+        self._t0s: dict = {}
+        self._lasts: dict = {}
 
     def _print(self, text: str) -> None:
         print(text, file=self.stream, flush=True)
@@ -66,8 +71,9 @@ class Progress:
     def begin(self, controller: str) -> None:
         self._index = self.controllers.index(controller)
         self._t0 = self._last = time.perf_counter()
+        self._t0s[controller] = self._lasts[controller] = self._t0
         eta = ""
-        if self._wall_per_sim is not None:
+        if self._wall_per_sim is not None and not self.parallel:
             left = (len(self.controllers) - self._index) * self.duration * self._wall_per_sim
             eta = f", ETA {_hms(left)} for the rest"
         self._print(f"[{self._index + 1}/{len(self.controllers)}] {controller}: "
@@ -84,13 +90,24 @@ class Progress:
         self._print(f"    {t_sim:.3f}/{total:g} s simulated, {rate * 1e3:.3g} ms/s "
                     f"(RTF {1 / rate:.3g}), ETA {_hms(left)}")
 
+    def report(self, controller: str, t_sim: float, t_total: float | None = None) -> None:
+        """``controller``'s run, one of several side by side, is at ``t_sim``."""
+        now = time.perf_counter()
+        if now - self._lasts.get(controller, 0.0) < self.every or t_sim <= 0:
+            return
+        self._lasts[controller] = now
+        total = self.duration if t_total is None else t_total
+        rate = t_sim / (now - self._t0s.get(controller, now - 1e-9))
+        self._print(f"    {controller}: {t_sim:.3f}/{total:g} s simulated, {rate * 1e3:.3g} "
+                    f"ms/s (RTF {1 / rate:.3g}), ETA {_hms((total - t_sim) / rate)}")
+
     def end(self, controller: str, summary: dict) -> None:
-        wall = time.perf_counter() - self._t0
+        wall = time.perf_counter() - self._t0s.get(controller, self._t0)
         self._total_wall += wall
         done = self._index + 1
         self._wall_per_sim = self._total_wall / (done * self.duration)
         left = (len(self.controllers) - done) * self.duration * self._wall_per_sim
-        tail = f", ETA {_hms(left)}" if left > 0 else ""
+        tail = f", ETA {_hms(left)}" if left > 0 and not self.parallel else ""
         self._print(f"    {controller}: rho {summary['rho_s']:.3g} s, max tip error "
                     f"{1e3 * summary['max_tip_error_m']:.4g} mm in {_hms(wall)}{tail}")
 
@@ -119,7 +136,7 @@ def _run_kwargs(runner, config: ExperimentConfig, robot) -> dict:
 
 
 def run_table2(config: ExperimentConfig, out, *, progress: Progress | None = None,
-               runner=None) -> dict:
+               runner=None, jobs: int = 1) -> dict:
     """Run every configured controller and write the result folder ``out`` atomically.
 
     Parameters
@@ -130,6 +147,9 @@ def run_table2(config: ExperimentConfig, out, *, progress: Progress | None = Non
     progress : Progress, optional
     runner : callable, optional
         ``cosim.track.run_track`` (default) or a function with its signature.
+    jobs : int
+        Controllers run side by side in forked processes (each run is independent: the
+        results are the same as one after the other, bit for bit; only the wall time differs).
 
     Returns
     -------
@@ -149,17 +169,24 @@ def run_table2(config: ExperimentConfig, out, *, progress: Progress | None = Non
     t_start = time.perf_counter()
     runs = {}
     with atomic_output_dir(out) as tmp:
-        for c in config.controllers:
-            if progress is not None:
-                progress.begin(c)
+        def run_one(c, report):
             result, summary = runner(robot, c, config.backend, config.duration, config.seed,
                                      gains=config.gains, timing=config.timing,
-                                     plant_config=config.plant, progress=progress, **extra)
+                                     plant_config=config.plant, progress=report, **extra)
             summary = dict(summary, version=__version__)
-            if progress is not None:
-                progress.end(c, summary)
-            runs[c] = (result, summary)
             _write_controller(tmp / c, robot, c, config, result, summary, profile)
+            return result, summary
+
+        jobs = max(1, min(int(jobs), len(config.controllers)))
+        if jobs == 1:
+            for c in config.controllers:
+                if progress is not None:
+                    progress.begin(c)
+                runs[c] = run_one(c, progress)
+                if progress is not None:
+                    progress.end(c, runs[c][1])
+        else:
+            runs = _side_by_side(config.controllers, jobs, run_one, progress)
         summary = {
             "experiment": config.name, "robot": robot.name, "backend": config.backend,
             "seed": config.seed, "duration_s": config.duration, "version": __version__,
@@ -175,6 +202,77 @@ def run_table2(config: ExperimentConfig, out, *, progress: Progress | None = Non
         atomic_write_text(tmp / "table2.md", table_markdown(summary))
         _comparison_plots(tmp, robot, config, runs, profile)
     return summary
+
+
+class _Trace:
+    """What the comparison plots need of a run done in another process."""
+
+    def __init__(self, t, q, tau):
+        self.t, self.q, self.tau = t, q, tau
+
+
+def _side_by_side(controllers, jobs: int, run_one, progress) -> dict:
+    """``run_one(c, report)`` for every controller, ``jobs`` forked processes at a time;
+    returns ``{c: (trace, summary)}`` in the order of ``controllers``. Progress, results and
+    errors come back through one queue; the parent does all the printing."""
+    import multiprocessing as mp
+    import queue as _queue
+    import traceback
+
+    ctx = mp.get_context("fork")
+    queue = ctx.Queue()
+
+    def child(c):
+        def report(t_sim, t_total=None):
+            queue.put(("progress", c, t_sim, t_total))
+
+        try:
+            result, summary = run_one(c, report)
+            queue.put(("done", c, summary, result.t, result.q, result.tau))
+        except InputError as e:
+            queue.put(("input", c, e.field, e.message))
+        except BaseException:
+            queue.put(("error", c, traceback.format_exc()))
+
+    if progress is not None:
+        progress.parallel = True
+    todo, running, runs = list(controllers), {}, {}
+    try:
+        while todo or running:
+            while todo and len(running) < jobs:
+                c = todo.pop(0)
+                if progress is not None:
+                    progress.begin(c)
+                proc = ctx.Process(target=child, args=(c,), daemon=True)
+                proc.start()
+                running[c] = proc
+            try:
+                msg = queue.get(timeout=1.0)
+            except _queue.Empty:
+                dead = [c for c, p in running.items() if p.exitcode not in (None, 0)]
+                if dead:
+                    raise RuntimeError(f"the {dead[0]} run's process died (exit code "
+                                       f"{running[dead[0]].exitcode})") from None
+                continue
+            kind, c = msg[0], msg[1]
+            if kind == "progress":
+                if progress is not None:
+                    progress.report(c, msg[2], msg[3])
+                continue
+            running.pop(c).join()
+            if kind == "input":
+                raise InputError(msg[2], msg[3])
+            if kind == "error":
+                raise RuntimeError(f"the {c} run failed in its process:\n{msg[2]}")
+            summary = msg[2]
+            runs[c] = (_Trace(*msg[3:]), summary)
+            if progress is not None:
+                progress.end(c, summary)
+    finally:
+        for proc in running.values():
+            proc.kill()
+            proc.join()
+    return {c: runs[c] for c in controllers}
 
 
 def _ordering(runs: dict) -> dict:

@@ -215,3 +215,49 @@ def test_track_writes_its_gantt_timeline(tmp_path, capsys):
     assert (out / "timeline.png").read_bytes()[:4] == b"\x89PNG"
     timeline = json.loads((out / "timeline.json").read_text())
     assert any(p["complete"] for p in timeline)
+
+
+def test_side_by_side_runs_give_the_same_results_as_one_after_the_other(tmp_path):
+    """jobs=2 forks a process per controller: the gateware-in-the-loop results (trace hashes,
+    every summary figure but the wall time) and the table are those of the sequential run."""
+    backend = "model" if "model" in BACKENDS else "compiled"
+    cfg = ec.load().with_overrides(backend=backend, duration=0.003, seed=2)
+    stream = io.StringIO()
+    progress = table2.Progress(cfg.controllers, cfg.duration, stream=stream, every=0.0)
+    one = table2.run_table2(cfg, tmp_path / "one", runner=run_track)
+    two = table2.run_table2(cfg, tmp_path / "two", runner=run_track, jobs=2,
+                            progress=progress)
+    volatile = {"wall_s", "rtf"}
+    for c in cfg.controllers:
+        a, b = one["controllers"][c], two["controllers"][c]
+        assert {k: v for k, v in a.items() if k not in volatile} == \
+            {k: v for k, v in b.items() if k not in volatile}, c
+    assert (tmp_path / "one" / "table2.md").read_text() == \
+        (tmp_path / "two" / "table2.md").read_text()
+    for c in cfg.controllers:
+        assert (tmp_path / "one" / c / "trace.csv").read_bytes() == \
+            (tmp_path / "two" / c / "trace.csv").read_bytes()
+    lines = stream.getvalue().splitlines()
+    assert sum(line.startswith("[") for line in lines) == len(cfg.controllers)
+    for c in cfg.controllers:
+        assert any(line.strip().startswith(f"{c}: rho") for line in lines), c
+
+
+def test_a_failure_in_a_side_by_side_run_leaves_no_folder(tmp_path, config):
+    out = tmp_path / "out"
+    with pytest.raises(RuntimeError, match="pid-fpga run failed"):
+        table2.run_table2(config, out, runner=FakeRunner(fail_on="pid-fpga"), jobs=2)
+    assert not out.exists()
+
+    def refuse(robot, controller, *args, **kwargs):
+        raise InputError("gains.k_j", "too large for the node's word")
+
+    with pytest.raises(InputError) as e:
+        table2.run_table2(config, out, runner=refuse, jobs=3)
+    assert e.value.field == "gains.k_j" and not out.exists()
+
+
+def test_cli_refuses_a_bad_jobs_count(tmp_path, capsys):
+    code = cli.main(["run", "table2", "--jobs", "0", "--out", str(tmp_path / "o")])
+    assert code == 2 and "--jobs" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

@@ -56,6 +56,9 @@ def register(subparsers) -> None:
     p2.add_argument("--seed", type=int, default=None, help="override the plant seed")
     p2.add_argument("--duration", type=float, default=None,
                     help="override the simulated seconds per controller")
+    p2.add_argument("--jobs", type=int, default=None,
+                    help="controllers run side by side (default: as many as there are CPU "
+                    "cores, at most one per controller); the results do not depend on it")
     p2.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p2.set_defaults(func=_table2)
 
@@ -212,13 +215,24 @@ def _table2(args) -> int:
 
     config = load(args.config).with_overrides(backend=args.backend, seed=args.seed,
                                               duration=args.duration)
+    jobs = default_jobs() if args.jobs is None else args.jobs
+    if isinstance(jobs, bool) or jobs < 1:
+        raise InputError("--jobs", f"must be a whole number ≥ 1, not {args.jobs!r}")
     progress = None if args.quiet else Progress(config.controllers, config.duration)
-    summary = run_table2(config, args.out, progress=progress)
+    summary = run_table2(config, args.out, progress=progress, jobs=jobs)
     if not args.quiet:
         print((Path(args.out) / "table2.md").read_text(), end="")
         print(f"results in {args.out}/ (summary.json, table2.md, config.toml, "
               "fig4_tracking.png, fig5_errors.png, torques.png, <controller>/timeline.png)")
     return 0 if summary["controllers"] else 1
+
+
+def default_jobs() -> int:
+    """The CPU cores this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:                      # not on Linux
+        return max(1, os.cpu_count() or 1)
 
 
 def _plant_config(uncertainty: float):
