@@ -223,3 +223,22 @@ def test_line_fault_specs_parse_to_cycles():
     assert LineFault.parse("cut:down:3@10ms+2us") == LineFault(3, "down", "cut", 500_000, 100)
     assert LineFault.parse("stuck-d:up:1@0.001+20ns") == LineFault(1, "up", "stuck-d",
                                                                    50_000, 1)
+
+
+def test_cli_track_with_a_line_fault_says_where_it_was_counted(tmp_path, capsys):
+    """A 2 µs cut of the line above node 3 (towards it), after period 1's exchange: no reply is
+    lost, both codecs of that line count it, the command says so and records the fault."""
+    import json
+
+    from mrm import cli
+
+    out = tmp_path / "o"
+    code = cli.main(["run", "track", "--backend", "compiled", "--duration", "0.003",
+                     "--line-fault", "cut:down:3@1.1ms+2us", "--out", str(out)])
+    stdout = capsys.readouterr().out
+    assert code == 0
+    assert "link faults counted at: node 2 downstream codec 1, node 3 upstream codec 1" in stdout
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["link_errors"] == 2 and summary["overruns"] == 0
+    assert json.loads((out / "config.json").read_text())["line_faults"] == \
+        ["cut:down:3@1.1ms+2us"]

@@ -188,9 +188,14 @@ def _write_track(args, robot, result, summary, duration, vcd_tmp) -> None:
 
 
 def _phases_text(phases: dict) -> str:
-    """``A 10.34, B 30.34, … µs`` (phases without a value: ``–``)."""
-    return ", ".join(f"{k} {'–' if v is None else f'{v:.2f}'}" for k, v in phases.items()
-                     if not isinstance(v, dict)) + " µs"
+    """``A 10.34, B 30.34, …, node_compute 5.64/5.64/5.64 µs`` (no value: ``–``; per-node
+    lists joined by ``/``)."""
+    def fmt(v):
+        if isinstance(v, (list, tuple)):
+            return "/".join(fmt(x) for x in v)
+        return "–" if v is None else f"{v:.2f}"
+
+    return ", ".join(f"{k} {fmt(v)}" for k, v in phases.items()) + " µs"
 
 
 def link_fault_places(detail: dict) -> str:
