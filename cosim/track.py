@@ -60,6 +60,10 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     plant = Plant(robot, plant_config or PlantConfig(), seed=seed)
     plant.reset(robot.home)
     duration_cycles = int(round(duration * 50e6))
+    for f in faults:
+        if f.cycle >= duration_cycles:
+            raise InputError("--line-fault", f"a fault at {f.cycle / 50e6:g} s from period 0 is "
+                             f"after the run's end ({duration:g} s): it would never happen")
     t0 = time.perf_counter()
     # period 0 on the nodes' timer grid (a multiple of the period from reset), after start-up
     start = -(-START_CYCLE // timing.period_cycles) * timing.period_cycles

@@ -197,6 +197,7 @@ def test_a_bit_error_in_the_closed_loop_is_counted_where_it_happened(faulted_run
     ("bit:up:2@soon", "is not a time"),
     ("cut:down:2@1ms+long", "is not a time"),
     ("bit:up:4@1ms", "has 3 nodes"),
+    ("bit:up:2@1.5ms", "after the run's end"),
 ])
 def test_cli_refuses_bad_line_faults_naming_the_flag(tmp_path, capsys, spec, words):
     from mrm import cli
