@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 from cosim.closed_loop import FAULT_KINDS, LineFault
-from cosim.track import run_track
+from cosim.track import link_fault_places, run_track
 
 PERIOD = 50_000
 LENGTHS = {"bit": (1, 1), "cut": (10, 120), "stuck-d": (10, 120)}   # cycles, min and max
@@ -45,20 +45,11 @@ def draw(rng, kinds, n_nodes: int = 3) -> LineFault:
 def one(fault: LineFault) -> dict:
     t0 = time.perf_counter()
     result, s = run_track(controller="vdc", backend="compiled", duration=0.006, faults=[fault])
-    detail = s["link_error_detail"]
     records = result.master.records
     late = [r.index for r in records if not r.complete]
-    where = []
-    if detail["master_rx_dropped"]:
-        where.append(f"master rx {detail['master_rx_dropped']}")
-    if detail["master_port"]:
-        where.append(f"master port {detail['master_port']}")
-    for node, counters in detail["per_node"].items():
-        for key, n in counters.items():
-            if n:
-                where.append(f"n{node} {key.replace('_link_errors', '')} {n}")
     return {"fault": f"{fault.kind}:{fault.direction}:{fault.node}@+{fault.cycle - 2 * PERIOD}"
-                     f"+{fault.cycles}", "counted": s["link_errors"], "where": where,
+                     f"+{fault.cycles}", "counted": s["link_errors"],
+            "where": link_fault_places(s["link_error_detail"]),
             "incomplete_periods": late, "overruns": s["overruns"],
             "missing": s["missing_replies"],
             "recovered": all(r.complete for r in records if r.index > 2),
@@ -78,7 +69,7 @@ def main(argv=None) -> int:
         row = one(draw(rng, args.kinds))
         rows.append(row)
         flag = "" if row["counted"] else "   <-- counted nowhere"
-        print(f"{row['fault']:28s} counted {row['counted']:2d} ({', '.join(row['where'])}); "
+        print(f"{row['fault']:28s} counted {row['counted']:2d} ({row['where']}); "
               f"incomplete {row['incomplete_periods']}, missing {row['missing']}, "
               f"recovered {row['recovered']}{flag}", flush=True)
     counted = sum(1 for r in rows if r["counted"])

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hdl.link import packet_ref as ref
-from hdl.link.chain import char_int, char_value
+from hdl.link.chain import char_int, char_value, line_fault_layout
 from hdl.node.fixed import FORCE
 from hdl.node.joint_ref import JointParams
 from hdl.node.regs import MODES, Config, NodeEvent, config_payloads, joint_upload, vdc_upload
@@ -101,7 +101,7 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
     effect) and ``sync_window`` set the nodes' period timer (docs/node.md "Timing"); the
     timing record goes first, so it arrives within the first period after reset. The default
     commit phase is a fifth of the period (200 µs of 1 ms: the measured Comm D reaches the last
-    of three nodes at ~85 µs; docs/node.md "Timing" says why the margin).
+    of three nodes at ~82 µs; docs/node.md "Timing" says why the margin).
     """
     if commit_cycles is None:
         commit_cycles = period_cycles // 5
@@ -232,12 +232,12 @@ class LineFault:
 
     def value(self, slots: int = 3) -> int:
         """The raw value of a ``line_fault_layout(slots)`` port while the fault lasts."""
-        fields = ("clear_d", "set_d", "flip_d", "clear_s", "set_s", "flip_s")
         every = (1 << slots) - 1
         on = {"cut": {"clear_d": every, "clear_s": every},
               "bit": {"flip_d": 1, "flip_s": 1},
               "stuck-d": {"clear_d": every}}[self.kind]
-        return sum(on.get(f, 0) << (slots * i) for i, f in enumerate(fields))
+        layout = line_fault_layout(slots)
+        return sum(v << layout[f].offset for f, v in on.items())
 
 
 @dataclass

@@ -497,31 +497,47 @@ class FastNode(NodeModel):
         j.i_lo, j.i_hi, j.q_des = i_lo, i_hi, q_des
         self._defer_many(first, last, step)
 
-    def _dead_tick(self, now: int, count_at, tt: int) -> None:
-        """:meth:`_fast_tick` for a tick whose torque is overwritten before it is observed
-        (``count_at(cycle)``: the count, the strobe deferred: :meth:`EncoderEvents.defer`).
-
-        Its first lines (landing, watchdog, next tick, ramp, overrun) are :meth:`_fast_tick`'s,
-        written out in both on purpose: these two run once per control tick (a million times
-        per simulated second and node) and a shared helper costs a call each; change both."""
+    def _tick_begin(self, now: int, ramped: bool = False) -> int:
+        """What every control tick does first, observed or not (the torque landing, the
+        watchdog, the next tick, the trip ramp); returns the tick length."""
         landing = self._landing
         if landing is not None and now >= landing[0]:
             self.torque = landing[1]
             self._landing = None
-        armed = self.armed
         cfg = self.config
-        if (armed and not self.tripped and now >= self.last_packet + 2 + cfg[_TIMEOUT]) or \
-                self._prime_due is not None:
+        if (self.armed and not self.tripped and now >= self.last_packet + 2 + cfg[_TIMEOUT]) \
+                or self._prime_due is not None:
             self._watch(now)
         tick = cfg[_TICK]
         self._nt = now + tick
-        if armed and self.tripped:
+        if self.armed and self.tripped and not ramped:
             self._ramp()
+        return tick
+
+    def _tick_end(self, now: int, mode: int, tau) -> None:
+        """The joint engine ran from ``now``: busy until its result lands; ``tau`` the torque
+        word it lands (clipped here), None for a dead tick's (the next tick overwrites it)."""
+        done = now + _CYCLES[mode]
+        self._started = now
+        self._busy_until = done + 1
+        cfg = self.config
+        if not self.armed:
+            self._landing = (done + 1, 0)
+        elif not (self.tripped or done >= self.last_packet + 2 + cfg[_TIMEOUT]):
+            if tau is not None:
+                lo, hi = cfg[_TAU_MIN], cfg[_TAU_MAX]
+                tau = lo if tau < lo else hi if tau > hi else tau
+            self._landing = (done + 1, tau)
+
+    def _dead_tick(self, now: int, count_at, tt: int) -> None:
+        """:meth:`_fast_tick` for a tick whose torque is overwritten before it is observed
+        (``count_at(cycle)``: the count, the strobe deferred: :meth:`EncoderEvents.defer`)."""
+        tick = self._tick_begin(now)
         count = count_at(now)
         if now < self._busy_until:
             self.overruns = min(self.overruns + 1, 0xFFFF)
             return
-        mode = cfg[_MODE]
+        mode = self.config[_MODE]
         tn = tt + tick
         if tn > _TIME_MAX:
             tn = _TIME_MAX
@@ -532,47 +548,22 @@ class FastNode(NodeModel):
             part_b(self.joint, tn, d[1], d[2], d[3])
         else:
             self._deferred = (tn, d[1], d[2], d[3])
-        done = now + _CYCLES[mode]
-        self._started = now
-        self._busy_until = done + 1
-        if not armed:
-            self._landing = (done + 1, 0)
-        elif not (self.tripped or done >= self.last_packet + 2 + cfg[_TIMEOUT]):
-            self._landing = (done + 1, None)        # overwritten by the next tick's
+        self._tick_end(now, mode, None)
 
     def _fast_tick(self, now: int, sample, tt: int, ramped: bool = False) -> None:
-        landing = self._landing
-        if landing is not None and now >= landing[0]:
-            self.torque = landing[1]
-            self._landing = None
-        armed = self.armed
-        cfg = self.config
-        if (armed and not self.tripped and now >= self.last_packet + 2 + cfg[_TIMEOUT]) or \
-                self._prime_due is not None:
-            self._watch(now)
-        tick = cfg[_TICK]
-        self._nt = now + tick
-        if armed and self.tripped and not ramped:
-            self._ramp()
+        tick = self._tick_begin(now, ramped)
         count, qd = sample(now)
         if now < self._busy_until:
             self.overruns = min(self.overruns + 1, 0xFFFF)
             return
-        mode = cfg[_MODE]
+        mode = self.config[_MODE]
         tn = tt + tick
         d = self.d_words
         if self._deferred is not None:
             self._materialize()
         tau = fast_joint_tick(self.joint, mode, count, qd, tn if tn < _TIME_MAX else _TIME_MAX,
                               d[0], d[1], d[2], d[3])
-        done = now + _CYCLES[mode]
-        self._started = now
-        self._busy_until = done + 1
-        if not armed:
-            self._landing = (done + 1, 0)
-        elif not (self.tripped or done >= self.last_packet + 2 + cfg[_TIMEOUT]):
-            lo, hi = cfg[_TAU_MIN], cfg[_TAU_MAX]
-            self._landing = (done + 1, lo if tau < lo else hi if tau > hi else tau)
+        self._tick_end(now, mode, tau)
 
 
 class EncoderEvents:
@@ -829,20 +820,8 @@ class EncoderEvents:
                 vi = 0
             self._vi = vi
         pipe = self._pipe
-        while pipe and pipe[0][0] <= c:
-            _, case, num, den = pipe.pop(0)
-            if case == 0:
-                self.velocity = 0
-            elif case == 1:
-                self.velocity = velocity_word(num, den, self.kv)
-            else:
-                mag = abs(self.velocity)
-                # The bound clips only an estimate above it; the reciprocal's relative error is
-                # < 2.5e-5, so far below the bound the exact word need not be formed.
-                if mag >= WORD_MAX or mag > num * self._kv_scale / (den or 1) * 0.999 - 2:
-                    v = velocity_word(num, den, self.kv)
-                    if mag > v:
-                        self.velocity = v if self.velocity > 0 else -v
+        if pipe and pipe[0][0] <= c:
+            self._apply_pipe(c)
         count = self.count
         out = (count, self.velocity)
         self._last = out

@@ -15,7 +15,8 @@ from models.plant import Plant, PlantConfig
 from models.robot import load_robot
 from mrm.errors import InputError
 
-__all__ = ["run_track", "BACKENDS", "link_errors_detail", "loop_system", "loop_system_key"]
+__all__ = ["run_track", "BACKENDS", "link_errors_detail", "link_fault_places", "loop_system",
+           "loop_system_key"]
 
 BACKENDS = ("compiled", "pysim", "model")
 START_CYCLE = 50_000          # period 0 at 1 ms: links up (21 µs) and uploads done well before
@@ -127,6 +128,22 @@ def link_errors_detail(result) -> dict:
             "master_port": int(result.link_errors),
             "nodes": m.link_totals(),
             "per_node": {str(k): dict(v) for k, v in sorted(m.node_link.items())}}
+
+
+def link_fault_places(detail: dict) -> str:
+    """Where a run's link faults were counted, in words (``summary["link_error_detail"]``)."""
+    places = []
+    if detail["master_rx_dropped"]:
+        places.append(f"master dropped {detail['master_rx_dropped']} frame(s)")
+    if detail["master_port"]:
+        places.append(f"master port codec {detail['master_port']}")
+    names = {"up_link_errors": "upstream codec", "down_link_errors": "downstream codec",
+             "rx_dropped": "frames dropped", "router_dropped": "router discards"}
+    for node, counters in detail["per_node"].items():
+        for key, n in counters.items():
+            if n:
+                places.append(f"node {node} {names[key]} {n}")
+    return ", ".join(places)
 
 
 def _trajectory(robot, profile=None):

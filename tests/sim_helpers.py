@@ -12,10 +12,11 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.sim import Simulator
 
+from hdl.link.chars import ERROR_CLASSES
 from hdl.link.codec import Codec
 
 __all__ = [
-    "stream_put", "stream_get", "run_simulation", "FaultyLine", "CodecPair",
+    "stream_put", "stream_get", "packet_ends", "run_simulation", "FaultyLine", "CodecPair",
     "ERROR_CLASSES", "read_codec_outputs", "assert_outputs_equal", "apply_line_faults",
     "RandomHost", "drive_codec_inputs", "token_bits", "LinePeer", "LineMonitor", "PeerBench",
     "PairBench",
@@ -36,6 +37,21 @@ async def stream_get(ctx, stream):
     payload, = await ctx.tick().sample(stream.payload).until(stream.valid)
     ctx.set(stream.ready, 0)
     return payload
+
+
+def packet_ends(stream, ends: list):
+    """A background testbench appending to ``ends`` the cycle (counted from 0) in which each
+    packet's last beat is taken on ``stream`` (a stream of :class:`~hdl.link.packet.Beat`)."""
+    async def monitor(ctx):
+        c = 0
+        while True:
+            _, _, valid, ready, last = await ctx.tick().sample(stream.valid, stream.ready,
+                                                                stream.p.last)
+            if valid and ready and last:
+                ends.append(c)
+            c += 1
+
+    return monitor
 
 
 def run_simulation(sim: Simulator, name: str):
@@ -102,9 +118,6 @@ class CodecPair(Elaboratable):
 
 
 # -- Lock-step comparison of a gateware codec pair with the Python reference -----------------
-
-ERROR_CLASSES = ("disconnect", "parity", "escape", "credit", "sequence")
-
 
 def read_codec_outputs(ctx, codec):
     """The gateware codec's outputs this cycle, in the shape of ``CodecOutputs``."""

@@ -20,14 +20,11 @@ from hdl.link.chars import ERROR_CLASSES, saturating_sum, saturating_sum_ref
 from hdl.link.packet_ref import Header, PacketType
 from hdl.node.core import NodeCore
 from hdl.node.core_ref import NodeModel
-from hdl.node.encoder_ref import EncoderParams
 from hdl.node.regs import LINK_HEALTH, RX_DROPS, parse_comm_a
 from mrm.errors import InputError
 
-from .sim_helpers import run_simulation
-
-ENC = EncoderParams(min_window=256, stop_cycles=1 << 20)
-
+from .sim_helpers import packet_ends, run_simulation
+from .test_node_core import ENC
 
 def test_saturating_sum_equals_its_reference():
     rng = np.random.default_rng(1)
@@ -84,15 +81,6 @@ def test_comm_a_reports_the_link_counters_as_the_request_found_them():
             ctx.set(getattr(dut.rx_stats, f), v)
         ctx.set(dut.dropped, dropped)
 
-    async def monitor(ctx):
-        c = 0
-        while True:
-            _, _, valid, ready, last = await ctx.tick().sample(dut.rx.valid, dut.rx.ready,
-                                                                dut.rx.p.last)
-            if valid and ready and last:
-                ends.append(c)
-            c += 1
-
     async def master(ctx):
         for i, counters in enumerate(plan):
             apply(ctx, counters)
@@ -105,7 +93,7 @@ def test_comm_a_reports_the_link_counters_as_the_request_found_them():
 
     sim = Simulator(dut)
     sim.add_clock(20e-9)
-    sim.add_testbench(monitor, background=True)
+    sim.add_testbench(packet_ends(dut.rx, ends), background=True)
     sim.add_testbench(master)
     run_simulation(sim, "node_core_link_health")
 

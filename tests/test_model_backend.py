@@ -352,6 +352,20 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
     _same_runs(*runs)
 
 
+def _feed_both(rng, counts, pos: int, per_cycle, changes) -> int:
+    """The next chunk of ``counts`` (random length) from cycle ``pos``: per cycle into
+    ``per_cycle`` (:meth:`EncoderEvents.feed`), as count changes into ``changes``
+    (:meth:`EncoderEvents.feed_changes`); returns the cycle after it."""
+    chunk = counts[pos:pos + int(rng.integers(1, 900))]
+    per_cycle.feed(pos, chunk)
+    prev = counts[pos - 1] if pos else counts[0]
+    before = np.concatenate([[prev], chunk[:-1]])
+    idx = np.flatnonzero(chunk != before)
+    changes.feed_changes(pos, len(chunk), list(zip(idx.tolist(), chunk[idx].tolist(),
+                                                   strict=True)))
+    return pos + len(chunk)
+
+
 def test_feed_changes_equals_feed():
     """The encoder interface fed count changes is the one fed per-cycle counts."""
     rng = np.random.default_rng(11)
@@ -360,18 +374,9 @@ def test_feed_changes_equals_feed():
     params = EncoderParams(min_window=256, stop_cycles=5_000)
     a, b = EncoderEvents(params, int(counts[0])), EncoderEvents(params, int(counts[0]))
     pos = 0
-    prev = int(counts[0])
     for c in range(0, n, 50):
         if c >= pos:
-            size = int(rng.integers(1, 900))
-            chunk = counts[pos:pos + size]
-            a.feed(pos, chunk)
-            before = np.concatenate([[prev], chunk[:-1]])
-            idx = np.flatnonzero(chunk != before)
-            b.feed_changes(pos, len(chunk), list(zip(idx.tolist(), chunk[idx].tolist(),
-                                                     strict=True)))
-            prev = int(chunk[-1])
-            pos += len(chunk)
+            pos = _feed_both(rng, counts, pos, a, b)
         assert a.sample(c) == b.sample(c), c
 
 
@@ -395,20 +400,11 @@ def test_deferred_strobes_equal_strobing_every_tick(seed, params):
     lazy = EncoderEvents(params, int(counts[0]))
     strobes = sorted(set(range(0, n, 50)) | {int(x) for x in rng.integers(0, n, 300)})
     pos = 0
-    prev = int(counts[0])
     samples = deferred = 0
     velocities = set()
     for c in strobes:
         while c >= pos:
-            size = int(rng.integers(1, 900))
-            chunk = counts[pos:pos + size]
-            ref.feed(pos, chunk)
-            before = np.concatenate([[prev], chunk[:-1]])
-            idx = np.flatnonzero(chunk != before)
-            lazy.feed_changes(pos, len(chunk), list(zip(idx.tolist(), chunk[idx].tolist(),
-                                                        strict=True)))
-            prev = int(chunk[-1])
-            pos += len(chunk)
+            pos = _feed_both(rng, counts, pos, ref, lazy)
         want = ref.sample(c)
         velocities.add(want[1])
         if rng.random() < 0.85:

@@ -20,7 +20,7 @@ from hdl.node.regs import (Config, NodeEvent, Status, config_payloads, joint_upl
 from models.encoder import counts_per_rad, quadrature_levels
 from models.robot import load_robot
 
-from .sim_helpers import run_simulation
+from .sim_helpers import packet_ends, run_simulation
 
 TICK = 50
 K_RAD = float(counts_per_rad(800_000))
@@ -306,15 +306,6 @@ def test_upload_crc_and_count_equal_the_link_crc_over_the_payloads():
     ends = []
     replies = []
 
-    async def monitor(ctx):
-        c = 0
-        while len(replies) < 4:
-            _, _, valid, ready, last = await ctx.tick().sample(dut.rx.valid, dut.rx.ready,
-                                                                dut.rx.p.last)
-            if valid and ready and last:
-                ends.append(c)
-            c += 1
-
     async def master(ctx):
         send_rng = np.random.default_rng(6)
         for i, (ptype, payload) in enumerate(plan):
@@ -325,8 +316,8 @@ def test_upload_crc_and_count_equal_the_link_crc_over_the_payloads():
 
     sim = Simulator(dut)
     sim.add_clock(20e-9)
-    sim.add_testbench(monitor)
-    sim.add_testbench(master, background=True)
+    sim.add_testbench(packet_ends(dut.rx, ends), background=True)
+    sim.add_testbench(master)
     run_simulation(sim, "node_core_upload")
 
     model = NodeModel(encoder=ENC)

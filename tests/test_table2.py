@@ -222,12 +222,20 @@ def test_side_by_side_runs_give_the_same_results_as_one_after_the_other(tmp_path
     every summary figure but the wall time) and the table are those of the sequential run."""
     backend = "model" if "model" in BACKENDS else "compiled"
     cfg = ec.load().with_overrides(backend=backend, duration=0.003, seed=2)
+    import os
+
+    def runner(*args, **kwargs):                    # run_track, saying which process ran it
+        result, summary = run_track(*args, **kwargs)
+        return result, dict(summary, pid=os.getpid())
+
     stream = io.StringIO()
     progress = table2.Progress(cfg.controllers, cfg.duration, stream=stream, every=0.0)
-    one = table2.run_table2(cfg, tmp_path / "one", runner=run_track)
-    two = table2.run_table2(cfg, tmp_path / "two", runner=run_track, jobs=2,
-                            progress=progress)
-    volatile = {"wall_s", "rtf"}
+    one = table2.run_table2(cfg, tmp_path / "one", runner=runner)
+    two = table2.run_table2(cfg, tmp_path / "two", runner=runner, jobs=2, progress=progress)
+    assert {s["pid"] for s in one["controllers"].values()} == {os.getpid()}
+    pids = {s["pid"] for s in two["controllers"].values()}
+    assert os.getpid() not in pids and len(pids) == len(cfg.controllers)
+    volatile = {"wall_s", "rtf", "pid"}
     for c in cfg.controllers:
         a, b = one["controllers"][c], two["controllers"][c]
         assert {k: v for k, v in a.items() if k not in volatile} == \
@@ -241,6 +249,8 @@ def test_side_by_side_runs_give_the_same_results_as_one_after_the_other(tmp_path
     assert sum(line.startswith("[") for line in lines) == len(cfg.controllers)
     for c in cfg.controllers:
         assert any(line.strip().startswith(f"{c}: rho") for line in lines), c
+        assert any(line.strip().startswith(f"{c}: 0.") and "simulated" in line
+                   for line in lines), c             # the children's progress, named
 
 
 def test_a_failure_in_a_side_by_side_run_leaves_no_folder(tmp_path, config):

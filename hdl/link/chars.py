@@ -87,7 +87,7 @@ class ErrorCounts(data.Struct):
 
 
 #: The fields of :class:`ErrorCounts`, in layout order.
-ERROR_CLASSES = ("disconnect", "parity", "escape", "credit", "sequence")
+ERROR_CLASSES = tuple(data.Layout.cast(ErrorCounts).members)
 
 def saturating_sum(values, width: int = 16) -> Value:
     """Sum of unsigned ``values`` saturated at ``2**width - 1`` (combinational).

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from .chars import FCT_CREDIT, MAX_CREDIT, CharKind, LinkState
+from .chars import ERROR_CLASSES, FCT_CREDIT, MAX_CREDIT, CharKind, LinkState
 from .ds import GROUP_BITS
+from .packet_ref import COUNTER_MAX
 from .params import codec_params
 from .rx import NULL_PATTERN
 
@@ -23,8 +24,6 @@ __all__ = ["CodecRef", "CodecOutputs", "char_value", "char_fields"]
 
 _ER, _EW, _READY, _STARTED, _CONNECTING, _RUN = (s.value for s in LinkState)
 _DATA, _EOP, _EEP = CharKind.DATA.value, CharKind.EOP.value, CharKind.EEP.value
-_COUNTER_MAX = 0xFFFF
-_ERROR_CLASSES = ("disconnect", "parity", "escape", "credit", "sequence")
 
 
 def char_value(kind: int, data: int = 0) -> int:
@@ -90,7 +89,7 @@ class CodecRef:
         # Link state machine.
         self.state = _ER
         self.timer = 0
-        self.errors = dict.fromkeys(_ERROR_CLASSES, 0)
+        self.errors = dict.fromkeys(ERROR_CLASSES, 0)
         # Transmitter.
         self.buf = self.cnt = self.left = self.d_out = self.s_out = 0
         self.tx_par = 0
@@ -192,7 +191,7 @@ class CodecRef:
         seq_error = got_fct or got_nchar or got_time
         wait_over = self.timer == self.wait_cycles - 1
         next_state, timer = state, (self.timer + 1) & self._timer_mask
-        counted = dict.fromkeys(_ERROR_CLASSES, False)
+        counted = dict.fromkeys(ERROR_CLASSES, False)
         go_reset = False
         if state == _ER:
             if self.timer == self.reset_cycles - 1:
@@ -228,7 +227,7 @@ class CodecRef:
             timer = 0
         leave_run = running and go_reset
         for name, event in counted.items():
-            if event and self.errors[name] != _COUNTER_MAX:
+            if event and self.errors[name] != COUNTER_MAX:
                 self.errors[name] += 1
 
         # Transmitter: what to encode if the line can take a group this cycle.

@@ -183,6 +183,8 @@ def _write_track(args, robot, result, summary, duration, vcd_tmp) -> None:
               f"A/B/C/D done at " + _phases_text(summary["phases_us"])
               + f"; RTF {summary['rtf']:.0f}")
         if summary["link_errors"]:
+            from cosim.track import link_fault_places
+
             print("link faults counted at: " + link_fault_places(summary["link_error_detail"]))
         print(f"results in {args.out}/" + (" (waves.vcd: the --vcd window)" if vcd_tmp else ""))
 
@@ -196,22 +198,6 @@ def _phases_text(phases: dict) -> str:
         return "–" if v is None else f"{v:.2f}"
 
     return ", ".join(f"{k} {fmt(v)}" for k, v in phases.items()) + " µs"
-
-
-def link_fault_places(detail: dict) -> str:
-    """Where a run's link faults were counted, in words (``summary["link_error_detail"]``)."""
-    places = []
-    if detail["master_rx_dropped"]:
-        places.append(f"master dropped {detail['master_rx_dropped']} frame(s)")
-    if detail["master_port"]:
-        places.append(f"master port codec {detail['master_port']}")
-    names = {"up_link_errors": "upstream codec", "down_link_errors": "downstream codec",
-             "rx_dropped": "frames dropped", "router_dropped": "router discards"}
-    for node, counters in detail["per_node"].items():
-        for key, n in counters.items():
-            if n:
-                places.append(f"node {node} {names[key]} {n}")
-    return ", ".join(places)
 
 
 def _table2(args) -> int:
