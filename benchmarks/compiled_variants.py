@@ -6,6 +6,7 @@ Run on purpose (each build takes 2-3 minutes on this machine), not in CI::
     MRM_CACHE_DIR=/tmp/s-cache python benchmarks/compiled_variants.py compare tied tied-o3-xfast
     git show fadb99e:cosim/compiled.py > /tmp/compiled_v1.py
     python benchmarks/compiled_variants.py bench --legacy /tmp/compiled_v1.py
+    MRM_CACHE_DIR=/tmp/s-cache python benchmarks/compiled_variants.py pgo
 
 ``record`` runs the 3-module VDC closed loop (start-up, uploads, then ``--cycles`` of the
 A/B/C/D cycle) on the ``compiled`` backend and stores every chunk's per-cycle inputs. ``compare``
@@ -14,7 +15,10 @@ builds each named variant (cached), replays the recorded inputs chunk by chunk t
 master), checks that every variant returns the same outputs bit for bit as the first, and prints
 the replay's cycles per second, best of ``--rounds`` rounds taken in turn (the machine is shared
 and noisy: only ratios within one run mean anything). ``bench`` runs ``mrm bench``'s compiled
-window alternately with an older engine (``--legacy``) and the current one.
+window alternately with an older engine (``--legacy``) and the current one. ``pgo`` measures GCC
+profile-guided optimisation of the default build: an instrumented build replays the tape once
+(in a child process: the profile is written at its exit), the model is rebuilt with that
+profile, and the two builds are replayed in turn as ``compare`` does.
 """
 
 from __future__ import annotations
@@ -220,6 +224,79 @@ def bench(legacy: Path, rounds: int) -> int:
     return 0
 
 
+PGO_WORK = Path("/tmp/mrm-pgo-build")   # a fixed build directory: the profile files are
+PGO_DATA = Path("/tmp/mrm-pgo-data")    # named after the object files' absolute paths
+
+
+def _pgo_model(tape, stage: str):
+    """The default build (``stage`` "base"), instrumented ("gen") or optimised with the
+    recorded profile ("use"); the instrumented and the optimised builds run in
+    :data:`PGO_WORK`, so their object files, and the profile's names, are the same."""
+    import shutil
+
+    import cosim.compiled as cc
+
+    def fixed_mkdtemp(prefix="", dir=None):
+        shutil.rmtree(PGO_WORK, ignore_errors=True)
+        PGO_WORK.mkdir(parents=True)
+        return str(PGO_WORK)
+
+    kwargs = dict(VARIANTS["tied-o3-xfast"])
+    if stage == "gen":
+        kwargs["verilator_args"] = [*_XFAST, "-LDFLAGS", "-fprofile-generate"]
+        kwargs["cflags"] = f"-fprofile-generate={PGO_DATA} -fprofile-update=single"
+    elif stage == "use":
+        # the profile's digest goes into the flags, hence into the build cache's key
+        digest = hashlib.sha256(b"".join(f.read_bytes() for f in sorted(PGO_DATA.iterdir())))
+        kwargs["cflags"] = (f"-fprofile-use={PGO_DATA} -fprofile-partial-training "
+                            f"-Wno-missing-profile -DMRM_PGO={digest.hexdigest()[:16]}")
+    saved = cc.tempfile.mkdtemp
+    cc.tempfile.mkdtemp = fixed_mkdtemp if stage != "base" else saved
+    try:
+        return _model(tape, kwargs)
+    finally:
+        cc.tempfile.mkdtemp = saved
+
+
+def pgo(path: Path, rounds: int) -> int:
+    import shutil
+    import subprocess
+
+    with open(path, "rb") as f:
+        tape = pickle.load(f)
+    chunks = tape["chunks"]
+    cycles = sum(c[0] for c in chunks)
+    shutil.rmtree(PGO_DATA, ignore_errors=True)
+    subprocess.run([sys.executable, __file__, "_pgo-train", "--stim", str(path)], check=True)
+    best, digests = {"base": float("inf"), "use": float("inf")}, {}
+    for stage in best:
+        _pgo_model(tape, stage).close()           # build once, before measuring
+    for _ in range(rounds):
+        for stage in best:
+            model = _pgo_model(tape, stage)
+            wall, digest = _replay(model, chunks)
+            model.close()
+            best[stage] = min(best[stage], wall)
+            digests.setdefault(stage, set()).add(digest)
+    print(f"{cycles} cycles replayed, best of {rounds} rounds")
+    for stage in best:
+        print(f"{stage:5s} {cycles / best[stage]:12,.0f} cycles/s  "
+              f"x{best['base'] / best[stage]:5.2f}  outputs {sorted(digests[stage])[0][:16]}")
+    same = len(digests["base"] | digests["use"]) == 1
+    print("outputs identical" if same else "DIFFERENT OUTPUTS")
+    return 0 if same else 1
+
+
+def _pgo_train(path: Path) -> int:
+    with open(path, "rb") as f:
+        tape = pickle.load(f)
+    model = _pgo_model(tape, "gen")
+    wall, _ = _replay(model, tape["chunks"])
+    model.close()
+    print(f"training replay (instrumented build): {wall:.1f} s", file=sys.stderr)
+    return 0
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = p.add_subparsers(dest="cmd", required=True)
@@ -235,7 +312,16 @@ def main(argv=None) -> int:
     b.add_argument("--legacy", type=Path, required=True,
                    help="an older cosim/compiled.py (git show fadb99e:cosim/compiled.py)")
     b.add_argument("--rounds", type=int, default=3)
+    g = sub.add_parser("pgo")
+    g.add_argument("--stim", type=Path, default=STIM)
+    g.add_argument("--rounds", type=int, default=3)
+    t = sub.add_parser("_pgo-train")
+    t.add_argument("--stim", type=Path, default=STIM)
     args = p.parse_args(argv)
+    if args.cmd == "pgo":
+        return pgo(args.stim, args.rounds)
+    if args.cmd == "_pgo-train":
+        return _pgo_train(args.stim)
     if args.cmd == "bench":
         return bench(args.legacy, args.rounds)
     global LEGACY
