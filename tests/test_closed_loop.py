@@ -5,8 +5,8 @@ backends (issue 5)."""
 import numpy as np
 import pytest
 
-from cosim.closed_loop import Gains, node_uploads
-from cosim.track import run_loop, run_track
+from cosim.closed_loop import Gains, LineFault, node_uploads
+from cosim.track import link_errors_detail, run_loop, run_track
 from master.cycle import Master, MasterTiming
 from master.quintic import QuinticProfile
 from models.plant import Plant
@@ -41,7 +41,7 @@ def test_vdc_holds_the_start_of_the_quintic(vdc_run):
     assert summary["max_joint_error_rad"] < 1e-4
 
 
-def _one_module_loop(backend, record=True):
+def _one_module_loop(backend, record=True, faults=()):
     robot = robot_from_dict({"name": "one", "modules": [{"type": "I"}]})
     profile = QuinticProfile([0.0], [0.01], 0.02)
 
@@ -54,7 +54,8 @@ def _one_module_loop(backend, record=True):
     plant = Plant(robot, seed=1)
     plant.reset(robot.home)
     uploads = node_uploads(robot, "vdc", Gains(), period_cycles=5_000, commit_cycles=3_000)
-    return run_loop(robot, backend, master, plant, 5_000, uploads, 8_000, record=record)
+    return run_loop(robot, backend, master, plant, 5_000, uploads, 8_000, record=record,
+                    faults=faults)
 
 
 def test_pysim_and_compiled_agree_cycle_for_cycle():
@@ -77,6 +78,29 @@ def test_pysim_and_compiled_agree_cycle_for_cycle():
     assert {name for name, _ in first} >= {"BOUNDARY", "RX_A", "TX_A", "RX_B", "VDC_START",
                                            "VDC_DONE", "RX_C", "TX_C", "RX_D", "COMMIT"}
     assert "events1" in rec_c.samples
+
+
+def test_pysim_and_compiled_agree_under_a_line_fault():
+    """One bit inverted on the line from the node to the master during period 0's Comm A
+    reply (``mrm run track --line-fault bit:up:1@3us``): both backends see the same thing on
+    every cycle — the master port's codec and the node's upstream codec each count the error,
+    the master drops the cut frame, the period is an overrun with its two replies missing
+    (no Comm A, so no Comm B and C), and the next period's exchange completes."""
+    fault = [LineFault(1, "up", "bit", 150)]
+    compiled, rec_c = _one_module_loop("compiled", faults=fault)
+    pysim, rec_p = _one_module_loop("pysim", faults=fault)
+    for name in rec_c.samples:
+        np.testing.assert_array_equal(rec_p.trace(name), rec_c.trace(name), err_msg=name)
+    assert pysim.trace_sha256 == compiled.trace_sha256
+    assert pysim.frames == compiled.frames
+    for result in (compiled, pysim):
+        master = result.master
+        assert [r.complete for r in master.records] == [False, True]
+        assert (master.overruns, master.missing) == (1, 2)
+        detail = link_errors_detail(result)
+        assert (detail["master_rx_dropped"], detail["master_port"]) == (1, 1)
+        assert detail["per_node"]["1"] == {"up_link_errors": 1, "down_link_errors": 0,
+                                           "rx_dropped": 0, "router_dropped": 0}
 
 
 def test_bench_reports_speed_of_the_compiled_loop():
