@@ -450,6 +450,7 @@ class ClosedLoop:
             await self._step(s)
             if progress is not None and (i + 1) % 100 == 0:
                 progress((i + 1) * s / 50e6, steps * s / 50e6)
+        self.master.finish(self.cycle)
         digest = hashlib.sha256()
         digest.update(q_rec.tobytes())
         digest.update(tau_rec.tobytes())

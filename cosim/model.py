@@ -1099,6 +1099,7 @@ class ModelLoop:
             self._chunk(s, cyc)
             if progress is not None and (i + 1) % 100 == 0:
                 progress((i + 1) * s / 50e6, steps * s / 50e6)
+        self.master.finish(self.cycle)
         for k, node in enumerate(self.nodes):
             if node.tripped:
                 self._violate(f"node {k + 1}: the watchdog tripped")

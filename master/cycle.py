@@ -20,7 +20,8 @@ node, be of the kind the master is waiting for in this period and well formed (e
 ``unexpected``), answer this period's request — the sequence number of the request, where the
 harness passes it, and the period (time-code) the node echoes (else ``late``, and ignored) —
 and come before the period ends (else the period is an ``overrun`` and the replies not in are
-``missing``; so is a period whose Comm D was still waiting to be sent). The nodes' own
+``missing``; so is a period whose Comm D was still waiting to be sent; the harness's
+:meth:`Master.finish` judges a run's last period the same way if it has ended). The nodes' own
 counters, reported in every Comm A (control ticks skipped, time-codes outside the sync window,
 Comm D packets after the commit phase, illegal encoder transitions), are kept per node
 (:attr:`Master.node_counters`); a run with any of them non-zero says so. So is each node's
@@ -163,6 +164,7 @@ class Master:
         self._pending: list[tuple[int, list[Send]]] = []   # (cycle, actions)
         self._integral = np.zeros(self.n)
         self._rec: PeriodRecord | None = None
+        self._judged: PeriodRecord | None = None     # the last period judged
         self._a = {}
         self._c = {}
         self._req = {}           # packet type -> sequence number of this period's request
@@ -226,15 +228,32 @@ class Master:
         self._seq = (self._seq + 1) & 0xFF
         return Send("packet", dest, int(ptype), bytes(payload), self._seq)
 
-    def _new_period(self, index: int, start: int) -> list[Send]:
-        rec = self._rec
-        if rec is not None and (not rec.complete or self._pending):
-            # replies not in, or a Comm D still waiting: the exchange missed its period
+    def _judge(self, rec: PeriodRecord) -> None:
+        """Period ``rec`` has ended: replies not in, or a Comm D still waiting, make it an
+        overrun and the replies ``missing`` (once per period)."""
+        if self._judged is rec:
+            return
+        self._judged = rec
+        if not rec.complete or self._pending:
             self.overruns += 1
             if not rec.complete:
                 self.missing += (self.n - len(self._a)) + (
                     0 if self.controller != "vdc" else self.n - len(self._c))
             rec.complete = False
+
+    def finish(self, now: int) -> None:
+        """The run ends at cycle ``now`` (both harnesses call this once, after their last
+        step). The last period is judged as the next period's start would judge it, if it has
+        ended by ``now``: a run of whole periods counts the faults of its last one too. A
+        period the run cuts short is not judged — its replies may still be on the way — and
+        keeps ``complete`` as it stands."""
+        rec = self._rec
+        if rec is not None and now >= rec.start + self.timing.period_cycles:
+            self._judge(rec)
+
+    def _new_period(self, index: int, start: int) -> list[Send]:
+        if self._rec is not None:
+            self._judge(self._rec)
         self._rec = PeriodRecord(index, start)
         self.records.append(self._rec)
         self._a, self._c = {}, {}

@@ -41,7 +41,7 @@ def test_vdc_holds_the_start_of_the_quintic(vdc_run):
     assert summary["max_joint_error_rad"] < 1e-4
 
 
-def _one_module_loop(backend, record=True, faults=()):
+def _one_module_loop(backend, record=True, faults=(), cycles=8_000):
     robot = robot_from_dict({"name": "one", "modules": [{"type": "I"}]})
     profile = QuinticProfile([0.0], [0.01], 0.02)
 
@@ -54,7 +54,7 @@ def _one_module_loop(backend, record=True, faults=()):
     plant = Plant(robot, seed=1)
     plant.reset(robot.home)
     uploads = node_uploads(robot, "vdc", Gains(), period_cycles=5_000, commit_cycles=3_000)
-    return run_loop(robot, backend, master, plant, 5_000, uploads, 8_000, record=record,
+    return run_loop(robot, backend, master, plant, 5_000, uploads, cycles, record=record,
                     faults=faults)
 
 
@@ -121,3 +121,22 @@ def test_pid_controllers_run_their_exchange(controller):
         assert rec.start < rec.events["A_done"] < rec.events["D_sent"]
     assert summary["max_joint_error_rad"] < 2e-3
     assert np.any(result.tau != 0.0)
+
+
+@pytest.mark.parametrize("fault_period, judged", [(0, [False, True]), (1, [True, False])])
+def test_a_run_of_whole_periods_judges_its_last_period_too(fault_period, judged):
+    """Two whole 5,000-cycle periods, a Comm A reply cut in one of them: the fault counts the
+    same whether the next period's start judges that period or the end of the run does (the
+    last period was never judged before: a fault in it went uncounted)."""
+    fault = [LineFault(1, "up", "bit", 150 + 5_000 * fault_period)]
+    result, _ = _one_module_loop("compiled", record=False, faults=fault, cycles=10_000)
+    master = result.master
+    assert [r.complete for r in master.records] == judged
+    assert (master.overruns, master.missing) == (1, 2)
+
+
+def test_a_period_the_run_cuts_short_is_not_judged():
+    """The run ends 3,000 cycles into period 1, whose replies could still come: no overrun."""
+    result, _ = _one_module_loop("compiled", record=False, cycles=8_000)
+    master = result.master
+    assert len(master.records) == 2 and master.overruns == 0 and master.missing == 0
