@@ -76,3 +76,18 @@ def test_atomic_output_dir_keeps_old_results_on_failure(tmp_path):
     with atomic_output_dir(out) as tmp:
         (tmp / "b.txt").write_text("new")
     assert sorted(p.name for p in out.iterdir()) == ["b.txt"]
+
+
+@pytest.mark.parametrize("command", [["run", "preview"], ["run", "track", "--backend", "model"],
+                                     ["run", "table2"]])
+@pytest.mark.parametrize("seed", ["-3", "1.5", "x"])
+def test_cli_refuses_a_bad_seed_naming_the_flag(tmp_path, capsys, command, seed):
+    """Refused by the argument parser, before anything is built or run (a negative seed
+    used to be found by the plant, after the start of the run, as ``seed``)."""
+    out = tmp_path / "res"
+    with pytest.raises(SystemExit) as e:
+        main([*command, "--seed", seed, "--out", str(out)])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "--seed" in err and "non-negative integer" in err
+    assert list(tmp_path.iterdir()) == []

@@ -11,6 +11,20 @@ from mrm import __version__
 from mrm.errors import InputError
 
 
+def _seed(text: str) -> int:
+    """``--seed``: a non-negative integer, refused before anything runs (argparse names the
+    flag and exits with code 2)."""
+    import argparse
+
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, not {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, not {value}")
+    return value
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser("run", help="run a closed-loop experiment")
     sub = p.add_subparsers(dest="run_command", required=True)
@@ -18,7 +32,7 @@ def register(subparsers) -> None:
                         "feedforward + PID controller at 1 kHz (no link, no gateware yet)")
     pp.add_argument("--robot", default="mrm3", help="built-in name or assembly .toml")
     pp.add_argument("--duration", type=float, default=1.5, help="simulated seconds")
-    pp.add_argument("--seed", type=int, default=0, help="plant perturbation seed")
+    pp.add_argument("--seed", type=_seed, default=0, help="plant perturbation seed")
     pp.add_argument("--uncertainty", type=float, default=None,
                     help="relative perturbation of the plant's parameters (default: the plant's)")
     pp.add_argument("--out", default="results/preview", help="result folder (replaced)")
@@ -30,7 +44,7 @@ def register(subparsers) -> None:
     pt.add_argument("--backend", default="compiled", choices=["compiled", "pysim", "model"])
     pt.add_argument("--robot", default="mrm3", help="built-in name or assembly .toml")
     pt.add_argument("--duration", type=float, default=1.5, help="simulated seconds")
-    pt.add_argument("--seed", type=int, default=0, help="plant perturbation seed")
+    pt.add_argument("--seed", type=_seed, default=0, help="plant perturbation seed")
     pt.add_argument("--out", default="results/track", help="result folder (replaced)")
     pt.add_argument("--vcd", default=None, metavar="T0:T1",
                     help="write OUT/waves.vcd of this window only (times from period 0, e.g. "
@@ -53,7 +67,7 @@ def register(subparsers) -> None:
     p2.add_argument("--backend", default=None,
                     help="override the config's backend (any name run_track accepts)")
     p2.add_argument("--out", default="results/table2", help="result folder (replaced)")
-    p2.add_argument("--seed", type=int, default=None, help="override the plant seed")
+    p2.add_argument("--seed", type=_seed, default=None, help="override the plant seed")
     p2.add_argument("--duration", type=float, default=None,
                     help="override the simulated seconds per controller")
     p2.add_argument("--jobs", type=int, default=None,
