@@ -66,9 +66,9 @@ def run_preview(robot="mrm3", duration: float = 1.5, seed: int = 0, period: floa
         PID pole frequency, see :class:`master.feedforward_pid.FeedforwardPID`.
     """
     robot = load_robot(robot)
-    duration = require_positive(duration, "duration")
+    duration = require_positive(duration, "--duration")
     if duration > 60.0:
-        raise InputError("duration", f"at most 60 s for a preview, not {duration!r}")
+        raise InputError("--duration", f"at most 60 s for a preview, not {duration!r}")
     config = PlantConfig() if plant_config is None else plant_config
     plant = Plant(robot, config, seed=seed)
     steps = round(period / plant.dt)

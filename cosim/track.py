@@ -8,12 +8,13 @@ import numpy as np
 
 from cosim.backends import CompiledBackend, PysimBackend, Recorder, drive
 from cosim.closed_loop import ClosedLoop, Gains, node_uploads, pid_gains
+from cosim.experiment_config import MAX_DURATION
 from cosim.preview import paper_test_profile
 from master.cycle import Master, MasterTiming
 from master.kinematics import jacobian
 from models.plant import Plant, PlantConfig
 from models.robot import load_robot
-from mrm.errors import InputError
+from mrm.errors import InputError, require_positive
 
 __all__ = ["run_track", "BACKENDS", "link_errors_detail", "link_fault_places", "loop_system",
            "loop_system_key"]
@@ -52,6 +53,13 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     timing = timing or MasterTiming()
     if backend not in BACKENDS:
         raise InputError("--backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")
+    duration = require_positive(duration, "--duration")
+    if duration > MAX_DURATION:
+        raise InputError("--duration", f"must be at most {MAX_DURATION} s, not {duration!r}")
+    step = (plant_config or PlantConfig()).dt
+    if duration < step:
+        raise InputError("--duration", f"must be at least one plant step ({step * 1e6:g} µs), "
+                         f"not {duration!r}")
     profile = profile or paper_test_profile(robot)
     trajectory = _trajectory(robot, profile)
     uploads = node_uploads(robot, controller, gains, period_cycles=timing.period_cycles)

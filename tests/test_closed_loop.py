@@ -11,6 +11,7 @@ from master.cycle import Master, MasterTiming
 from master.quintic import QuinticProfile
 from models.plant import Plant
 from models.robot import robot_from_dict
+from mrm.errors import InputError
 
 
 @pytest.fixture(scope="module")
@@ -140,3 +141,20 @@ def test_a_period_the_run_cuts_short_is_not_judged():
     result, _ = _one_module_loop("compiled", record=False, cycles=8_000)
     master = result.master
     assert len(master.records) == 2 and master.overruns == 0 and master.missing == 0
+
+
+@pytest.mark.parametrize("duration, words", [(1e9, "at most 60.0 s"), (1e-9, "one plant step"),
+                                             (-1.0, "positive"), (float("nan"), "finite")])
+def test_run_track_refuses_a_duration_it_cannot_run(tmp_path, capsys, duration, words):
+    """Refused naming the flag, before anything is built (1e9 s used to die allocating the
+    trace, 1e-9 s on an empty one), and nothing is written."""
+    from mrm.cli import main
+
+    with pytest.raises(InputError, match=words) as e:
+        run_track("mrm3", "vdc", "model", duration=duration)
+    assert e.value.field == "--duration"
+    out = tmp_path / "res"
+    assert main(["run", "track", "--backend", "model", "--duration", str(duration), "--quiet",
+                 "--out", str(out)]) == 2
+    assert "--duration" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

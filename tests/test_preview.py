@@ -42,7 +42,7 @@ def test_paper_profile_pattern_for_six_modules():
 def test_preview_rejects_bad_duration():
     with pytest.raises(InputError) as info:
         run_preview("mrm3", duration=float("nan"))
-    assert info.value.field == "duration"
+    assert info.value.field == "--duration"
 
 
 def test_cli_writes_results_folder(tmp_path, capsys):
