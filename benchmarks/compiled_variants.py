@@ -49,6 +49,13 @@ VARIANTS = {
                              "cflags": "-march=native"},
     "tied-o3-xfast-threads2": {"opt": "-O3", "verilator_args": [*_XFAST, "--threads", "2"]},
     "tied-o3-xfast-inline": {"opt": "-O3", "verilator_args": [*_XFAST, "--inline-mult", "-1"]},
+    # the shared library without semantic interposition (calls inside it need not go through
+    # the PLT, and may be inlined across Verilator's functions), and bound symbolically
+    "tied-o3-xfast-nosi": {"opt": "-O3", "verilator_args": _XFAST,
+                           "cflags": "-fno-semantic-interposition"},
+    "tied-o3-xfast-nosi-symbolic": {"opt": "-O3",
+                                    "verilator_args": [*_XFAST, "-LDFLAGS", "-Wl,-Bsymbolic"],
+                                    "cflags": "-fno-semantic-interposition"},
     # a --trace build (what a VCD window needs), tracing off
     "tied-o3-xfast-trace": {"opt": "-O3", "verilator_args": _XFAST, "trace": True},
     "prof": {"reset_port": True, "opt": "-O2", "verilator_args": ["--prof-cfuncs"],
