@@ -71,9 +71,20 @@ class QuinticProfile:
             q0 = np.full_like(qf, q0[0])
         if q0.shape != qf.shape:
             raise InputError("qf", f"has {qf.size} joints but q0 has {q0.size}")
+        tf = require_positive(tf, "tf")
+        with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+            delta = qf - q0
+            jerk = PEAK_JERK_COEFF * np.abs(delta) / tf**3
+        if not np.all(np.isfinite(delta)):
+            raise InputError("qf", "the move qf − q0 overflows a float")
+        if not np.all(np.isfinite(jerk)):
+            # the peaks (velocity ∝ 1/tf, acceleration 1/tf², jerk 1/tf³) would be infinite
+            raise InputError("tf", f"{tf!r} s is too short for a move of "
+                             f"{float(np.abs(delta).max())!r} rad: its peak jerk overflows a "
+                             f"float")
         object.__setattr__(self, "q0", q0)
         object.__setattr__(self, "qf", qf)
-        object.__setattr__(self, "tf", require_positive(tf, "tf"))
+        object.__setattr__(self, "tf", tf)
 
     @property
     def n_dof(self) -> int:

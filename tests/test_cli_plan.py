@@ -80,6 +80,9 @@ def test_quintic_several_joints_and_samples(mrm, tmp_path):
     (["--q0", "0", "0", "0", "--qf", "1", "2", "--tf", "1"], "--qf"),
     (["--q0", "0", "--qf", "1", "inf", "--tf", "1"], "--qf[1]"),
     (["--q0", "0", "--qf", "1", "--tf", "1", "--samples", "X.csv", "--dt", "0"], "--dt"),
+    # peaks that overflow a float: used to print inf with a RuntimeWarning and exit 0
+    (["--q0", "0", "--qf", "1", "--tf", "1e-300", "--samples", "X.csv"], "--tf"),
+    (["--q0=-1e308", "--qf", "1e308", "--tf", "1"], "--qf"),
 ])
 def test_quintic_bad_input_exits_2_naming_the_field(mrm, tmp_path, monkeypatch, argv, field):
     monkeypatch.chdir(tmp_path)

@@ -111,6 +111,8 @@ def test_mrm_paper_joints_are_multiples():
     ({"q0": 0, "qf": [1, float("inf")], "tf": 1}, "qf"),
     ({"q0": [0, 0, 0], "qf": [1, 2], "tf": 1}, "qf"),
     ({"q0": [[0, 1]], "qf": [[1, 2]], "tf": 1}, "q0"),
+    ({"q0": 0, "qf": 1, "tf": 1e-300}, "tf"),            # peak jerk 6e901: not a float
+    ({"q0": -1e308, "qf": 1e308, "tf": 1}, "qf"),        # qf − q0 overflows
 ])
 def test_rejects_bad_input(kwargs, field):
     with pytest.raises(InputError) as exc:

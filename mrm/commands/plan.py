@@ -99,7 +99,10 @@ def quintic_figures(q0: list[float], qf: list[float], tf: float) -> dict:
 
     if len(q0) not in (1, len(qf)):
         raise InputError("--qf", f"has {len(qf)} joints but --q0 has {len(q0)}")
-    summary = QuinticProfile(q0, qf, tf).summary()
+    try:
+        summary = QuinticProfile(q0, qf, tf).summary()
+    except InputError as e:       # the profile names its own fields: q0, qf, tf
+        raise InputError(f"--{e.field}", e.message) from None
     if len(qf) == 1:
         summary = {k: (v[0] if isinstance(v, list) else v) for k, v in summary.items()}
     return summary
