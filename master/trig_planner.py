@@ -227,8 +227,11 @@ class LineGeometry:
         q_e = quat.from_matrix(R_end)
         if float(q_s @ q_e) < 0.0:
             q_e = -q_e
-        delta = p_e - p_s
-        distance = float(np.linalg.norm(delta))
+        with np.errstate(over="ignore", invalid="ignore"):
+            delta = p_e - p_s
+            distance = float(np.linalg.norm(delta))
+        if not math.isfinite(distance):
+            raise InputError("end.pose", "the move from the start position overflows a float")
         direction = delta / distance if distance > 0.0 else np.zeros(3)
         axis, angle = quat.relative_axis_angle(q_s, q_e)
         return cls(p_s, p_e, q_s, q_e, distance, angle, direction, axis)
@@ -268,7 +271,8 @@ def sample_times(duration: float, dt: float) -> np.ndarray:
     dt = require_positive(dt, "dt")
     n = int(math.ceil(duration / dt - 1e-9)) + 1
     if n > 50_000_000:
-        raise InputError("dt", f"gives {n} samples for {duration} s; choose a larger step")
+        raise InputError("dt", f"gives {float(n):.3g} samples for {duration:g} s (at most "
+                         f"50,000,000); choose a larger step")
     return np.arange(max(n, 1)) * dt
 
 

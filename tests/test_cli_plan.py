@@ -83,6 +83,7 @@ def test_quintic_several_joints_and_samples(mrm, tmp_path):
     # peaks that overflow a float: used to print inf with a RuntimeWarning and exit 0
     (["--q0", "0", "--qf", "1", "--tf", "1e-300", "--samples", "X.csv"], "--tf"),
     (["--q0=-1e308", "--qf", "1e308", "--tf", "1"], "--qf"),
+    (["--q0", "0", "--qf", "1", "--tf", "1e12", "--samples", "X.csv"], "--dt"),  # 1e15 rows
 ])
 def test_quintic_bad_input_exits_2_naming_the_field(mrm, tmp_path, monkeypatch, argv, field):
     monkeypatch.chdir(tmp_path)
@@ -186,6 +187,9 @@ BAD_FILES = [
     (GOOD.replace("[[0, -1, 0, 0.1], [1, 0, 0, 0.2]", "[[0, -1.05, 0, 0.1], [1, 0, 0, 0.2]"),
      "end.pose"),                                                         # not orthonormal
     (GOOD.replace("[start]", "[start"), "FILE"),                           # TOML syntax
+    (GOOD.replace("[1, 0, 0, 0.2]", "[1, 0, 0, 1e300]").replace("[0, 1, 0, 0.0]",
+                                                                "[0, 1, 0, -1e300]"),
+     "end.pose"),                              # the move overflows (was a numpy warning)
 ]
 
 

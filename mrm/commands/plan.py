@@ -108,6 +108,14 @@ def quintic_figures(q0: list[float], qf: list[float], tf: float) -> dict:
     return summary
 
 
+def _sample_times(sample_times, duration: float, dt: float):
+    """:func:`master.trig_planner.sample_times`, its errors naming the flag ``--dt``."""
+    try:
+        return sample_times(duration, dt)
+    except InputError as e:
+        raise InputError("--dt", e.message) from None
+
+
 def _quintic(args) -> int:
     from master.quintic import QuinticProfile
     from master.trig_planner import sample_times
@@ -119,7 +127,7 @@ def _quintic(args) -> int:
     if args.samples:
         dt = require_positive(_parse_float(args.dt, "--dt"), "--dt")
         profile = QuinticProfile(q0, qf, tf)
-        t = sample_times(tf, dt)
+        t = _sample_times(sample_times, tf, dt)
         q, qd, qdd, qddd = profile.evaluate(t)
         n = profile.n_dof
         header = (["t_s"] + [f"q{i}_rad" for i in range(1, n + 1)]
@@ -204,7 +212,7 @@ def _line(args) -> int:
     for note in plan.notes:
         sys.stderr.write(f"mrm plan line: note: {note}\n")
     if args.samples:
-        samples = plan.sample(sample_times(plan.duration, dt))
+        samples = plan.sample(_sample_times(sample_times, plan.duration, dt))
         write_csv_atomic(args.samples, samples.COLUMNS, samples.table())
     figures = plan.summary()
     if args.json:
