@@ -20,6 +20,7 @@ plant's brakes hold it at its home posture (it is not stepped); the brakes relea
 from __future__ import annotations
 
 import hashlib
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -253,6 +254,7 @@ class LoopResult:
     frames: list = field(default_factory=list)   # (cycle, src, type) of every good frame
     trace_sha256: str = ""
     violations: list = field(default_factory=list)   # model backend: conditions not met
+    window_wall_s: float = 0.0    # wall time from period 0 to the end (start-up excluded)
 
 
 class ClosedLoop:
@@ -438,6 +440,7 @@ class ClosedLoop:
         if not uploads_sent:
             raise InputError("start_cycle", "the link did not come up before period 0")
         self.master.begin(self.start_cycle)
+        t_window = time.perf_counter()
         for i in range(steps):
             for action in self.master.poll(self.cycle):
                 self._queue(action)
@@ -451,9 +454,10 @@ class ClosedLoop:
             if progress is not None and (i + 1) % 100 == 0:
                 progress((i + 1) * s / 50e6, steps * s / 50e6)
         self.master.finish(self.cycle)
+        window = time.perf_counter() - t_window
         digest = hashlib.sha256()
         digest.update(q_rec.tobytes())
         digest.update(tau_rec.tobytes())
         return LoopResult(t_rec, q_rec, tau_rec, self.master, self.link_errors, self.crc_errors,
-                          self.frames, digest.hexdigest())
+                          self.frames, digest.hexdigest(), window_wall_s=window)
 
