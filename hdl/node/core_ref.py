@@ -36,6 +36,7 @@ previous reply has left (in the A/B/C/D cycle they are tens of µs apart).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cache
 
 from hdl.link.chars import ERROR_CLASSES, saturating_sum_ref
 from hdl.link.crc import CRC16_INIT
@@ -57,6 +58,15 @@ __all__ = ["NodeModel"]
 
 _TIME_MAX = (1 << 23) - 1
 _NEVER = 1 << 62
+
+
+@cache
+def _vdc_timing(entry: str) -> tuple[int, int]:
+    """``(mark_cycles, cycles)`` of the VDC program's entry point: properties of the ROM
+    (:func:`~.vdc.vdc_microcode`, built once), scanned once per entry instead of on every
+    Comm B."""
+    mc = vdc_microcode()
+    return mc.mark_cycles(entry), mc.cycles(entry)
 
 
 def _zero_vdc() -> VdcModel:
@@ -301,12 +311,11 @@ class NodeModel:
         if ptype == PacketType.COMM_B and len(payload) == PAYLOAD:
             self.b_words = unpack_words(payload, len(COMM_B_WORDS))
             entry = "first" if self.prime or payload[-1] & 1 else "main"
-            mc = vdc_microcode()
-            self._vdc_mark = now + 1 + mc.mark_cycles(entry)
+            mark, cycles = _vdc_timing(entry)
+            self._vdc_mark = now + 1 + mark
             if self.events is not None:
                 self.events += [(now, Ev.RX_B), (now + 1, Ev.VDC_START),
-                                (self._vdc_mark, Ev.VDC_DONE),
-                                (now + 1 + mc.cycles(entry), Ev.VDC_END)]
+                                (self._vdc_mark, Ev.VDC_DONE), (now + 1 + cycles, Ev.VDC_END)]
             if entry == "first":
                 self.vdc.primed = False
             self.prime = False
@@ -369,14 +378,17 @@ class NodeModel:
         """State visible in cycle ``now``: a pending command lands; the watchdog trips one
         cycle after the silence reaches the timeout (silence 0 in the cycle after a packet),
         and PRIME follows the trip one cycle later."""
-        if self._landing is not None and now >= self._landing[0]:
-            self.torque = self._landing[1]
+        landing = self._landing
+        if landing is not None and now >= landing[0]:
+            self.torque = landing[1]
             self._landing = None
-        trip = self.last_packet + 2 + self.config[Config.TIMEOUT]
-        if self.armed and not self.tripped and now >= trip:
-            self.tripped = True
-            self._prime_due = trip + 1
-        if self._prime_due is not None and now >= self._prime_due:
+        if self.armed and not self.tripped:
+            trip = self.last_packet + 2 + self.config[Config.TIMEOUT]
+            if now >= trip:
+                self.tripped = True
+                self._prime_due = trip + 1
+        prime_due = self._prime_due
+        if prime_due is not None and now >= prime_due:
             self.prime = True
             self._prime_due = None
 

@@ -351,6 +351,7 @@ class Program:
         n = len(stmts)
         # Dependencies: RAW/WAR/WAW between MAC/MIN/MAX statements; barriers order everything.
         preds: list[set[int]] = [set() for _ in range(n)]
+        reads = [s.reads() for s in stmts]          # each statement's reads, formed once
         last_barrier = None
         for j, s in enumerate(stmts):
             if s.kind in ("mark", "end", "entry"):
@@ -361,10 +362,10 @@ class Program:
                 continue
             if last_barrier is not None:
                 preds[j].add(last_barrier)
-            r_j, w_j = s.reads(), s.dst
+            r_j, w_j = reads[j], s.dst
             for i in range(last_barrier + 1 if last_barrier is not None else 0, j):
-                si = stmts[i]
-                if w_j in si.reads() or si.dst == w_j or si.dst in r_j:
+                d_i = stmts[i].dst
+                if w_j in reads[i] or d_i == w_j or d_i in r_j:
                     preds[j].add(i)
 
         compiled = {j: self._mac_instrs(s) for j, s in enumerate(stmts) if s.kind == "mac"}
