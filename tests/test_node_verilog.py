@@ -83,3 +83,23 @@ def test_synthesis_maps_the_joint_engine_to_virtex2_blocks():
     assert report["bram"] >= 2
     assert 0 < report["lut"] < 2000 and report["ff"] > 300
     assert report["fits"] and report["device"] == "XC2V1000"
+
+
+def test_a_place_and_route_that_runs_out_of_time_is_a_clear_error(tmp_path, monkeypatch):
+    """nextpnr past its time limit (the whole `node` top with every port on a pin did not
+    route in 30 minutes) is a SynthError saying so, which `mrm hdl synth` prints as one line
+    with exit code 1; it was a TimeoutExpired traceback."""
+    import subprocess
+
+    import hdl.synth as synth
+
+    monkeypatch.setattr(synth, "find_nextpnr", lambda: "nextpnr-ecp5")
+
+    def run(cmd, **kwargs):
+        raise subprocess.TimeoutExpired(cmd, kwargs.get("timeout"))
+
+    monkeypatch.setattr(synth.subprocess, "run", run)
+    with pytest.raises(synth.SynthError, match="did not finish placing and routing within 5 s"):
+        synth._nextpnr_fmax(tmp_path / "pnr.json", tmp_path, 5.0)
+    with pytest.raises(synth.SynthError, match="yosys did not finish within 5 s"):
+        synth.synth_verilog("module t(); endmodule", "t", "ecp5", yosys="yosys", timeout=5.0)
