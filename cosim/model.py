@@ -585,35 +585,18 @@ class FastNode(NodeModel):
         self._tick_end(now, mode, None)
 
     def _fast_tick(self, now: int, sample, tt: int, ramped: bool = False) -> None:
-        # _tick_begin, _materialize and _tick_end written inline (the observed tick's path:
-        # one call instead of four; the same statements in the same order)
-        landing = self._landing
-        if landing is not None and now >= landing[0]:
-            self.torque = landing[1]
-            self._landing = None
-        cfg = self.config
-        timeout = self.last_packet + 2 + cfg[_TIMEOUT]
-        armed = self.armed                          # (nothing below changes it)
-        if (armed and not self.tripped and now >= timeout) or self._prime_due is not None:
-            self._watch(now)
-        tick = cfg[_TICK]
-        self._nt = now + tick
-        if armed and self.tripped and not ramped:
-            self._ramp()
+        tick = self._tick_begin(now, ramped)
         count, qd = sample(now)
         if now < self._busy_until:
             self.overruns = min(self.overruns + 1, 0xFFFF)
             return
-        mode = cfg[_MODE]
+        mode = self.config[_MODE]
         tn = tt + tick
+        tn = tn if tn < _TIME_MAX else _TIME_MAX
         d = self.d_words
         j = self.joint
-        deferred = self._deferred
-        if deferred is not None:
-            self._deferred = None
-            part_b(j, deferred[0], deferred[1], deferred[2], deferred[3])
+        self._materialize()
         tau = _part_a(j, mode, count, qd, d[0], d[3])
-        tn = tn if tn < _TIME_MAX else _TIME_MAX
         if self.lazy:
             # Part B deferred like a dead tick's: every reader of (q_des, v_des) materializes
             # it first (the next computed tick, a host write, PID's dead ticks), and in VDC
@@ -621,14 +604,7 @@ class FastNode(NodeModel):
             self._deferred = (tn, d[1], d[2], d[3])
         else:
             part_b(j, tn, d[1], d[2], d[3])
-        done = now + _CYCLES[mode]
-        self._started = now
-        self._busy_until = done + 1
-        if not armed:
-            self._landing = (done + 1, 0)
-        elif not (self.tripped or done >= timeout):
-            lo, hi = cfg[_TAU_MIN], cfg[_TAU_MAX]
-            self._landing = (done + 1, lo if tau < lo else hi if tau > hi else tau)
+        self._tick_end(now, mode, tau)
 
     def torque_at(self, now: int) -> int:
         """:meth:`NodeModel.torque_at` with :meth:`_watch`'s usual no-op (no landing due, no
@@ -763,46 +739,10 @@ class EncoderEvents:
         """:meth:`sample` without the error count (the control tick's path)."""
         if c == self._last_c:
             return self._last
-        due = self._due
-        if due:
-            # _flush's usual case (one foldable run, no edge before c) and _fold, written
-            # inline: the same conditions and statements, two calls fewer per observed tick
-            p = self._taken
-            last = due[-1]
-            ref_t, e_last = self._ref_t, self._e_last
-            vis, vi = self._visible, self._vi
-            if p == self._last_c and self._due_gap >= VEL_LATENCY and \
-                    due[0] - p >= VEL_LATENCY and c - last >= VEL_LATENCY and \
-                    last - ref_t <= AGE_MAX and last - e_last <= AGE_MAX and \
-                    (vi >= len(vis) or c < vis[vi][0]):
-                self._due = []
-                self._due_gap = _NEVER
-                first = due[0]
-                pipe = self._pipe
-                if pipe and pipe[0][0] <= first:
-                    self._apply_pipe(first)
-                if last - e_last >= self._stop_cycles:
-                    self.velocity = 0
-                else:
-                    dc = self.count - self._c_ref
-                    if dc > DC_MAX:
-                        dc = DC_MAX
-                    elif dc < -DC_MAX - 1:
-                        dc = -DC_MAX - 1
-                    num = (dc if dc >= 0 else -dc) + 1
-                    den = last - ref_t
-                    v = self.velocity
-                    mag = v if v >= 0 else -v
-                    # _clip's test for whether the bound can act (_clip repeats it)
-                    if mag >= WORD_MAX or mag > num * self._kv_scale / (den or 1) * 0.999 - 2:
-                        self._clip(num, den)
-                self._taken = last
-                self._last_c = last
-                self._last = (self.count, self.velocity)
-            else:
-                self._flush(c)
-                if c == self._last_c:
-                    return self._last
+        if self._due:
+            self._flush(c)
+            if c == self._last_c:
+                return self._last
         return self._strobe(c)
 
     def defer(self, c: int) -> int:

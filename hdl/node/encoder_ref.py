@@ -39,7 +39,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from .fixed import VEL, WORD_MAX, WORD_MIN
+from .fixed import VEL, round_shift, saturate
 
 __all__ = ["AGE_BITS", "AGE_MAX", "DC_MAX", "VEL_LATENCY", "RECIP_TABLE", "EncoderParams",
            "reciprocal", "velocity_word", "EncoderModel"]
@@ -113,15 +113,8 @@ def reciprocal(den: int) -> tuple[int, int]:
 
 def velocity_word(num: int, den: int, kv: int) -> int:
     """VEL word of ``num / den`` counts per cycle (``kv`` from :attr:`EncoderParams.kv`)."""
-    # reciprocal(den), round_shift(·, p + 6) and saturate written inline (the model backend's
-    # velocity strobes call this a hundred times per simulated ms and node)
-    den = 1 if den < 1 else AGE_MAX if den > AGE_MAX else den
-    p = den.bit_length() - 1
-    m17 = (den << (25 - p)) >> 9
-    y0 = RECIP_TABLE[(m17 >> 8) & 0xFF]
-    y1 = y0 + ((y0 * ((1 << 17) - ((m17 * y0) >> 16))) >> 17)
-    v = ((num * y1) * kv + (1 << (p + 5))) >> (p + 6)     # p + 6 ≥ 1: see encoder.py S6
-    return WORD_MIN if v < WORD_MIN else WORD_MAX if v > WORD_MAX else v
+    y1, p = reciprocal(den)
+    return saturate(round_shift((num * y1) * kv, p + 6))   # p + 6 ≥ 1: see encoder.py S6
 
 
 _PHASE = {(0, 0): 0, (1, 0): 1, (1, 1): 2, (0, 1): 3}

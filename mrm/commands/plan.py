@@ -108,8 +108,10 @@ def quintic_figures(q0: list[float], qf: list[float], tf: float) -> dict:
     return summary
 
 
-def _sample_times(sample_times, duration: float, dt: float):
+def _sample_times(duration: float, dt: float):
     """:func:`master.trig_planner.sample_times`, its errors naming the flag ``--dt``."""
+    from master.trig_planner import sample_times
+
     try:
         return sample_times(duration, dt)
     except InputError as e:
@@ -118,7 +120,6 @@ def _sample_times(sample_times, duration: float, dt: float):
 
 def _quintic(args) -> int:
     from master.quintic import QuinticProfile
-    from master.trig_planner import sample_times
 
     q0 = _numbers(args.q0, "--q0")
     qf = _numbers(args.qf, "--qf")
@@ -127,7 +128,7 @@ def _quintic(args) -> int:
     if args.samples:
         dt = require_positive(_parse_float(args.dt, "--dt"), "--dt")
         profile = QuinticProfile(q0, qf, tf)
-        t = _sample_times(sample_times, tf, dt)
+        t = _sample_times(tf, dt)
         q, qd, qdd, qddd = profile.evaluate(t)
         n = profile.n_dof
         header = (["t_s"] + [f"q{i}_rad" for i in range(1, n + 1)]
@@ -200,7 +201,7 @@ def load_line_file(path: str):
 
 
 def _line(args) -> int:
-    from master.trig_planner import plan_line, sample_times
+    from master.trig_planner import plan_line
 
     dt = require_positive(_parse_float(args.dt, "--dt"), "--dt") if args.samples else None
     start, end, limits = load_line_file(args.file)
@@ -212,7 +213,7 @@ def _line(args) -> int:
     for note in plan.notes:
         sys.stderr.write(f"mrm plan line: note: {note}\n")
     if args.samples:
-        samples = plan.sample(_sample_times(sample_times, plan.duration, dt))
+        samples = plan.sample(_sample_times(plan.duration, dt))
         write_csv_atomic(args.samples, samples.COLUMNS, samples.table())
     figures = plan.summary()
     if args.json:
