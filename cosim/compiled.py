@@ -98,16 +98,43 @@ def _harness(name: str, ports: list[Port]) -> str:
             f"  {name} {name} (\n{conns}\n  );\nendmodule\n")
 
 
+def cxx_member(name: str) -> str:
+    """The C++ member name Verilator gives the top-level port ``name``.
+
+    Verilator keeps letters, digits and single underscores; the second underscore of a pair
+    (reserved in C++) becomes ``__05F``, and any other character (or a leading digit) its hex
+    code as ``__0XX``. Amaranth names a port of a nested signature ``rx__payload`` (member
+    ``rx___05Fpayload``); the System's ports have no such names, the ``node_core`` top does.
+    """
+    out = []
+    k = 0
+    while k < len(name):
+        c = name[k]
+        if c.isascii() and (c.isalpha() or (k > 0 and c.isdigit())):
+            out.append(c)
+        elif c == "_":
+            if name[k + 1:k + 2] == "_":
+                out.append("___05F")
+                k += 1
+            else:
+                out.append("_")
+        else:
+            out.append(f"__0{ord(c) & 0xFF:02X}")
+        k += 1
+    return "".join(out)
+
+
 def _wrapper(top: str, ports: list[Port], trace: bool) -> str:
     cls = f"V{top}"
     narrow = [p for p in ports if p.width <= 64]
     wide = [p for p in ports if p.width > 64]
-    sets = "\n".join(f"    case {p.index}: m->{p.name} = v; break;" for p in narrow
+    mem = {p.name: cxx_member(p.name) for p in ports}
+    sets = "\n".join(f"    case {p.index}: m->{mem[p.name]} = v; break;" for p in narrow
                      if p.direction == "input")
-    gets = "\n".join(f"    case {p.index}: return (uint64_t)m->{p.name};" for p in narrow)
-    wsets = "\n".join(f"    case {p.index}: m->{p.name}[w] = v; break;" for p in wide
+    gets = "\n".join(f"    case {p.index}: return (uint64_t)m->{mem[p.name]};" for p in narrow)
+    wsets = "\n".join(f"    case {p.index}: m->{mem[p.name]}[w] = v; break;" for p in wide
                       if p.direction == "input")
-    wgets = "\n".join(f"    case {p.index}: return m->{p.name}[w];" for p in wide)
+    wgets = "\n".join(f"    case {p.index}: return m->{mem[p.name]}[w];" for p in wide)
     if trace:
         trace_include = '#include "verilated_vcd_c.h"'
         trace_member = "VerilatedVcdC* vcd;"

@@ -137,3 +137,38 @@ def test_trace_needs_a_trace_build(model, tmp_path):
     with pytest.raises(RuntimeError, match="trace=True"):
         model.trace_open(tmp_path / "x.vcd")
     assert not (tmp_path / "x.vcd").exists()
+
+
+class NestedPorts(wiring.Component):
+    """Ports from a nested signature (``rx__payload``, ``rx__valid``: C++ members Verilator
+    renames), a name with a single underscore and a wide port."""
+
+    rx: In(wiring.Signature({"payload": Out(8), "valid": Out(1), "ready": In(1)}))
+    tx: Out(wiring.Signature({"payload": Out(72), "valid": Out(1)}))
+    en_x: In(1)
+
+    def elaborate(self, platform):
+        m = Module()
+        m.d.comb += self.rx.ready.eq(self.en_x)
+        with m.If(self.rx.valid & self.en_x):
+            m.d.sync += [self.tx.payload.eq(Cat(self.rx.payload, self.tx.payload[:64])),
+                         self.tx.valid.eq(1)]
+        return m
+
+
+def test_ports_of_nested_signatures_are_reachable():
+    """A component with ``a__b`` ports (any sub-signature, e.g. the ``node_core`` top's streams)
+    builds and drives them; the build used to fail on the wrapper's member names."""
+    from cosim.compiled import cxx_member
+
+    assert cxx_member("rx__payload") == "rx___05Fpayload"
+    assert cxx_member("en_x") == "en_x"
+    assert cxx_member("a.b") == "a__02Eb"
+    model = CompiledModel(NestedPorts(), "nested_ports")
+    assert {"rx__payload", "rx__valid", "rx__ready", "tx__payload", "tx__valid",
+            "en_x"} <= set(model.ports)
+    out = model.run(3, {"rx__payload": [0x12, 0x34, 0x56], "rx__valid": [1, 0, 1],
+                        "en_x": 1}, ["rx__ready", "tx__valid"])
+    assert out["rx__ready"].tolist() == [1, 1, 1]
+    assert out["tx__valid"].tolist() == [0, 1, 1]
+    assert model.get("tx__payload") == 0x1256            # newest byte lowest
