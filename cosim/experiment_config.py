@@ -213,9 +213,13 @@ def _robot(value, base_dir) -> str:
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
         value = str(path.resolve())
+    from cosim.track import check_robot_fits
+
     try:
-        load_robot(value)
+        check_robot_fits(load_robot(value), "experiment.robot")
     except InputError as exc:
+        if exc.field == "experiment.robot":
+            raise
         raise InputError("experiment.robot", f"{exc.field}: {exc.message}") from None
     return value
 

@@ -17,10 +17,20 @@ from models.robot import load_robot
 from mrm.errors import InputError, require_positive
 
 __all__ = ["run_track", "BACKENDS", "link_errors_detail", "link_fault_places", "loop_system",
-           "loop_system_key"]
+           "loop_system_key", "check_robot_fits"]
 
 BACKENDS = ("compiled", "pysim", "model")
 START_CYCLE = 50_000          # period 0 at 1 ms: links up (21 µs) and uploads done well before
+
+
+def check_robot_fits(robot, field: str) -> None:
+    """``InputError`` naming ``field`` when ``robot`` has more modules than the gateware has
+    nodes (:data:`hdl.system.MAX_NODES`); every backend runs the same system."""
+    from hdl.system import MAX_NODES
+
+    if robot.n > MAX_NODES:
+        raise InputError(field, f"{robot.name!r} has {robot.n} modules; the co-simulated system "
+                                f"has at most {MAX_NODES} slave nodes, one per module")
 
 
 def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: float = 1.5,
@@ -49,6 +59,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     (LoopResult, summary dict)
     """
     robot = load_robot(robot)
+    check_robot_fits(robot, "--robot")
     gains = gains or Gains()
     timing = timing or MasterTiming()
     if backend not in BACKENDS:

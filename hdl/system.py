@@ -22,13 +22,17 @@ from .master_port import MasterPort
 from .node.fixed import WORD
 from .node.top import SlaveNode
 
-__all__ = ["System", "check_n_nodes"]
+__all__ = ["System", "check_n_nodes", "MAX_NODES"]
+
+#: slave nodes one System (and so one co-simulated robot) holds
+MAX_NODES = 16
 
 
 def check_n_nodes(n_nodes) -> None:
-    """``ValueError`` unless ``n_nodes`` is an integer from 1 to 16."""
-    if isinstance(n_nodes, bool) or not isinstance(n_nodes, int) or not 1 <= n_nodes <= 16:
-        raise ValueError(f"n_nodes must be an integer from 1 to 16, not {n_nodes!r}")
+    """``ValueError`` unless ``n_nodes`` is an integer from 1 to :data:`MAX_NODES`."""
+    if (isinstance(n_nodes, bool) or not isinstance(n_nodes, int)
+            or not 1 <= n_nodes <= MAX_NODES):
+        raise ValueError(f"n_nodes must be an integer from 1 to {MAX_NODES}, not {n_nodes!r}")
 
 
 class System(wiring.Component):

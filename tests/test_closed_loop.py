@@ -158,3 +158,20 @@ def test_run_track_refuses_a_duration_it_cannot_run(tmp_path, capsys, duration, 
                  "--out", str(out)]) == 2
     assert "--duration" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_run_track_refuses_a_robot_longer_than_the_system(tmp_path, capsys):
+    """A 17-module robot is refused naming --robot before anything runs or is written."""
+    from mrm.cli import main
+
+    path = tmp_path / "long.toml"
+    path.write_text('name = "long"\n' + '[[modules]]\ntype = "I"\ntwist_deg = 90.0\n' * 17)
+    with pytest.raises(InputError, match="17 modules.*at most 16") as e:
+        run_track(str(path), "vdc", "model", duration=0.01)
+    assert e.value.field == "--robot"
+    out = tmp_path / "res"
+    assert main(["run", "track", "--robot", str(path), "--backend", "model", "--duration",
+                 "0.01", "--out", str(out)]) == 2
+    captured = capsys.readouterr()
+    assert "--robot" in captured.err and "[1/1]" not in captured.out + captured.err
+    assert not out.exists()

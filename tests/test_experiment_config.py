@@ -170,3 +170,22 @@ def test_friction_comp_uploads_the_nominal_friction_as_vdc_joint_estimates():
         assert all(p in sent for p in joint_upload(expect))
     with pytest.raises(ec.InputError, match="gains.friction_comp"):
         ec.loads("[gains]\nfriction_comp = -1\n")
+
+
+def _long_robot(tmp_path, n):
+    text = 'name = "long"\n' + '[[modules]]\ntype = "I"\ntwist_deg = 90.0\n' * n
+    (tmp_path / "long.toml").write_text(text)
+    return tmp_path / "long.toml"
+
+
+def test_a_robot_with_more_modules_than_nodes_is_refused_as_the_robot(tmp_path):
+    """17 modules: the system has 16 nodes. Refused as the config's robot, not later as a gain
+    word that does not fit (``joint1.kp``, which is what the user used to read)."""
+    path = _long_robot(tmp_path, 17)
+    with pytest.raises(InputError, match="17 modules.*at most 16") as exc:
+        ec.loads(f"[experiment]\nrobot = '{path}'\n")
+    assert exc.value.field == "experiment.robot"
+    from cosim.track import check_robot_fits
+    from models.robot import load_robot
+
+    check_robot_fits(load_robot(str(_long_robot(tmp_path, 16))), "experiment.robot")

@@ -119,11 +119,12 @@ def _preview(args) -> int:
 
 def _track(args) -> int:
     from cosim.table2 import Progress
-    from cosim.track import run_track
+    from cosim.track import check_robot_fits, run_track
     from models.robot import load_robot
     from mrm.errors import require_positive
 
     robot = load_robot(args.robot)
+    check_robot_fits(robot, "--robot")
     duration = require_positive(args.duration, "--duration")
     if args.signals is not None and args.vcd is None:
         raise InputError("--signals", "selects the signals of a --vcd window; give --vcd too")
