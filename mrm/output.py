@@ -9,7 +9,9 @@ import shutil
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_output_dir", "atomic_write_text", "write_json"]
+from mrm.errors import InputError
+
+__all__ = ["atomic_output_dir", "atomic_write_text", "check_output_dir", "write_json"]
 
 
 def atomic_write_text(path, text: str) -> None:
@@ -29,17 +31,33 @@ def atomic_write_text(path, text: str) -> None:
         raise
 
 
-@contextlib.contextmanager
-def atomic_output_dir(path):
-    """Yield a fresh temporary folder beside ``path``; on success it replaces ``path``.
+def check_output_dir(path, field: str = "--out") -> Path:
+    """``path`` as a result folder that :func:`atomic_output_dir` may replace, or
+    :class:`InputError` naming ``field``; commands call it before anything runs.
 
-    If the body raises, the temporary folder is removed and ``path`` is left as it was.
+    An existing file is refused: replacing the folder would delete it.
     """
     path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise InputError(field, f"{str(path)!r} is a file, not a folder (it is left alone; "
+                         "give a folder to write the results to)")
+    return path
+
+
+@contextlib.contextmanager
+def atomic_output_dir(path, field: str = "--out"):
+    """Yield a fresh temporary folder beside ``path``; on success it replaces ``path``.
+
+    If the body raises, the temporary folder is removed and ``path`` is left as it was. A
+    ``path`` that :func:`check_output_dir` refuses raises its :class:`InputError` (naming
+    ``field``) before anything is made.
+    """
+    path = check_output_dir(path, field)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
     try:
         yield tmp
+        check_output_dir(path, field)   # a file made there while the body ran: not replaced
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

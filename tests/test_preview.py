@@ -80,6 +80,30 @@ def test_atomic_output_dir_keeps_old_results_on_failure(tmp_path):
 
 @pytest.mark.parametrize("command", [["run", "preview"], ["run", "track", "--backend", "model"],
                                      ["run", "table2"]])
+def test_cli_refuses_an_existing_file_as_out_and_leaves_it(tmp_path, capsys, command):
+    """``--out`` naming a file used to replace it with the result folder (the file was gone,
+    exit 0); it is refused as --out before anything runs, the file untouched."""
+    target = tmp_path / "notes.txt"
+    target.write_text("precious")
+    assert main([*command, "--duration", "0.05", "--out", str(target), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and "not a folder" in err
+    assert target.read_text() == "precious"
+    assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
+
+
+def test_atomic_output_dir_refuses_to_replace_a_file(tmp_path):
+    target = tmp_path / "notes.txt"
+    target.write_text("precious")
+    with pytest.raises(InputError) as info, atomic_output_dir(target) as tmp:
+        (tmp / "a.txt").write_text("result")
+    assert info.value.field == "--out"
+    assert target.read_text() == "precious"
+    assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
+
+
+@pytest.mark.parametrize("command", [["run", "preview"], ["run", "track", "--backend", "model"],
+                                     ["run", "table2"]])
 @pytest.mark.parametrize("seed", ["-3", "1.5", "x"])
 def test_cli_refuses_a_bad_seed_naming_the_flag(tmp_path, capsys, command, seed):
     """Refused by the argument parser, before anything is built or run (a negative seed

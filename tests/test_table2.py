@@ -143,6 +143,18 @@ def test_a_failed_run_leaves_no_folder_and_keeps_the_old_one(tmp_path, config):
     assert [p.name for p in out.iterdir()] == ["keep.txt"]
 
 
+def test_a_file_as_the_folder_is_refused_before_anything_runs(tmp_path, config):
+    """The result folder used to replace a file of that name (deleting it) after the runs."""
+    target = tmp_path / "out"
+    target.write_text("precious")
+    runner = FakeRunner()
+    with pytest.raises(InputError) as exc:
+        table2.run_table2(config, target, runner=runner)
+    assert exc.value.field == "--out" and runner.calls == []
+    assert target.read_text() == "precious"
+    assert [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
 def test_other_trajectories_are_refused_before_anything_runs(tmp_path, config):
     cfg = replace(config, trajectory=ec.TrajectoryConfig(0.1, 1.0, 0.2))
     runner = FakeRunner()

@@ -82,8 +82,9 @@ def _preview(args) -> int:
     from cosim.preview import run_preview
     from models.plant import PlantConfig
     from models.robot import load_robot
-    from mrm.output import atomic_output_dir, write_json
+    from mrm.output import atomic_output_dir, check_output_dir, write_json
 
+    check_output_dir(args.out)
     robot = load_robot(args.robot)
     config = PlantConfig() if args.uncertainty is None else _plant_config(args.uncertainty)
     result = run_preview(robot, duration=args.duration, seed=args.seed, plant_config=config)
@@ -122,7 +123,9 @@ def _track(args) -> int:
     from cosim.track import check_robot_fits, run_track
     from models.robot import load_robot
     from mrm.errors import require_positive
+    from mrm.output import check_output_dir
 
+    check_output_dir(args.out)
     robot = load_robot(args.robot)
     check_robot_fits(robot, "--robot")
     duration = require_positive(args.duration, "--duration")
@@ -218,7 +221,9 @@ def _phases_text(phases: dict) -> str:
 def _table2(args) -> int:
     from cosim.experiment_config import load
     from cosim.table2 import Progress, run_table2
+    from mrm.output import check_output_dir
 
+    check_output_dir(args.out)
     config = load(args.config).with_overrides(backend=args.backend, seed=args.seed,
                                               duration=args.duration)
     jobs = default_jobs() if args.jobs is None else args.jobs
