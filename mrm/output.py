@@ -35,39 +35,97 @@ def check_output_dir(path, field: str = "--out") -> Path:
     """``path`` as a result folder that :func:`atomic_output_dir` may replace, or
     :class:`InputError` naming ``field``; commands call it before anything runs.
 
-    An existing file is refused: replacing the folder would delete it.
+    Refused: an empty name; an existing file (replacing the folder would delete it); the
+    current folder, a folder that holds it, or the root (``.``, ``..``, ``/``: they cannot be
+    replaced, and the attempt left temporary folders behind); a place where no folder can be
+    made (under a file, read-only, ``/proc``).
     """
+    text = str(path)
+    if not text.strip():
+        raise InputError(field, "must name a folder, not an empty string")
     path = Path(path)
     if path.exists() and not path.is_dir():
-        raise InputError(field, f"{str(path)!r} is a file, not a folder (it is left alone; "
+        raise InputError(field, f"{text!r} is a file, not a folder (it is left alone; "
                          "give a folder to write the results to)")
+    resolved = path.resolve()
+    cwd = Path.cwd().resolve()
+    if path.name in ("", ".", "..") or resolved == cwd or resolved in cwd.parents:
+        raise InputError(field, f"{text!r} is the current folder, one that holds it, or the "
+                         "root; the results replace the whole folder: name a folder of their "
+                         "own, e.g. results/run")
+    _check_writable_parent(resolved, text, field)
     return path
+
+
+def _check_writable_parent(resolved: Path, text: str, field: str) -> None:
+    """Raise :class:`InputError` unless a folder can be made at ``resolved`` (an absolute
+    path): its nearest existing ancestor must be a folder in which one can be made."""
+    parent = resolved.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError(field, f"{text!r}: {str(parent)!r} is a file, not a folder")
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".mrm-probe.", dir=parent))
+    except OSError as exc:
+        raise InputError(field, f"{text!r}: cannot write in {str(parent)!r} "
+                         f"({exc.strerror or exc})") from None
+
+
+def _make_parents(path: Path, field: str) -> list[Path]:
+    """Make the missing folders above ``path``; return them, deepest first."""
+    made = [p for p in path.parents if not p.exists()]
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        _remove_empty(made)
+        raise InputError(field, f"{str(path)!r}: cannot make its folder "
+                         f"({exc.strerror or exc})") from None
+    return made
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    for folder in folders:
+        with contextlib.suppress(OSError):
+            folder.rmdir()
 
 
 @contextlib.contextmanager
 def atomic_output_dir(path, field: str = "--out"):
     """Yield a fresh temporary folder beside ``path``; on success it replaces ``path``.
 
-    If the body raises, the temporary folder is removed and ``path`` is left as it was. A
-    ``path`` that :func:`check_output_dir` refuses raises its :class:`InputError` (naming
-    ``field``) before anything is made.
+    If the body raises, the temporary folder (and any folder made above ``path``) is removed
+    and ``path`` is left as it was. A ``path`` that :func:`check_output_dir` refuses raises
+    its :class:`InputError` (naming ``field``) before anything is made.
     """
     path = check_output_dir(path, field)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    made = _make_parents(path, field)
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+    except OSError as exc:
+        _remove_empty(made)
+        raise InputError(field, f"{str(path)!r}: cannot write in its folder "
+                         f"({exc.strerror or exc})") from None
     try:
         yield tmp
         check_output_dir(path, field)   # a file made there while the body ran: not replaced
+        old = None
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
+            os.replace(path, old / path.name)
+        try:
+            os.replace(tmp, path)
+        except BaseException:
+            if old is not None:                     # put the old results back
+                os.replace(old / path.name, path)
+            raise
+        finally:
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
+        _remove_empty(made)
         raise
-    old = None
-    if path.exists():
-        old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
-        os.replace(path, old / path.name)
-    os.replace(tmp, path)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
 
 
 def write_json(path, obj) -> None:

@@ -1,6 +1,7 @@
 """The float closed-loop preview (the main job until the gateware loop exists)."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -100,6 +101,42 @@ def test_atomic_output_dir_refuses_to_replace_a_file(tmp_path):
     assert info.value.field == "--out"
     assert target.read_text() == "precious"
     assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
+
+
+@pytest.mark.parametrize("out", ["", " ", ".", "./", "..", "../here", "/"])
+def test_cli_refuses_an_out_that_is_no_folder_of_its_own(tmp_path, monkeypatch, capsys, out):
+    """``--out ''``, ``.``, ``..`` or ``/`` used to run, then fail replacing the folder with an
+    OSError traceback, leaving ``..xxxx`` temporary folders (with the results) behind, even in
+    ``/``; they are refused as --out before anything runs, nothing made."""
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    root_before = sorted(p.name for p in Path("/").iterdir())
+    assert main(["run", "preview", "--duration", "0.05", "--out", out, "--quiet"]) == 2
+    assert "--out" in capsys.readouterr().err
+    assert [p.name for p in tmp_path.iterdir()] == ["here"] and list(here.iterdir()) == []
+    assert sorted(p.name for p in Path("/").iterdir()) == root_before
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux /proc")
+@pytest.mark.parametrize("command", [["run", "preview"], ["run", "track", "--backend", "model"],
+                                     ["run", "table2"]])
+def test_cli_refuses_an_out_where_no_folder_can_be_made(tmp_path, capsys, command):
+    """An unwritable place (``/proc/x``, under a file) used to run, then end in a
+    FileNotFoundError traceback; it is refused as --out before anything runs."""
+    (tmp_path / "a-file").write_text("x")
+    for out in ("/proc/mrm-results", str(tmp_path / "a-file" / "res")):
+        assert main([*command, "--duration", "0.05", "--out", out, "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert "--out" in err and "Traceback" not in err
+    assert [p.name for p in tmp_path.iterdir()] == ["a-file"]
+
+
+def test_atomic_output_dir_removes_the_folders_it_made_on_failure(tmp_path):
+    with pytest.raises(RuntimeError), atomic_output_dir(tmp_path / "a" / "b" / "res") as tmp:
+        (tmp / "x.txt").write_text("half")
+        raise RuntimeError("simulated crash")
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("command", [["run", "preview"], ["run", "track", "--backend", "model"],
