@@ -418,6 +418,14 @@ def _spring(value, where: str, mtype: ModuleType) -> SpringSpec | None:
     return SpringSpec(torque, _angle(value, "phase", where))
 
 
+def _type_name(value, field: str, known: dict) -> str:
+    """A module type name must be a string (a list or table is no name, and no dict key)."""
+    if not isinstance(value, str):
+        raise InputError(field, f"must be the name of a module type ({', '.join(sorted(known))}"
+                         f"), not {value!r}")
+    return value
+
+
 _TYPE_FIELDS = {"like", "actuator", "peak_torque", "continuous_torque", "gear_ratio",
                 "encoder_lines", "length_a", "length_b", "joint_limit", "joint_limit_deg",
                 "max_speed", "spring_max", "spring", "link_a", "link_b"}
@@ -428,6 +436,7 @@ def _module_type(name: str, table: dict, known: dict[str, ModuleType]) -> Module
     _check_keys(table, _TYPE_FIELDS, where)
     like = table.get("like")
     if like is not None:
+        _type_name(like, f"{where}.like", known)
         if like not in known:
             raise InputError(f"{where}.like", f"unknown module type {like!r}; known types are "
                              f"{', '.join(sorted(known))}")
@@ -508,7 +517,10 @@ def robot_from_dict(doc: dict, default_name: str = "robot") -> Robot:
     for k, entry in enumerate(mods):
         where = f"modules[{k}]"
         _check_keys(entry, {"type", "twist", "twist_deg", "spring"}, where)
-        tname = entry.get("type")
+        if "type" not in entry:
+            raise InputError(f"{where}.type", "missing; known types are "
+                             f"{', '.join(sorted(known))}")
+        tname = _type_name(entry["type"], f"{where}.type", known)
         if tname not in known:
             raise InputError(f"{where}.type", f"unknown module type {tname!r}; known types are "
                              f"{', '.join(sorted(known))}")

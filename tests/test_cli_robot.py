@@ -58,3 +58,18 @@ def test_bad_file_field_named(tmp_path):
                           capture_output=True, text=True)
     assert proc.returncode == 2 and proc.stdout == ""
     assert "modules[0].spring.torque" in proc.stderr
+
+
+@pytest.mark.parametrize("text, field", [
+    ('[[modules]]\ntype = ["I"]\n', "modules[0].type"),
+    ('[[modules]]\ntype = { name = "I" }\n', "modules[0].type"),
+    ('[module_types.III]\nlike = ["I"]\n[[modules]]\ntype = "III"\n',
+     "module_types.III.like"),
+])
+def test_a_list_or_table_as_type_name_is_one_line_exit_2(tmp_path, capsys, text, field):
+    """These used to end in a TypeError traceback (unhashable type)."""
+    path = tmp_path / "arm.toml"
+    path.write_text(text)
+    assert main(["robot", "show", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and field in err

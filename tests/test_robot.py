@@ -208,6 +208,21 @@ def test_rejects_bad_assembly_naming_the_field(doc, field):
     assert info.value.field == field
 
 
+@pytest.mark.parametrize("doc, field", [
+    (_doc(modules=[{"type": ["I"]}]), "modules[0].type"),
+    (_doc(modules=[{"type": {"name": "I"}}]), "modules[0].type"),
+    (_doc(modules=[{"twist_deg": 90.0}]), "modules[0].type"),
+    (_doc(module_types={"III": {"like": ["I"]}}), "module_types.III.like"),
+    (_doc(module_types={"III": {"like": {"name": "I"}}}), "module_types.III.like"),
+])
+def test_a_type_name_that_is_no_string_is_named(doc, field):
+    """``type = ["I"]`` or a table (and the same for ``like``) used to end in
+    ``TypeError: unhashable type`` from the lookup; it is refused naming the field."""
+    with pytest.raises(InputError) as info:
+        robot_from_dict(doc)
+    assert info.value.field == field
+
+
 def test_user_module_type_like_builtin():
     robot = robot_from_dict(_doc(
         module_types={"Ilong": {"like": "I", "length_a": 0.3, "joint_limit_deg": 90}},
