@@ -78,6 +78,9 @@ def run_preview(robot="mrm3", duration: float = 1.5, seed: int = 0, period: floa
     ctrl = FeedforwardPID(robot, period, bandwidth_hz)
     plant.reset(robot.home)
     n_samples = int(round(duration / period))
+    if n_samples < 2:       # one sample has no motion yet: rho would be 0/0
+        raise InputError("--duration", f"must cover at least 2 controller samples "
+                         f"({2 * period:g} s at the {period:g} s period), not {duration!r}")
     t = np.arange(n_samples) * period
     q_d, qd_d, qdd_d, _ = profile.evaluate(t)
     rec_q = np.empty((n_samples, robot.n))

@@ -46,6 +46,22 @@ def test_preview_rejects_bad_duration():
     assert info.value.field == "--duration"
 
 
+@pytest.mark.parametrize("duration", ["0.0001", "0.001"])
+def test_cli_refuses_a_duration_shorter_than_two_samples(tmp_path, capsys, duration):
+    """Under one controller sample ended in numpy's AxisError traceback; one sample wrote
+    rho_s NaN (0/0: no motion yet). Both are refused as --duration, nothing written."""
+    out = tmp_path / "res"
+    assert main(["run", "preview", "--duration", duration, "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "--duration" in err and "2 controller samples" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_two_samples_are_enough():
+    s = run_preview("mrm3", duration=0.002).summary
+    assert np.isfinite(s["rho_s"]) and s["max_tip_speed_m_s"] > 0.0
+
+
 def test_cli_writes_results_folder(tmp_path, capsys):
     out = tmp_path / "res"
     assert main(["run", "preview", "--duration", "0.05", "--out", str(out), "--quiet"]) == 0
