@@ -159,7 +159,7 @@ def cli_report(top: str, family: str, params: dict[str, int], as_json: bool,
     """``mrm hdl synth``: print the report of ``top`` (JSON or a table); exit code."""
     import sys
 
-    from hdl.tops import TOPS
+    from hdl.tops import TOPS, param_error
     from mrm.errors import InputError
 
     if top not in TOPS:
@@ -174,7 +174,7 @@ def cli_report(top: str, family: str, params: dict[str, int], as_json: bool,
     try:
         report = synth_top(top, family, params, pnr=pnr)
     except ValueError as exc:
-        raise InputError("--param", str(exc)) from None
+        raise param_error(exc, top) from None
     except SynthError as exc:
         sys.stderr.write(f"mrm hdl synth: {exc}\n")
         return 1

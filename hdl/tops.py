@@ -17,7 +17,7 @@ from amaranth.lib import wiring
 from .link.node import link_node_top
 from .node.top import node_core_top, slave_node_top
 
-__all__ = ["Top", "TOPS", "build_top", "component_verilog", "verilog_text"]
+__all__ = ["Top", "TOPS", "build_top", "component_verilog", "param_error", "verilog_text"]
 
 
 @dataclass(frozen=True)
@@ -69,6 +69,16 @@ def build_top(name: str, **params) -> wiring.Component:
     if unknown:
         raise KeyError(f"top {name!r} has no parameter {sorted(unknown)[0]!r}")
     return top.factory(**params)
+
+
+def param_error(exc: ValueError, top: str):
+    """The :class:`~mrm.errors.InputError` for a top that refused its parameters: named
+    ``--param NAME`` when the error names one of ``top``'s parameters, else ``--param``."""
+    from mrm.errors import InputError
+
+    if isinstance(exc, InputError) and exc.field in TOPS[top].parameters():
+        return InputError(f"--param {exc.field}", exc.message)
+    return InputError("--param", str(exc))
 
 
 def component_verilog(component: wiring.Component, name: str) -> str:

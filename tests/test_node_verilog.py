@@ -52,6 +52,37 @@ def test_verilator_lint_is_clean(tmp_path, top, waivers):
     assert_lint_clean(hdl_command.write_verilog(top, tmp_path, {}), waivers)
 
 
+@pytest.mark.parametrize("top", ["node", "node_core"])
+@pytest.mark.parametrize("param, field", [
+    ("counts_per_rev=1", "--param counts_per_rev"),          # K_v too large for 17 bits
+    ("counts_per_rev=600000", "--param counts_per_rev"),
+    ("counts_per_rev=200000000000", "--param counts_per_rev"),  # K_v rounds to 0
+    ("counts_per_rev=0", "--param counts_per_rev"),
+    ("min_window=67108864", "--param min_window"),
+])
+def test_encoder_parameters_the_estimator_cannot_take_are_named(tmp_path, top, param, field):
+    """A counts_per_rev whose velocity constant K_v does not fit used to pass the parameter
+    checks and end in a ValueError traceback from deep inside elaboration; it is refused as
+    ``--param counts_per_rev`` with the range that fits, nothing written."""
+    out = tmp_path / "out"
+    with pytest.raises(InputError) as exc:
+        run_cli(["hdl", "verilog", "--top", top, "--out", str(out), "--param", param])
+    assert exc.value.field == field
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_counts_per_rev_range_is_exact():
+    from hdl.node.encoder_ref import EncoderParams
+
+    lo, hi = EncoderParams().counts_per_rev_range()
+    assert lo <= 800_000 <= hi
+    for ok in (lo, hi):
+        assert 0 < EncoderParams(counts_per_rev=ok).kv < 1 << 17
+    for bad in (lo - 1, hi + 1):
+        with pytest.raises(InputError, match="counts_per_rev"):
+            EncoderParams(counts_per_rev=bad)
+
+
 def test_count_cells_reads_the_virtex2_cells():
     stat = {"design": {"num_cells": 100, "num_cells_by_type": {
         "LUT1": 3, "LUT4": 10, "FDRE": 7, "FDSE": 1, "MULT18X18": 2, "RAMB16_S36_S36": 1,

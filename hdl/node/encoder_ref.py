@@ -39,6 +39,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from mrm.errors import InputError
+
 from .fixed import VEL, round_shift, saturate
 
 __all__ = ["AGE_BITS", "AGE_MAX", "DC_MAX", "VEL_LATENCY", "RECIP_TABLE", "EncoderParams",
@@ -78,21 +80,39 @@ class EncoderParams:
     def __post_init__(self):
         for name in ("counts_per_rev", "filter_cycles", "min_window", "stop_cycles"):
             v = getattr(self, name)
-            if not isinstance(v, int) or v < 1:
-                raise ValueError(f"{name} must be a positive integer, not {v!r}")
-        if not self.min_window <= AGE_MAX or not self.stop_cycles <= AGE_MAX:
-            raise ValueError(f"min_window and stop_cycles must be at most {AGE_MAX}")
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise InputError(name, f"must be a positive integer, not {v!r}")
+        for name in ("min_window", "stop_cycles"):
+            if getattr(self, name) > AGE_MAX:
+                raise InputError(name, f"must be at most {AGE_MAX}, not {getattr(self, name)!r}")
         if not (math.isfinite(self.clock_hz) and self.clock_hz > 0):
-            raise ValueError(f"clock_hz must be positive, not {self.clock_hz!r}")
+            raise InputError("clock_hz", f"must be positive, not {self.clock_hz!r}")
+        if not 0 < self._kv_q8(self.counts_per_rev) < (1 << 17):
+            lo, hi = self.counts_per_rev_range()
+            raise InputError("counts_per_rev", f"{self.counts_per_rev} gives the velocity "
+                             f"constant K_v = {self._kv_q8(self.counts_per_rev) / 256!r} rad/s "
+                             f"per count/cycle at {self.clock_hz:g} Hz, outside the estimator's "
+                             f"17-bit Q8 range; it must be from {lo} to {hi}")
+
+    def _kv_q8(self, counts_per_rev: int) -> int:
+        return round(self.clock_hz * 2 * math.pi / counts_per_rev * 256)
+
+    def counts_per_rev_range(self) -> tuple[int, int]:
+        """The smallest and largest ``counts_per_rev`` whose ``K_v`` fits (0 < Q8 < 2^17)."""
+        c = self.clock_hz * 2 * math.pi * 256
+        lo = max(1, math.floor(c / ((1 << 17) - 0.5)) - 2)
+        while not self._kv_q8(lo) < (1 << 17):
+            lo += 1
+        hi = math.ceil(c / 0.5) + 2
+        while not self._kv_q8(hi) > 0:
+            hi -= 1
+        return lo, hi
 
     @property
     def kv(self) -> int:
-        """``K_v`` in Q8: rad/s per count/cycle times 2^8 (17 bits at 50 MHz, 800,000 cpr)."""
-        kv = round(self.clock_hz * 2 * math.pi / self.counts_per_rev * 256)
-        if not 0 < kv < (1 << 17):
-            raise ValueError(f"clock_hz / counts_per_rev gives K_v = {kv / 256!r} rad/s per "
-                             "count/cycle, outside the estimator's range")
-        return kv
+        """``K_v`` in Q8: rad/s per count/cycle times 2^8 (17 bits at 50 MHz, 800,000 cpr);
+        :meth:`__post_init__` has checked that it fits."""
+        return self._kv_q8(self.counts_per_rev)
 
 
 def reciprocal(den: int) -> tuple[int, int]:

@@ -50,7 +50,7 @@ def parse_params(items: list[str]) -> dict[str, int]:
 
 def write_verilog(top: str, out: Path, params: dict[str, int]) -> Path:
     """Generate ``top`` with ``params`` and write ``out/<top>.v`` atomically; return its path."""
-    from hdl.tops import TOPS, build_top, component_verilog
+    from hdl.tops import TOPS, build_top, component_verilog, param_error
 
     if top not in TOPS:
         raise InputError("--top", f"unknown top {top!r}; known: {', '.join(sorted(TOPS))}")
@@ -65,7 +65,7 @@ def write_verilog(top: str, out: Path, params: dict[str, int]) -> Path:
     try:
         component = build_top(top, **params)
     except ValueError as exc:
-        raise InputError("--param", str(exc)) from None
+        raise param_error(exc, top) from None
     text = component_verilog(component, top)
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{top}.v"
