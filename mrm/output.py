@@ -11,7 +11,8 @@ from pathlib import Path
 
 from mrm.errors import InputError
 
-__all__ = ["atomic_output_dir", "atomic_write_text", "check_output_dir", "write_json"]
+__all__ = ["atomic_output_dir", "atomic_write_text", "check_output_dir", "check_writable_folder",
+           "make_folder", "remove_empty", "write_json"]
 
 
 def atomic_write_text(path, text: str) -> None:
@@ -53,38 +54,45 @@ def check_output_dir(path, field: str = "--out") -> Path:
         raise InputError(field, f"{text!r} is the current folder, one that holds it, or the "
                          "root; the results replace the whole folder: name a folder of their "
                          "own, e.g. results/run")
-    _check_writable_parent(resolved, text, field)
+    check_writable_folder(resolved.parent, field, text)
     return path
 
 
-def _check_writable_parent(resolved: Path, text: str, field: str) -> None:
-    """Raise :class:`InputError` unless a folder can be made at ``resolved`` (an absolute
-    path): its nearest existing ancestor must be a folder in which one can be made."""
-    parent = resolved.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise InputError(field, f"{text!r}: {str(parent)!r} is a file, not a folder")
+def check_writable_folder(path, field: str = "--out", text: str | None = None) -> Path:
+    """``path`` as a folder to write files in, or :class:`InputError` naming ``field``: it
+    is a folder, or the nearest of its ancestors that exists is a folder, and something can be
+    made there (nothing is left behind by the check)."""
+    text = str(path) if text is None else text
+    folder = Path(path).resolve()
+    while not folder.exists():
+        folder = folder.parent
+    if not folder.is_dir():
+        raise InputError(field, f"{text!r}: {str(folder)!r} is a file, not a folder")
     try:
-        os.rmdir(tempfile.mkdtemp(prefix=".mrm-probe.", dir=parent))
+        os.rmdir(tempfile.mkdtemp(prefix=".mrm-probe.", dir=folder))
     except OSError as exc:
-        raise InputError(field, f"{text!r}: cannot write in {str(parent)!r} "
+        raise InputError(field, f"{text!r}: cannot write in {str(folder)!r} "
                          f"({exc.strerror or exc})") from None
+    return Path(path)
 
 
-def _make_parents(path: Path, field: str) -> list[Path]:
-    """Make the missing folders above ``path``; return them, deepest first."""
-    made = [p for p in path.parents if not p.exists()]
+def make_folder(path, field: str = "--out") -> list[Path]:
+    """Make the folder ``path`` and its missing ancestors; return the folders made, deepest
+    first (for :func:`remove_empty` on a later failure). :class:`InputError` naming ``field``
+    if it cannot be made; then nothing is left behind."""
+    path = Path(path)
+    made = [p for p in (path, *path.parents) if not p.exists()]
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        _remove_empty(made)
-        raise InputError(field, f"{str(path)!r}: cannot make its folder "
+        remove_empty(made)
+        raise InputError(field, f"cannot make the folder {str(path)!r} "
                          f"({exc.strerror or exc})") from None
     return made
 
 
-def _remove_empty(folders: list[Path]) -> None:
+def remove_empty(folders: list[Path]) -> None:
+    """Remove each of ``folders`` that is empty, in order (deepest first)."""
     for folder in folders:
         with contextlib.suppress(OSError):
             folder.rmdir()
@@ -99,11 +107,11 @@ def atomic_output_dir(path, field: str = "--out"):
     its :class:`InputError` (naming ``field``) before anything is made.
     """
     path = check_output_dir(path, field)
-    made = _make_parents(path, field)
+    made = make_folder(path.parent, field)
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
     except OSError as exc:
-        _remove_empty(made)
+        remove_empty(made)
         raise InputError(field, f"{str(path)!r}: cannot write in its folder "
                          f"({exc.strerror or exc})") from None
     try:
@@ -124,7 +132,7 @@ def atomic_output_dir(path, field: str = "--out"):
                 shutil.rmtree(old, ignore_errors=True)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
-        _remove_empty(made)
+        remove_empty(made)
         raise
 
 

@@ -3,6 +3,7 @@
 
 import argparse
 import re
+from pathlib import Path
 
 import pytest
 
@@ -69,6 +70,32 @@ def test_bad_input_names_the_field_and_writes_nothing(tmp_path, argv, field):
         run_cli(["hdl", "verilog", "--out", str(out), *argv])
     assert exc.value.field == field
     assert not out.exists() or not any(out.iterdir())
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux /proc")
+def test_out_where_no_folder_can_be_made_is_refused_as_out(tmp_path):
+    """``--out /proc/x`` (or a folder under a file) built the top, then ended in a
+    FileNotFoundError / NotADirectoryError traceback; it is refused as --out before the build,
+    nothing made."""
+    (tmp_path / "a-file").write_text("keep me")
+    for out in ("/proc/mrm-verilog", str(tmp_path / "a-file" / "v"),
+                str(tmp_path / "a-file" / "v" / "w")):
+        with pytest.raises(InputError) as exc:
+            run_cli(["hdl", "verilog", "--top", "spw_codec", "--out", out])
+        assert exc.value.field == "--out"
+    assert [p.name for p in tmp_path.iterdir()] == ["a-file"]
+    assert (tmp_path / "a-file").read_text() == "keep me"
+
+
+def test_a_failed_write_leaves_no_folder(tmp_path, monkeypatch):
+    def fail(path, text):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(hdl_command, "atomic_write_text", fail)
+    with pytest.raises(InputError) as exc:
+        hdl_command.write_verilog("spw_codec", tmp_path / "a" / "b", {})
+    assert exc.value.field == "--out" and "No space left" in exc.value.message
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_out_must_be_a_folder(tmp_path):

@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from mrm.errors import InputError
-from mrm.output import atomic_write_text
+from mrm.output import atomic_write_text, check_writable_folder, make_folder, remove_empty
 
 
 def register(subparsers) -> None:
@@ -62,14 +62,22 @@ def write_verilog(top: str, out: Path, params: dict[str, int]) -> Path:
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise InputError("--out", f"{str(out)!r} exists and is not a folder")
+    check_writable_folder(out, "--out")     # before the build: /proc/x, under a file
     try:
         component = build_top(top, **params)
     except ValueError as exc:
         raise param_error(exc, top) from None
     text = component_verilog(component, top)
-    out.mkdir(parents=True, exist_ok=True)
+    made = make_folder(out, "--out")
     path = out / f"{top}.v"
-    atomic_write_text(path, text)
+    try:
+        atomic_write_text(path, text)
+    except OSError as exc:
+        remove_empty(made)
+        raise InputError("--out", f"cannot write {str(path)!r} ({exc.strerror or exc})") from None
+    except BaseException:
+        remove_empty(made)
+        raise
     return path
 
 
