@@ -223,6 +223,26 @@ def test_a_type_name_that_is_no_string_is_named(doc, field):
     assert info.value.field == field
 
 
+@pytest.mark.parametrize("doc, field", [
+    (_doc(name="arm\x1b[31m"), "name"),
+    (_doc(name="two\nlines"), "name"),
+    (_doc(name="nul\x00"), "name"),
+    (_doc(name="c1\x9b"), "name"),
+    (_doc(module_types={"III\n": {"like": "I"}}), "module_types.'III\\n'"),
+])
+def test_control_characters_in_names_are_refused(doc, field):
+    """A name with an escape sequence or a newline was accepted, then printed raw by
+    ``mrm robot show`` (repainting the terminal, splitting lines) and written into the URDF;
+    it is refused naming the field."""
+    with pytest.raises(InputError) as info:
+        robot_from_dict(doc)
+    assert info.value.field == field and "control characters" in info.value.message
+
+
+def test_names_may_be_any_printable_text():
+    assert robot_from_dict(_doc(name="Bras-é 3 (v2)")).name == "Bras-é 3 (v2)"
+
+
 def test_user_module_type_like_builtin():
     robot = robot_from_dict(_doc(
         module_types={"Ilong": {"like": "I", "length_a": 0.3, "joint_limit_deg": 90}},
