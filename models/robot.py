@@ -40,6 +40,9 @@ __all__ = ["Module", "Robot", "load_robot", "builtin_robots", "GRAVITY", "rot_x"
            "rpy_to_matrix", "matrix_to_rpy", "homogeneous"]
 
 GRAVITY = np.array([0.0, 0.0, -9.81])
+# The node counts joint position in a 32-bit signed register (hdl/node/encoder.py); a joint
+# turns at most half a revolution each way (joint_limit ≤ π), so 4 × lines × gear ≤ 2^32 − 2.
+MAX_COUNTS_PER_REV = 2**32 - 2
 BUILTIN_DIR = Path(__file__).parent / "robots"
 
 
@@ -493,6 +496,13 @@ def _module_type(name: str, table: dict, known: dict[str, ModuleType]) -> Module
             fields[key] = link
     mtype = (replace(base, name=name, source=where, **fields) if base is not None
              else ModuleType(name=name, source=where, **fields))
+    if mtype.counts_per_rev > MAX_COUNTS_PER_REV:
+        key = "encoder_lines" if "encoder_lines" in table else "gear_ratio"
+        raise InputError(f"{where}.{key}",
+                         f"4 × encoder_lines {mtype.encoder_lines} × gear_ratio "
+                         f"{mtype.gear_ratio} = {mtype.counts_per_rev} counts per revolution; "
+                         f"the node's 32-bit signed joint count holds at most "
+                         f"{MAX_COUNTS_PER_REV} (half a turn each way)")
     if mtype.continuous_torque > mtype.peak_torque:
         raise InputError(f"{where}.continuous_torque",
                          f"{mtype.continuous_torque} N·m exceeds peak_torque "

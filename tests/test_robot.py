@@ -243,6 +243,32 @@ def test_names_may_be_any_printable_text():
     assert robot_from_dict(_doc(name="Bras-é 3 (v2)")).name == "Bras-é 3 (v2)"
 
 
+@pytest.mark.parametrize("fields, field", [
+    ({"encoder_lines": 10**22}, "module_types.III.encoder_lines"),
+    ({"gear_ratio": 2**63 - 1}, "module_types.III.gear_ratio"),
+    ({"encoder_lines": 3_000_000_000}, "module_types.III.encoder_lines"),
+    ({"encoder_lines": 10_737_419, "gear_ratio": 100}, "module_types.III.encoder_lines"),
+])
+def test_counts_per_rev_beyond_the_joint_count_is_refused_at_load(fields, field):
+    """Huge encoder_lines or gear_ratio were accepted, then ``mrm run preview`` and ``mrm bench``
+    ended in an OverflowError traceback (counts per revolution beyond int64); anything beyond
+    the node's 32-bit signed joint count is refused when the robot is loaded."""
+    with pytest.raises(InputError) as info:
+        robot_from_dict(_doc(module_types={"III": {"like": "I", **fields}},
+                             modules=[{"type": "III"}]))
+    assert info.value.field == field and "32-bit" in info.value.message
+
+
+def test_the_largest_counts_per_rev_loads_and_runs():
+    from cosim.preview import run_preview
+    from models.robot import MAX_COUNTS_PER_REV
+
+    robot = robot_from_dict(_doc(module_types={"III": {"like": "I", "encoder_lines": 10_737_418}},
+                                 modules=[{"type": "III"}]))
+    assert robot.counts_per_rev[0] == 4 * 10_737_418 * 100 <= MAX_COUNTS_PER_REV
+    assert np.isfinite(run_preview(robot, duration=0.005).summary["rho_s"])
+
+
 def test_user_module_type_like_builtin():
     robot = robot_from_dict(_doc(
         module_types={"Ilong": {"like": "I", "length_a": 0.3, "joint_limit_deg": 90}},
