@@ -260,8 +260,10 @@ def true_parameters(robot, config: PlantConfig | None = None, seed: int = 0) -> 
     specs = []
     for k, module in enumerate(robot.modules):
         name = module.type.actuator
-        if name not in ACTUATORS:
-            raise InputError(f"modules[{k}].actuator", f"unknown actuator {name!r}; known: "
+        if name not in ACTUATORS:       # a Robot built in code (a file's are checked at load)
+            where = (module.type.source if module.type.source.startswith("module_types.")
+                     else f"modules[{k}]")
+            raise InputError(f"{where}.actuator", f"unknown actuator {name!r}; known: "
                              f"{', '.join(sorted(ACTUATORS))}")
         specs.append(ACTUATORS[name])
     rng_links, rng_rotor, rng_friction, rng_spring = (

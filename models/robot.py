@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from models.actuators import ACTUATORS
 from models.modules import MODULE_TYPES, LinkParams, ModuleType, SpringSpec
 from mrm.errors import InputError, require_finite, require_nonnegative, require_positive, \
     require_vector
@@ -466,6 +467,9 @@ def _module_type(name: str, table: dict, known: dict[str, ModuleType]) -> Module
     if "actuator" in table:
         if not isinstance(table["actuator"], str) or not table["actuator"]:
             raise InputError(f"{where}.actuator", f"must be a name, not {table['actuator']!r}")
+        if table["actuator"] not in ACTUATORS:
+            raise InputError(f"{where}.actuator", f"unknown actuator {table['actuator']!r}; "
+                             f"known: {', '.join(sorted(ACTUATORS))}")
         fields["actuator"] = table["actuator"]
     for key in ("peak_torque", "continuous_torque", "length_a", "length_b", "max_speed"):
         if key in table:

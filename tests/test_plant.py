@@ -497,6 +497,16 @@ def test_rejects_unknown_actuator(robot):
         true_parameters(other, PlantConfig(), 0)
 
 
+def test_unknown_actuator_of_a_user_type_names_the_type(robot):
+    mtype = dataclasses.replace(robot.modules[1].type, actuator="FHA-99X",
+                                source="module_types.III")
+    other = load_robot(robot.name)
+    other.modules[1] = dataclasses.replace(robot.modules[1], type=mtype)
+    with pytest.raises(InputError) as info:
+        true_parameters(other, PlantConfig(), 0)
+    assert info.value.field == "module_types.III.actuator"
+
+
 def test_time_counts_steps(robot):
     plant = Plant(robot, PlantConfig())
     for _ in range(1000):

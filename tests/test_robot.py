@@ -269,6 +269,17 @@ def test_the_largest_counts_per_rev_loads_and_runs():
     assert np.isfinite(run_preview(robot, duration=0.005).summary["rho_s"])
 
 
+def test_unknown_actuator_is_named_where_it_is_written():
+    """An unknown actuator in [module_types.III] was accepted by ``mrm robot show``, then
+    refused by the plant as ``modules[1].actuator`` (no such field: the module only says
+    ``type = "III"``); it is refused at load as module_types.III.actuator."""
+    with pytest.raises(InputError) as info:
+        robot_from_dict(_doc(module_types={"III": {"like": "I", "actuator": "FHA-99"}},
+                             modules=[{"type": "I"}, {"type": "III"}]))
+    assert info.value.field == "module_types.III.actuator"
+    assert "FHA-11C-100" in info.value.message
+
+
 def test_user_module_type_like_builtin():
     robot = robot_from_dict(_doc(
         module_types={"Ilong": {"like": "I", "length_a": 0.3, "joint_limit_deg": 90}},
