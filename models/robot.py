@@ -373,6 +373,35 @@ def load_robot(spec) -> Robot:
     return robot_from_dict(doc, default_name=path.stem)
 
 
+def _number(value, field: str):
+    """A TOML number, not a string that reads as one: ``twist_deg = "90"`` is refused (``float``
+    would take it, hiding a quoting mistake), as are strings in a list of numbers."""
+    if isinstance(value, str | bytes):
+        raise InputError(field, f"must be a number, not the string {value!r}")
+    if isinstance(value, list):
+        for i, v in enumerate(value):
+            _number(v, f"{field}[{i}]")
+    return value
+
+
+def _finite(value, field: str) -> float:
+    return require_finite(_number(value, field), field)
+
+
+def _positive(value, field: str) -> float:
+    return require_positive(_number(value, field), field)
+
+
+def _nonnegative(value, field: str) -> float:
+    return require_nonnegative(_number(value, field), field)
+
+
+def _vector(value, length: int, field: str) -> list[float]:
+    if isinstance(value, list) and len(value) == length:
+        _number(value, field)
+    return require_vector(value, length, field)
+
+
 def _check_keys(table: dict, allowed: set[str], where: str) -> None:
     if not isinstance(table, dict):
         raise InputError(where, f"must be a table, not {table!r}")
@@ -387,9 +416,9 @@ def _angle(table: dict, key: str, where: str, default: float = 0.0) -> float:
     if key in table and f"{key}_deg" in table:
         raise InputError(f"{where}.{key}", f"give {key} or {key}_deg, not both")
     if key in table:
-        return require_finite(table[key], f"{where}.{key}")
+        return _finite(table[key], f"{where}.{key}")
     if f"{key}_deg" in table:
-        return math.radians(require_finite(table[f"{key}_deg"], f"{where}.{key}_deg"))
+        return math.radians(_finite(table[f"{key}_deg"], f"{where}.{key}_deg"))
     return default
 
 
@@ -397,13 +426,13 @@ def _pose(table, where: str) -> np.ndarray:
     if table is None:
         return homogeneous()
     _check_keys(table, {"xyz", "rpy", "rpy_deg"}, where)
-    xyz = require_vector(table.get("xyz", [0.0, 0.0, 0.0]), 3, f"{where}.xyz")
+    xyz = _vector(table.get("xyz", [0.0, 0.0, 0.0]), 3, f"{where}.xyz")
     if "rpy" in table and "rpy_deg" in table:
         raise InputError(f"{where}.rpy", "give rpy or rpy_deg, not both")
     if "rpy_deg" in table:
-        rpy = [math.radians(a) for a in require_vector(table["rpy_deg"], 3, f"{where}.rpy_deg")]
+        rpy = [math.radians(a) for a in _vector(table["rpy_deg"], 3, f"{where}.rpy_deg")]
     else:
-        rpy = require_vector(table.get("rpy", [0.0, 0.0, 0.0]), 3, f"{where}.rpy")
+        rpy = _vector(table.get("rpy", [0.0, 0.0, 0.0]), 3, f"{where}.rpy")
     return homogeneous(rpy_to_matrix(rpy), xyz)
 
 
@@ -415,7 +444,7 @@ def _spring(value, where: str, mtype: ModuleType) -> SpringSpec | None:
     _check_keys(value, {"torque", "phase", "phase_deg"}, where)
     if "torque" not in value:
         raise InputError(f"{where}.torque", "missing")
-    torque = require_finite(value["torque"], f"{where}.torque")
+    torque = _finite(value["torque"], f"{where}.torque")
     if abs(torque) > mtype.spring_max:
         raise InputError(f"{where}.torque",
                          f"|{torque}| N·m exceeds the spring_max of module type {mtype.name!r} "
@@ -473,9 +502,9 @@ def _module_type(name: str, table: dict, known: dict[str, ModuleType]) -> Module
         fields["actuator"] = table["actuator"]
     for key in ("peak_torque", "continuous_torque", "length_a", "length_b", "max_speed"):
         if key in table:
-            fields[key] = require_positive(table[key], f"{where}.{key}")
+            fields[key] = _positive(table[key], f"{where}.{key}")
     if "spring_max" in table:
-        fields["spring_max"] = require_nonnegative(table["spring_max"], f"{where}.spring_max")
+        fields["spring_max"] = _nonnegative(table["spring_max"], f"{where}.spring_max")
     for key in ("gear_ratio", "encoder_lines"):
         if key in table:
             v = table[key]
@@ -489,7 +518,7 @@ def _module_type(name: str, table: dict, known: dict[str, ModuleType]) -> Module
         fields["joint_limit"] = lim
     for key in ("link_a", "link_b"):
         if key in table:
-            theta = require_vector(table[key], 13, f"{where}.{key}")
+            theta = _vector(table[key], 13, f"{where}.{key}")
             if theta[0] <= 0.0:
                 raise InputError(f"{where}.{key}[0]", f"mass must be positive, not {theta[0]!r}")
             link = LinkParams.from_table(theta)
@@ -562,7 +591,7 @@ def robot_from_dict(doc: dict, default_name: str = "robot") -> Robot:
         raise InputError("home", "give home or home_deg, not both")
     if "home" in doc or "home_deg" in doc:
         key = "home" if "home" in doc else "home_deg"
-        home = np.array(require_vector(doc[key], len(modules), key))
+        home = np.array(_vector(doc[key], len(modules), key))
         if key == "home_deg":
             home = np.deg2rad(home)
         for k, mod in enumerate(modules):

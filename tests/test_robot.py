@@ -280,6 +280,26 @@ def test_unknown_actuator_is_named_where_it_is_written():
     assert "FHA-11C-100" in info.value.message
 
 
+@pytest.mark.parametrize("doc, field", [
+    (_doc(modules=[{"type": "I", "twist_deg": "90"}]), "modules[0].twist_deg"),
+    (_doc(modules=[{"type": "I", "twist": "0.1"}]), "modules[0].twist"),
+    (_doc(modules=[{"type": "II", "spring": {"torque": "8"}}]), "modules[0].spring.torque"),
+    (_doc(base={"xyz": [0, 0, "0.3"]}), "base.xyz[2]"),
+    (_doc(tool={"rpy_deg": ["0", 0, 0]}), "tool.rpy_deg[0]"),
+    (_doc(home_deg=["10", 0.0]), "home_deg[0]"),
+    (_doc(module_types={"III": {"like": "I", "length_a": "0.3"}}), "module_types.III.length_a"),
+    (_doc(module_types={"III": {"like": "I", "spring_max": "1"}}), "module_types.III.spring_max"),
+    (_doc(module_types={"III": {"like": "I", "joint_limit_deg": "90"}}),
+     "module_types.III.joint_limit_deg"),
+])
+def test_numbers_written_as_strings_are_refused(doc, field):
+    """``twist_deg = "90"`` (a quoted number) was silently read as 90 (float() takes the
+    string); it is refused naming the field, so a quoting mistake is seen."""
+    with pytest.raises(InputError) as info:
+        robot_from_dict(doc)
+    assert info.value.field == field and "string" in info.value.message
+
+
 def test_user_module_type_like_builtin():
     robot = robot_from_dict(_doc(
         module_types={"Ilong": {"like": "I", "length_a": 0.3, "joint_limit_deg": 90}},
