@@ -28,7 +28,8 @@ from master import quaternion as quat
 from mrm.errors import InputError, require_nonnegative, require_positive
 
 __all__ = ["AxisLimits", "LineLimits", "TrigProfile", "LineGeometry", "CartesianSamples",
-           "LinePlan", "trig_min_duration", "pose_from_matrix", "plan_line",
+           "LinePlan", "limiting_bound", "limiting_field", "trig_min_duration", "pose_from_matrix",
+           "plan_line",
            "sample_times", "ORTHONORMALITY_TOLERANCE", "PROJECTION_NOTE_THRESHOLD"]
 
 #: A rotation block with ‖RᵀR − I‖_F above this is rejected as "not a rotation".
@@ -77,6 +78,27 @@ def trig_min_duration(distance: float, limits: AxisLimits) -> float:
     return max(2.0 * d / limits.velocity,
                math.sqrt(8.0 * d / limits.acceleration),
                (16.0 * math.pi * d / limits.jerk) ** (1.0 / 3.0))
+
+
+def limiting_field(geometry, limits: LineLimits, translation_time: float,
+                   rotation_time: float) -> str:
+    """The limit that sets the duration of a line, as the dotted field of the line file
+    (``limits.translation.velocity``): of the part that takes longer, the bound whose term of
+    eqs. 15/16 is the largest."""
+    if translation_time >= rotation_time:
+        part, distance, lim = "translation", geometry.distance, limits.translation
+    else:
+        part, distance, lim = "rotation", geometry.angle, limits.rotation
+    return f"limits.{part}.{limiting_bound(distance, lim)}"
+
+
+def limiting_bound(distance: float, limits: AxisLimits) -> str:
+    """Which of ``velocity``, ``acceleration``, ``jerk`` sets :func:`trig_min_duration`."""
+    d = require_nonnegative(distance, "distance")
+    terms = {"velocity": 2.0 * d / limits.velocity,
+             "acceleration": math.sqrt(8.0 * d / limits.acceleration),
+             "jerk": (16.0 * math.pi * d / limits.jerk) ** (1.0 / 3.0)}
+    return max(terms, key=terms.get)
 
 
 @dataclass(frozen=True)
@@ -308,6 +330,12 @@ class LinePlan:
         t = np.atleast_1d(np.asarray(t, dtype=float))
         return self.geometry.sample(t, self.translation.evaluate(t), self.rotation.evaluate(t))
 
+    def limiting_field(self) -> str:
+        """The limit that sets :attr:`duration`, as the dotted field of the line file
+        (``limits.translation.velocity``); see :func:`limiting_field`."""
+        return limiting_field(self.geometry, self.limits, self.translation_time,
+                              self.rotation_time)
+
     def summary(self) -> dict:
         """The figures ``mrm plan line --json`` prints (SI units)."""
         return {
@@ -394,6 +422,13 @@ def plan_line(start, end, limits: LineLimits) -> LinePlan:
     t_d = trig_min_duration(geometry.distance, limits.translation)
     t_r = trig_min_duration(geometry.angle, limits.rotation)
     T = max(t_d, t_r)
+    if not math.isfinite(T * T):    # A = 8L/T² (eq. 11): T² must be a float
+        name = limiting_field(geometry, limits, t_d, t_r)
+        _, part, bound = name.split(".")
+        value = getattr(getattr(limits, part), bound)
+        last = f"{T:.3g} s" if math.isfinite(T) else "more seconds than a float holds"
+        raise InputError(name, f"{value!r} makes the move last {last}, too long for its "
+                         "figures to be computed in floating point")
     return LinePlan(geometry, limits, t_d, t_r, T,
                     TrigProfile(geometry.distance, T), TrigProfile(geometry.angle, T),
                     notes_s + notes_e)

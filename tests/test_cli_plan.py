@@ -204,6 +204,31 @@ def test_line_bad_file_exits_2_naming_the_field(mrm, tmp_path, text, field):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["plan.toml"]   # nothing written
 
 
+def _limits(translation, rotation=(1.0, 4.0, 40.0)):
+    t, r = translation, rotation
+    return GOOD.replace(
+        "translation = { velocity = 1.0, acceleration = 4.0, jerk = 40.0 }",
+        f"translation = {{ velocity = {t[0]!r}, acceleration = {t[1]!r}, jerk = {t[2]!r} }}"
+    ).replace(
+        "rotation    = { velocity = 1.0, acceleration = 4.0, jerk = 40.0 }",
+        f"rotation = {{ velocity = {r[0]!r}, acceleration = {r[1]!r}, jerk = {r[2]!r} }}")
+
+
+@pytest.mark.parametrize("profile", ["trig", "ruckig"])
+@pytest.mark.parametrize("text, field", [
+    (_limits((1e-300, 4.0, 40.0)), "limits.translation.velocity"),
+    (_limits((1.0, 4.0, 40.0), (1e-300, 4.0, 40.0)), "limits.rotation.velocity"),
+    (_limits((1.0, 4.0, 40.0), (1.0, 4.0, 5e-324)), "limits.rotation.jerk"),
+])
+def test_line_limits_too_small_for_a_float_are_named(mrm, tmp_path, profile, text, field):
+    """A velocity of 1e-300 made the move last 6e299 s; its amplitude 8L/T² ended in an
+    OverflowError traceback (T**2), or the profile refused ``duration: inf``, a field the
+    file does not have; the limit that sets the duration is named, exit 2."""
+    code, out, err = mrm("plan", "line", write(tmp_path, text), "--profile", profile)
+    assert code == 2 and out == ""
+    assert len(err.strip().splitlines()) == 1 and f"error: {field}:" in err
+
+
 def test_line_missing_file_and_bad_dt(mrm, tmp_path):
     code, _, err = mrm("plan", "line", tmp_path / "nope.toml")
     assert code == 2 and "FILE:" in err
