@@ -12,12 +12,14 @@ feasible motion under these limits, so Ruckig's duration can never be longer.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
-from ruckig import InputParameter, Result, Ruckig, Synchronization, Trajectory
+from ruckig import InputParameter, Result, Ruckig, RuckigError, Synchronization, Trajectory
 
 from master.trig_planner import CartesianSamples, LineGeometry, LineLimits, LinePlan
+from mrm.errors import InputError
 
 __all__ = ["RuckigPath", "RuckigLinePlan", "plan_line_ruckig"]
 
@@ -151,7 +153,21 @@ def plan_line_ruckig(plan: LinePlan) -> RuckigLinePlan:
     inp.max_jerk = [lim.translation.jerk, lim.rotation.jerk]
     inp.synchronization = Synchronization.Time
     traj = Trajectory(2)
-    result = otg.calculate(inp, traj)
+    try:
+        result = otg.calculate(inp, traj)
+    except RuckigError as exc:          # extreme limits: its solver found no profile
+        match = re.search(r"dof: (\d)", str(exc))
+        part = ("translation", "rotation")[int(match.group(1))] if match else None
+        raise InputError(f"limits.{part}" if part else "limits",
+                         "Ruckig finds no trajectory for these limits (its solver failed); "
+                         "the trigonometric profile (--profile trig) may take them") from None
+    except ValueError as exc:           # a result code the binding has no name for
+        if "is not a valid Result" not in str(exc):
+            raise
+        raise InputError(plan.limiting_field(),
+                         f"the move takes {plan.duration:.3g} s with the trigonometric profile; "
+                         f"Ruckig cannot compute a trajectory that long (its result "
+                         f"{str(exc).split()[0]}: duration out of range)") from None
     if result not in (Result.Working, Result.Finished):
         raise RuntimeError(f"Ruckig failed on a rest-to-rest move: {result}")
     t_trans, t_rot = (float(x) for x in traj.independent_min_durations)

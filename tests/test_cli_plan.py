@@ -229,6 +229,25 @@ def test_line_limits_too_small_for_a_float_are_named(mrm, tmp_path, profile, tex
     assert len(err.strip().splitlines()) == 1 and f"error: {field}:" in err
 
 
+@pytest.mark.parametrize("text, field", [
+    (_limits((1e300, 1e300, 1e300)), "limits.translation"),              # RuckigError
+    (_limits((1.0, 4.0, 40.0), (1e300, 1e300, 1e300)), "limits.rotation"),
+    (_limits((1.0, 1e-300, 40.0)), "limits.translation"),
+    (_limits((1e-5, 4.0, 40.0)), "limits.translation.velocity"),        # result -101
+    (_limits((1.0, 4.0, 1e-15)), "limits.translation.jerk"),
+])
+def test_line_limits_ruckig_cannot_solve_are_named(mrm, tmp_path, text, field):
+    """Extreme limits ended in a RuckigError traceback (its solver failed), or in
+    ``ValueError: -101 is not a valid Result`` (a move longer than Ruckig computes); both
+    are named errors now, exit 2, and the trigonometric profile still plans the move."""
+    path = write(tmp_path, text)
+    code, out, err = mrm("plan", "line", path, "--profile", "ruckig")
+    assert code == 2 and out == ""
+    assert len(err.strip().splitlines()) == 1 and f"error: {field}:" in err
+    assert "Ruckig" in err
+    assert mrm("plan", "line", path)[0] == 0
+
+
 def test_line_missing_file_and_bad_dt(mrm, tmp_path):
     code, _, err = mrm("plan", "line", tmp_path / "nope.toml")
     assert code == 2 and "FILE:" in err
