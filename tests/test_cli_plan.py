@@ -258,6 +258,22 @@ def test_line_missing_file_and_bad_dt(mrm, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("command", [["quintic", "--q0", "0", "--qf", "1", "--tf", "1"],
+                                     ["line", str(EXAMPLE)]])
+def test_samples_naming_a_folder_or_an_unwritable_place_is_refused(mrm, tmp_path, command):
+    """``--samples`` naming an existing folder ended in an IsADirectoryError traceback, and
+    one in /proc in a FileNotFoundError traceback; both are refused as --samples, exit 2,
+    the folder untouched and no temporary file left."""
+    folder = tmp_path / "d"
+    folder.mkdir()
+    places = [folder] + (["/proc/mrm-samples.csv"] if Path("/proc/self").is_dir() else [])
+    for place in places:
+        code, out, err = mrm("plan", *command, "--samples", place)
+        assert code == 2 and out == ""
+        assert len(err.strip().splitlines()) == 1 and "--samples:" in err
+    assert [p.name for p in tmp_path.iterdir()] == ["d"] and list(folder.iterdir()) == []
+
+
 def test_existing_output_survives_a_failed_run(mrm, tmp_path):
     out_csv = tmp_path / "keep.csv"
     out_csv.write_text("old\n")

@@ -58,9 +58,14 @@ def write_csv_atomic(path: str, header: list[str] | tuple[str, ...], table: np.n
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
         raise InputError("--samples", f"directory {directory!r} does not exist")
+    if os.path.isdir(path):
+        raise InputError("--samples", f"{path!r} is a folder; name the CSV file to write")
     rows = (np.asarray(table, dtype=float) + 0.0).tolist()   # + 0.0: no "-0"
-    atomic_write_text(path, "".join([",".join(header) + "\n"]
-                                    + [",".join(map(repr, row)) + "\n" for row in rows]))
+    try:
+        atomic_write_text(path, "".join([",".join(header) + "\n"]
+                                        + [",".join(map(repr, row)) + "\n" for row in rows]))
+    except OSError as exc:      # /proc/x.csv, a read-only folder, a full disk
+        raise InputError("--samples", f"cannot write {path!r} ({exc.strerror or exc})") from None
 
 
 def _print_json(figures: dict) -> None:
