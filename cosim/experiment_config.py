@@ -29,7 +29,8 @@ from pathlib import Path
 from cosim.closed_loop import Gains
 from master.cycle import CONTROLLERS, MasterTiming
 from models.plant import Perturbation, PlantConfig
-from mrm.errors import InputError, require_finite, require_nonnegative, require_positive
+from mrm.errors import InputError, reject_strings, require_finite, require_nonnegative, \
+    require_positive
 
 __all__ = ["ExperimentConfig", "TrajectoryConfig", "load", "loads", "from_dict", "DEFAULT_CONFIG",
            "PAPER_AMPLITUDE", "PAPER_DURATION"]
@@ -168,14 +169,15 @@ def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
     tr = _table(data, "trajectory")
     _keys(tr, "trajectory.", {f.name for f in fields(TrajectoryConfig)})
     td = TrajectoryConfig()
-    amplitude = require_finite(tr.get("amplitude", td.amplitude), "trajectory.amplitude")
+    amplitude = require_finite(_number(tr.get("amplitude", td.amplitude), "trajectory.amplitude"),
+                               "trajectory.amplitude")
     if amplitude == 0.0 or abs(amplitude) > 1.0:
         raise InputError("trajectory.amplitude",
                          f"must be non-zero and at most 1 rad in size, not {amplitude!r}")
     trajectory = TrajectoryConfig(
         amplitude,
         _duration(tr.get("duration", td.duration), "trajectory.duration"),
-        require_nonnegative(tr.get("hold", td.hold), "trajectory.hold"))
+        require_nonnegative(_number(tr.get("hold", td.hold), "trajectory.hold"), "trajectory.hold"))
     default_duration = trajectory.duration + trajectory.hold
     duration = _duration(exp.get("duration", default_duration), "experiment.duration")
 
@@ -251,8 +253,13 @@ def _seed(value, name: str) -> int:
     return value
 
 
+def _number(value, name: str):
+    """A number of the file, not a string that reads as one (``duration = "1.5"``)."""
+    return reject_strings(value, name)
+
+
 def _duration(value, name: str) -> float:
-    x = require_positive(value, name)
+    x = require_positive(_number(value, name), name)
     if x > MAX_DURATION:
         raise InputError(name, f"must be at most {MAX_DURATION} s, not {value!r}")
     return x
@@ -273,19 +280,21 @@ def _plant(table: dict) -> PlantConfig:
         _keys(pert, "plant.perturbation.", {f.name for f in fields(Perturbation)})
         dp = Perturbation()
         perturbation = Perturbation(**{
-            f.name: require_finite(pert.get(f.name, getattr(dp, f.name)),
+            f.name: require_finite(_number(pert.get(f.name, getattr(dp, f.name)),
+                                           f"plant.perturbation.{f.name}"),
                                    f"plant.perturbation.{f.name}")
             for f in fields(Perturbation)})
     else:
-        perturbation = require_finite(pert, "plant.perturbation")
+        perturbation = require_finite(_number(pert, "plant.perturbation"), "plant.perturbation")
     bw = table.get("current_bandwidth")
     return PlantConfig(
-        dt=require_positive(table.get("dt", d.dt), "plant.dt"),
+        dt=require_positive(_number(table.get("dt", d.dt), "plant.dt"), "plant.dt"),
         perturbation=perturbation,
         friction=_bool(table.get("friction", d.friction), "plant.friction"),
         springs=_bool(table.get("springs", d.springs), "plant.springs"),
         current_loop=_bool(table.get("current_loop", d.current_loop), "plant.current_loop"),
-        current_bandwidth=None if bw is None else require_positive(bw, "plant.current_bandwidth"))
+        current_bandwidth=None if bw is None else require_positive(
+            _number(bw, "plant.current_bandwidth"), "plant.current_bandwidth"))
 
 
 # Upper bounds keep every gain inside the node's fixed-point registers with margin.
@@ -301,7 +310,8 @@ def _gains(table: dict) -> Gains:
     for name, (zero_ok, top) in _GAIN_LIMITS.items():
         field_name = f"gains.{name}"
         raw = table.get(name, getattr(d, name))
-        x = (require_nonnegative if zero_ok else require_positive)(raw, field_name)
+        x = (require_nonnegative if zero_ok else require_positive)(_number(raw, field_name),
+                                                                   field_name)
         if x > top:
             raise InputError(field_name, f"must be at most {top}, not {raw!r}")
         values[name] = x

@@ -34,8 +34,8 @@ import numpy as np
 
 from models.actuators import ACTUATORS
 from models.modules import MODULE_TYPES, LinkParams, ModuleType, SpringSpec
-from mrm.errors import InputError, require_finite, require_nonnegative, require_positive, \
-    require_vector
+from mrm.errors import InputError, reject_strings, require_finite, require_nonnegative, \
+    require_positive, require_vector
 
 __all__ = ["Module", "Robot", "load_robot", "builtin_robots", "GRAVITY", "rot_x", "rot_z",
            "rpy_to_matrix", "matrix_to_rpy", "homogeneous"]
@@ -373,32 +373,21 @@ def load_robot(spec) -> Robot:
     return robot_from_dict(doc, default_name=path.stem)
 
 
-def _number(value, field: str):
-    """A TOML number, not a string that reads as one: ``twist_deg = "90"`` is refused (``float``
-    would take it, hiding a quoting mistake), as are strings in a list of numbers."""
-    if isinstance(value, str | bytes):
-        raise InputError(field, f"must be a number, not the string {value!r}")
-    if isinstance(value, list):
-        for i, v in enumerate(value):
-            _number(v, f"{field}[{i}]")
-    return value
-
-
 def _finite(value, field: str) -> float:
-    return require_finite(_number(value, field), field)
+    return require_finite(reject_strings(value, field), field)
 
 
 def _positive(value, field: str) -> float:
-    return require_positive(_number(value, field), field)
+    return require_positive(reject_strings(value, field), field)
 
 
 def _nonnegative(value, field: str) -> float:
-    return require_nonnegative(_number(value, field), field)
+    return require_nonnegative(reject_strings(value, field), field)
 
 
 def _vector(value, length: int, field: str) -> list[float]:
     if isinstance(value, list) and len(value) == length:
-        _number(value, field)
+        reject_strings(value, field)
     return require_vector(value, length, field)
 
 

@@ -9,7 +9,7 @@ import math
 from collections.abc import Sequence
 
 __all__ = ["InputError", "require_finite", "require_positive", "require_nonnegative",
-           "require_vector"]
+           "require_vector", "reject_strings"]
 
 
 class InputError(ValueError):
@@ -65,3 +65,17 @@ def require_vector(value, length: int, field: str) -> list[float]:
     if len(value) != length:
         raise InputError(field, f"must have {length} elements, not {len(value)}")
     return [require_finite(v, f"{field}[{i}]") for i, v in enumerate(value)]
+
+
+def reject_strings(value, field: str):
+    """Return ``value`` unless it is a string (or a list holding one, named ``field[i]``).
+
+    For numbers read from a file: ``twist_deg = "90"`` is a quoting mistake that ``float``
+    would hide by reading the string, so a file's number must be written as one.
+    """
+    if isinstance(value, str | bytes):
+        raise InputError(field, f"must be a number, not the string {value!r}")
+    if isinstance(value, list):
+        for i, v in enumerate(value):
+            reject_strings(v, f"{field}[{i}]")
+    return value

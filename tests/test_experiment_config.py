@@ -110,6 +110,24 @@ def test_bad_values_name_their_field(text, field):
     assert exc.value.field == field
 
 
+@pytest.mark.parametrize("text, field", [
+    ('[experiment]\nduration = "0.5"\n', "experiment.duration"),
+    ('[trajectory]\namplitude = "0.1"\n', "trajectory.amplitude"),
+    ('[trajectory]\nhold = "0.5"\n', "trajectory.hold"),
+    ('[plant]\ndt = "1e-5"\n', "plant.dt"),
+    ('[plant]\nperturbation = "0.1"\n', "plant.perturbation"),
+    ('[plant.perturbation]\nlinks = "0.1"\n', "plant.perturbation.links"),
+    ('[plant]\ncurrent_bandwidth = "500"\n', "plant.current_bandwidth"),
+    ('[gains]\nK = "100"\n', "gains.K"),
+])
+def test_numbers_written_as_strings_are_refused(text, field):
+    """``duration = "0.5"`` (a quoted number) was silently read as 0.5 (float() takes the
+    string), hiding a quoting mistake; it is refused naming the field."""
+    with pytest.raises(InputError) as exc:
+        ec.loads(text)
+    assert exc.value.field == field and "string" in exc.value.message
+
+
 def test_relative_robot_path_is_taken_from_the_config_folder(tmp_path):
     shutil.copy(ROBOTS / "mrm3.toml", tmp_path / "arm.toml")
     (tmp_path / "exp.toml").write_text("[experiment]\nrobot = 'arm.toml'\n")
