@@ -173,6 +173,8 @@ class PlantTruth:
     peak_torque : ndarray, shape (n,), N·m
     current_time_constant : ndarray, shape (n,), s
     counts_per_rev : ndarray of int64, shape (n,)
+        Encoder counts per joint revolution of each module (its type's encoder_lines × 4 ×
+        gear_ratio: a module may fit another encoder than its actuator's catalogue one).
     actuators : tuple of ActuatorSpec
     """
 
@@ -308,7 +310,7 @@ def true_parameters(robot, config: PlantConfig | None = None, seed: int = 0) -> 
         model=model, rotor_inertia=rotor, friction=friction, spring_torque=amp_true,
         spring_phase=phase_true, peak_torque=np.array([s.peak_torque for s in specs]),
         current_time_constant=tau_i,
-        counts_per_rev=np.array([s.counts_per_rev for s in specs], dtype=np.int64),
+        counts_per_rev=np.asarray(robot.counts_per_rev, dtype=np.int64),
         actuators=tuple(specs))
 
 

@@ -489,6 +489,9 @@ def _module_type(name: str, table: dict, known: dict[str, ModuleType]) -> Module
             raise InputError(f"{where}.actuator", f"unknown actuator {table['actuator']!r}; "
                              f"known: {', '.join(sorted(ACTUATORS))}")
         fields["actuator"] = table["actuator"]
+        if base is None:                # the drive's own gear and encoder unless given
+            spec = ACTUATORS[table["actuator"]]
+            fields.update(gear_ratio=spec.gear_ratio, encoder_lines=spec.encoder_lines)
     for key in ("peak_torque", "continuous_torque", "length_a", "length_b", "max_speed"):
         if key in table:
             fields[key] = _positive(table[key], f"{where}.{key}")
@@ -525,6 +528,17 @@ def _module_type(name: str, table: dict, known: dict[str, ModuleType]) -> Module
                          f"{mtype.gear_ratio} = {mtype.counts_per_rev} counts per revolution; "
                          f"the node's 32-bit signed joint count holds at most "
                          f"{MAX_COUNTS_PER_REV} (half a turn each way)")
+    spec = ACTUATORS[mtype.actuator]
+    if mtype.gear_ratio != spec.gear_ratio:
+        raise InputError(f"{where}.gear_ratio",
+                         f"{mtype.gear_ratio} is not the gear of actuator {spec.name} "
+                         f"({spec.gear_ratio}): the plant takes the drive's inertia, friction "
+                         f"and torque from the actuator, which are its own gear's; another "
+                         f"gear is another actuator (models/actuators.py)")
+    if mtype.peak_torque > spec.peak_torque:
+        raise InputError(f"{where}.peak_torque",
+                         f"{mtype.peak_torque} N·m exceeds the peak torque of actuator "
+                         f"{spec.name} ({spec.peak_torque} N·m), where the plant saturates")
     if mtype.continuous_torque > mtype.peak_torque:
         raise InputError(f"{where}.continuous_torque",
                          f"{mtype.continuous_torque} N·m exceeds peak_torque "

@@ -7,6 +7,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from models.actuators import ACTUATORS
 from models.modules import MODULE_TYPES, TABLE1, TABLE1_ERRATA
 from models.robot import load_robot, matrix_to_rpy, robot_from_dict, rot_x, rpy_to_matrix
 from models.spatial import theta_to_pinocchio, transform_theta
@@ -333,3 +334,36 @@ def test_docs_example_assembly_loads():
     robot = robot_from_dict(tomllib.loads(block))
     assert robot.n == 2 and robot.modules[1].type.length_a == 0.30
     pin.buildModelFromXML(robot.urdf())
+
+
+@pytest.mark.parametrize("fields, field, words", [
+    ({"like": "I", "gear_ratio": 80}, "module_types.III.gear_ratio", "gear of actuator"),
+    ({"like": "I", "actuator": "FHA-14C-100", "gear_ratio": 160},
+     "module_types.III.gear_ratio", r"FHA-14C-100 \(100\)"),
+    ({"like": "I", "peak_torque": 12.0}, "module_types.III.peak_torque", "11.0 N·m"),
+])
+def test_a_module_type_cannot_claim_more_of_its_drive_than_the_plant_has(fields, field, words):
+    """The plant takes the drive's inertia, friction and saturation from the actuator: a type
+    with another gear (its counts went to the master and nodes, the plant kept the actuator's
+    encoder and dynamics; the arm stopped 20 % short at gear 80) or a peak torque above the
+    actuator's (commands the plant would silently clip) is refused at load, naming the field."""
+    with pytest.raises(InputError, match=words) as info:
+        robot_from_dict(_doc(module_types={"III": fields}, modules=[{"type": "III"}]))
+    assert info.value.field == field
+
+
+def test_a_new_type_takes_its_actuators_gear_and_encoder_unless_it_gives_its_own():
+    base = asdict_type("I")
+    robot = robot_from_dict(_doc(module_types={"N": base, "M": {**base, "encoder_lines": 1900}},
+                                 modules=[{"type": "N"}, {"type": "M"}]))
+    assert robot.modules[0].type.gear_ratio == ACTUATORS["FHA-11C-100"].gear_ratio
+    assert list(robot.counts_per_rev) == [800_000, 760_000]
+
+
+def asdict_type(name: str) -> dict:
+    """A built-in type as a ``[module_types.X]`` table without ``like`` (no gear, no encoder)."""
+    t = MODULE_TYPES[name]
+    return {"actuator": t.actuator, "peak_torque": t.peak_torque,
+            "continuous_torque": t.continuous_torque, "max_speed": t.max_speed,
+            "length_a": t.length_a, "length_b": t.length_b,
+            "link_a": list(t.link_a.printed), "link_b": list(t.link_b.printed)}
