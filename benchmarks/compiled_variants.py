@@ -117,7 +117,7 @@ def record(cycles: int, path: Path) -> None:
                     pid=pid_gains(robot, 5.0))
     plant = Plant(robot, seed=0)
     plant.reset(robot.home)
-    be = _Taping(CompiledBackend(lambda: loop_system(robot.n), loop_system_key(robot.n),
+    be = _Taping(CompiledBackend(lambda: loop_system(robot), loop_system_key(robot),
                                  quiet=False))
     model = be.backend.model
     text, signed = model.verilog, {p.name: p.signed for p in model.ports.values()}

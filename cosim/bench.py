@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from cosim.closed_loop import Gains, node_uploads, pid_gains
 from cosim.preview import paper_test_profile
-from cosim.track import run_loop
+from cosim.track import check_robot_fits, run_loop
 from master.cycle import Master, MasterTiming
 from models.plant import Plant
 from models.robot import load_robot
@@ -30,6 +30,7 @@ def bench_backend(backend: str, robot="mrm3", cycles: int | None = None) -> dict
     used to be a run minus a run of zero length, which a busy machine could make negative.)
     """
     robot = load_robot(robot)
+    check_robot_fits(robot, "--robot")
     cycles = WINDOWS[backend] if cycles is None else cycles
     profile = paper_test_profile(robot)
 

@@ -919,8 +919,9 @@ class ModelLoop:
     start_cycle : int
         Cycle of period 0 (a multiple of the nodes' PERIOD, after start-up and uploads).
     uploads : list of (dest, type, payload)
-    encoder : EncoderParams, optional
-        The nodes' encoder interface (the gateware's default).
+    encoder : EncoderParams or sequence of EncoderParams, optional
+        The nodes' encoder interface: one for every node or one per node, as
+        :class:`hdl.system.System` takes it (default: the gateware's default for every node).
     strict : bool
         Raise :class:`ModelAssumptionError` at the first violated condition instead of
         recording it in :attr:`violations`.
@@ -934,7 +935,7 @@ class ModelLoop:
     """
 
     def __init__(self, robot: Robot, master: Master, plant: Plant, start_cycle: int, uploads,
-                 encoder: EncoderParams | None = None, strict: bool = False, lazy: bool = True):
+                 encoder=None, strict: bool = False, lazy: bool = True):
         self.robot = robot
         self.n = robot.n
         self.master = master
@@ -949,9 +950,12 @@ class ModelLoop:
         self.phases = {"timecode": 0, "comm_d": 0}
         self.cycle = 0
         self.frames = []
-        enc = encoder or EncoderParams()
+        encs = (list(encoder) if isinstance(encoder, list | tuple)
+                else [encoder or EncoderParams()] * self.n)
+        if len(encs) != self.n:
+            raise ValueError(f"encoder: {len(encs)} parameter sets for {self.n} nodes")
         self.lazy = bool(lazy)
-        self.nodes = [FastNode(encoder=enc) for _ in range(self.n)]
+        self.nodes = [FastNode(encoder=enc) for enc in encs]
         for node in self.nodes:
             node.lazy = self.lazy
             node.events = []                    # the observation port, for the timeline
@@ -959,7 +963,7 @@ class ModelLoop:
                 v = node.vdc
                 node.vdc = FastVdc(v.params, v.theta, v.prev_C, v.prev_qd_r, v.primed)
         counts = plant.encoder_counts().tolist()
-        self.encoders = [EncoderEvents(enc, c) for c in counts]
+        self.encoders = [EncoderEvents(enc, c) for enc, c in zip(encs, counts, strict=True)]
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
             node.attach(encoder)
         self._samplers = [e.sample for e in self.encoders]

@@ -17,20 +17,65 @@ from models.robot import load_robot
 from mrm.errors import InputError, require_positive
 
 __all__ = ["run_track", "BACKENDS", "link_errors_detail", "link_fault_places", "loop_system",
-           "loop_system_key", "check_robot_fits"]
+           "loop_system_key", "check_robot_fits", "node_encoders", "node_counts_range"]
 
 BACKENDS = ("compiled", "pysim", "model")
 START_CYCLE = 50_000          # period 0 at 1 ms: links up (21 µs) and uploads done well before
 
 
 def check_robot_fits(robot, field: str) -> None:
-    """``InputError`` naming ``field`` when ``robot`` has more modules than the gateware has
-    nodes (:data:`hdl.system.MAX_NODES`); every backend runs the same system."""
+    """``InputError`` naming ``field`` when the gateware cannot run ``robot``: more modules
+    than the system has nodes (:data:`hdl.system.MAX_NODES`), or a module whose encoder counts
+    per joint revolution the node's fixed-point formats cannot hold (:func:`node_counts_range`).
+    Every backend runs the same system."""
     from hdl.system import MAX_NODES
 
     if robot.n > MAX_NODES:
         raise InputError(field, f"{robot.name!r} has {robot.n} modules; the co-simulated system "
                                 f"has at most {MAX_NODES} slave nodes, one per module")
+    lo, hi = node_counts_range()
+    for k, mod in enumerate(robot.modules):
+        cpr = mod.type.counts_per_rev
+        if not lo <= cpr <= hi:
+            raise InputError(field, f"module {k + 1} of {robot.name!r} (type {mod.type.name!r}) "
+                                    f"has {cpr:,} encoder counts per joint revolution (4 × "
+                                    f"encoder_lines × gear_ratio); the node's fixed-point "
+                                    f"formats hold {lo:,} to {hi:,} (docs/node.md, Encoder "
+                                    f"interface)")
+
+
+def node_counts_range() -> tuple[int, int]:
+    """The encoder counts per joint revolution a node can be built for: the velocity constant
+    ``K_v`` must fit its 17-bit Q8 word (the low end) and the counts per radian the joint
+    program's ``KC`` word (the high end)."""
+    import math
+
+    from hdl.node.encoder_ref import EncoderParams
+    from hdl.node.fixed import KC
+
+    lo, hi = EncoderParams().counts_per_rev_range()
+
+    def kc_fits(cpr: int) -> bool:
+        try:
+            KC.encode_checked(cpr / (2 * math.pi), "Kc")
+        except InputError:
+            return False
+        return True
+
+    top = math.floor(2 * math.pi * KC.max)
+    while not kc_fits(top):
+        top -= 1
+    while kc_fits(top + 1):
+        top += 1
+    return lo, min(hi, top)
+
+
+def node_encoders(robot) -> list:
+    """The encoder interface of each module's node, built for that module's counts per
+    revolution (the node's velocity constant and its angle scale depend on them)."""
+    from hdl.node.encoder_ref import EncoderParams
+
+    return [EncoderParams(counts_per_rev=mod.type.counts_per_rev) for mod in robot.modules]
 
 
 def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: float = 1.5,
@@ -196,15 +241,16 @@ def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
         if faults:
             raise InputError("--line-fault", "the model backend's link is ideal: inject line "
                              "faults on compiled or pysim")
-        loop = ModelLoop(robot, master, plant, start_cycle, uploads)
+        loop = ModelLoop(robot, master, plant, start_cycle, uploads,
+                         encoder=node_encoders(robot))
         result = loop.run(duration_cycles, progress=progress)
         result.violations = loop.violations
         return result, None
     if backend == "compiled":
-        be = CompiledBackend(lambda: loop_system(robot.n), loop_system_key(robot.n),
+        be = CompiledBackend(lambda: loop_system(robot), loop_system_key(robot),
                              quiet=quiet, vcd=vcd)
     elif backend == "pysim":
-        be = PysimBackend(loop_system(robot.n), vcd=vcd)
+        be = PysimBackend(loop_system(robot), vcd=vcd)
     else:
         raise InputError("--backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")
     rec = Recorder(be) if record else None
@@ -226,17 +272,25 @@ def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
     return box["result"], rec
 
 
-def loop_system(n: int):
-    """The design every closed-loop run simulates: :class:`hdl.system.System` of ``n`` nodes
-    with its line-fault inputs (held at zero unless a run injects faults)."""
+def loop_system(robot):
+    """The design every closed-loop run of ``robot`` simulates: :class:`hdl.system.System`
+    with a node per module, each built for its module's encoder (:func:`node_encoders`), and
+    the line-fault inputs (held at zero unless a run injects faults)."""
     from hdl.system import System
 
-    return System(n, line_faults=True)
+    return System(robot.n, encoder=node_encoders(robot), line_faults=True)
 
 
-def loop_system_key(n: int) -> str:
-    """The compiled-model cache key of :func:`loop_system`."""
-    return f"system{n}-faults"
+def loop_system_key(robot) -> str:
+    """The compiled-model cache key of :func:`loop_system`: the number of nodes and, where
+    they are not the gateware's default, the nodes' counts per revolution."""
+    from hdl.node.encoder_ref import EncoderParams
+
+    cprs = [e.counts_per_rev for e in node_encoders(robot)]
+    key = f"system{robot.n}-faults"
+    if any(c != EncoderParams().counts_per_rev for c in cprs):
+        key += "-cpr" + "-".join(str(c) for c in cprs)
+    return key
 
 
 def _phases_us(master) -> dict:

@@ -44,8 +44,10 @@ class System(wiring.Component):
         Number of modules (1..16).
     codec : dict
         :class:`~hdl.link.codec.Codec` parameters of every link port.
-    encoder : EncoderParams, optional
-        Encoder interface parameters of every node.
+    encoder : EncoderParams or sequence of EncoderParams, optional
+        Encoder interface parameters: one set for every node, or one per node (node 1 first;
+        a robot's modules can have different encoders, and the node's velocity constant and
+        angle scale are built for its counts per revolution).
 
     Attributes
     ----------
@@ -77,7 +79,11 @@ class System(wiring.Component):
         self.n_nodes = n_nodes
         self.line_faults = bool(line_faults)
         self.master = MasterPort(codec=codec)
-        self.nodes = [SlaveNode(codec=codec, encoder=encoder) for _ in range(n_nodes)]
+        encoders = (list(encoder) if isinstance(encoder, list | tuple)
+                    else [encoder] * n_nodes)
+        if len(encoders) != n_nodes:
+            raise ValueError(f"encoder: {len(encoders)} parameter sets for {n_nodes} nodes")
+        self.nodes = [SlaveNode(codec=codec, encoder=e) for e in encoders]
         members = {
             "tx_valid":    In(1),
             "tx_char":     In(Char),

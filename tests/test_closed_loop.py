@@ -175,3 +175,54 @@ def test_run_track_refuses_a_robot_longer_than_the_system(tmp_path, capsys):
     captured = capsys.readouterr()
     assert "--robot" in captured.err and "[1/1]" not in captured.out + captured.err
     assert not out.exists()
+
+
+def _encoder_robot(lines: int) -> dict:
+    """mrm3 with every module's encoder given ``lines`` (2000 is the actuators' own)."""
+    return {"name": f"enc{lines}", "base": {"xyz": [0.0, 0.0, 0.3]},
+            "modules": [{"type": "Ie"}, {"type": "IIe", "twist_deg": 90.0}, {"type": "Ie"}],
+            "module_types": {"Ie": {"like": "I", "encoder_lines": lines},
+                             "IIe": {"like": "II", "encoder_lines": lines}}}
+
+
+def test_a_module_encoder_other_than_the_actuators_is_the_one_the_loop_measures_with():
+    """A module type with another encoder (1900 lines: 760,000 counts/rev) was half applied:
+    the master and the joint program used its counts, the plant's encoder the actuator's
+    catalogue 800,000 and the nodes' velocity constant and angle scale the gateware's default.
+    The arm stopped 5 % short of every target (max joint error 24 mrad instead of 0.8) and the
+    nodes reported velocities 5 % low. Now all use the module's counts: the run tracks as with
+    the catalogue encoder, and the velocity in Comm A is the count's derivative."""
+    from cosim.track import loop_system, loop_system_key
+
+    robot = robot_from_dict(_encoder_robot(1900))
+    plant = Plant(robot)
+    plant.reset(np.ones(3))
+    assert list(plant.encoder_counts()) == [int(760_000 / (2 * np.pi))] * 3
+    assert [node._core.encoder_params.counts_per_rev
+            for node in loop_system(robot).nodes] == [760_000] * 3
+    assert loop_system_key(robot) != loop_system_key(robot_from_dict(_encoder_robot(2000)))
+
+    errors = {}
+    for lines in (1900, 2000):
+        result, summary = run_track(robot_from_dict(_encoder_robot(lines)), "vdc", "model",
+                                    duration=0.6)
+        errors[lines] = summary["max_joint_error_rad"]
+    assert errors[1900] < 1.5 * errors[2000] < 3e-3
+
+    result, _ = run_track(robot, "vdc", "model", duration=0.6)
+    recs = result.master.records
+    q = np.array([r.q for r in recs])
+    qd = np.array([r.qd for r in recs])
+    central = (q[2:] - q[:-2]) / 2e-3
+    moving = np.abs(central) > 0.1
+    assert moving.sum() > 100
+    ratio = np.median(qd[1:-1][moving] / central[moving])
+    assert abs(ratio - 1.0) < 0.01, ratio
+
+
+def test_a_module_encoder_the_node_cannot_hold_is_refused_naming_the_robot():
+    """400,000 counts/rev (1000 lines) overflows the node's velocity constant: refused as the
+    robot before anything runs, with the range that fits."""
+    with pytest.raises(InputError, match=r"400,000 encoder counts.*613,595 to 823,549") as e:
+        run_track(robot_from_dict(_encoder_robot(1000)), "vdc", "model", duration=0.01)
+    assert e.value.field == "--robot"
