@@ -117,6 +117,7 @@ def atomic_output_dir(path, field: str = "--out"):
     try:
         yield tmp
         check_output_dir(path, field)   # a file made there while the body ran: not replaced
+        os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp's 0700 would hide the results from others
         old = None
         if path.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{path.name}.old.", dir=path.parent))
@@ -134,6 +135,12 @@ def atomic_output_dir(path, field: str = "--out"):
         shutil.rmtree(tmp, ignore_errors=True)
         remove_empty(made)
         raise
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def write_json(path, obj) -> None:

@@ -95,6 +95,24 @@ def test_atomic_output_dir_keeps_old_results_on_failure(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["b.txt"]
 
 
+def test_a_result_folder_is_made_as_any_folder_is(tmp_path):
+    """Result folders came out 0700 (the temporary folder's mode, renamed into place): the
+    results of a run on a shared machine were readable by their owner only. They get the mode
+    a new folder gets (0777 less the umask), like the folders above them."""
+    import os
+    import stat
+
+    mask = os.umask(0o022)
+    try:
+        with atomic_output_dir(tmp_path / "res") as tmp:
+            (tmp / "a.txt").write_text("x")
+        (tmp_path / "plain").mkdir()
+    finally:
+        os.umask(mask)
+    mode = stat.S_IMODE((tmp_path / "res").stat().st_mode)
+    assert mode == stat.S_IMODE((tmp_path / "plain").stat().st_mode) == 0o755
+
+
 @pytest.mark.parametrize("command", [["run", "preview"], ["run", "track", "--backend", "model"],
                                      ["run", "table2"]])
 def test_cli_refuses_an_existing_file_as_out_and_leaves_it(tmp_path, capsys, command):
