@@ -29,8 +29,8 @@ from pathlib import Path
 from cosim.closed_loop import Gains
 from master.cycle import CONTROLLERS, MasterTiming
 from models.plant import Perturbation, PlantConfig
-from mrm.errors import InputError, reject_strings, require_finite, require_nonnegative, \
-    require_positive
+from mrm.errors import InputError, reject_control_characters, reject_strings, require_finite, \
+    require_nonnegative, require_positive
 
 __all__ = ["ExperimentConfig", "TrajectoryConfig", "load", "loads", "from_dict", "DEFAULT_CONFIG",
            "PAPER_AMPLITUDE", "PAPER_DURATION"]
@@ -203,7 +203,7 @@ def _keys(table: dict, prefix: str, known: set) -> None:
 def _string(value, name: str) -> str:
     if not isinstance(value, str) or not value:
         raise InputError(name, f"must be a non-empty string, not {value!r}")
-    return value
+    return reject_control_characters(value, name)
 
 
 def _robot(value, base_dir) -> str:

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import math
 import tomllib
-import unicodedata
 from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
@@ -34,8 +33,8 @@ import numpy as np
 
 from models.actuators import ACTUATORS
 from models.modules import MODULE_TYPES, LinkParams, ModuleType, SpringSpec
-from mrm.errors import InputError, reject_strings, require_finite, require_nonnegative, \
-    require_positive, require_vector
+from mrm.errors import InputError, reject_control_characters, reject_strings, require_finite, \
+    require_nonnegative, require_positive, require_vector
 
 __all__ = ["Module", "Robot", "load_robot", "builtin_robots", "GRAVITY", "rot_x", "rot_z",
            "rpy_to_matrix", "matrix_to_rpy", "homogeneous"]
@@ -441,15 +440,6 @@ def _spring(value, where: str, mtype: ModuleType) -> SpringSpec | None:
     return SpringSpec(torque, _angle(value, "phase", where))
 
 
-def _no_control_characters(text: str, field: str) -> None:
-    """Names are printed to the terminal and written into URDF and JSON: a control character
-    (an escape sequence, a newline) would repaint the terminal or split a line."""
-    bad = [c for c in text if unicodedata.category(c) == "Cc"]
-    if bad:
-        raise InputError(field, f"must not contain control characters ({bad[0]!r} in "
-                         f"{text!r})")
-
-
 def _type_name(value, field: str, known: dict) -> str:
     """A module type name must be a string (a list or table is no name, and no dict key)."""
     if not isinstance(value, str):
@@ -557,13 +547,13 @@ def robot_from_dict(doc: dict, default_name: str = "robot") -> Robot:
     name = doc.get("name", default_name)
     if not isinstance(name, str) or not name:
         raise InputError("name", f"must be a non-empty string, not {name!r}")
-    _no_control_characters(name, "name")
+    reject_control_characters(name, "name")
     known = dict(MODULE_TYPES)
     user_types = doc.get("module_types", {})
     if not isinstance(user_types, dict):
         raise InputError("module_types", f"must be a table, not {user_types!r}")
     for tname, table in user_types.items():
-        _no_control_characters(tname, f"module_types.{tname!r}")
+        reject_control_characters(tname, f"module_types.{tname!r}")
         if tname in MODULE_TYPES:
             raise InputError(f"module_types.{tname}", "redefines a built-in type; choose "
                              "another name and use like = \"" + tname + "\"")

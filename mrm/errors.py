@@ -6,10 +6,11 @@ The CLI turns an :class:`InputError` into a one-line message on stderr and exit 
 from __future__ import annotations
 
 import math
+import unicodedata
 from collections.abc import Sequence
 
 __all__ = ["InputError", "require_finite", "require_positive", "require_nonnegative",
-           "require_vector", "reject_strings"]
+           "require_vector", "reject_strings", "reject_control_characters"]
 
 
 class InputError(ValueError):
@@ -79,3 +80,14 @@ def reject_strings(value, field: str):
         for i, v in enumerate(value):
             reject_strings(v, f"{field}[{i}]")
     return value
+
+
+def reject_control_characters(text: str, field: str) -> str:
+    """Return ``text`` unless it holds a control character (:class:`InputError` naming
+    ``field``). Names are printed to the terminal and written into URDF, JSON and Markdown: an
+    escape sequence or a newline would repaint the terminal or split a line."""
+    bad = [c for c in text if unicodedata.category(c) == "Cc"]
+    if bad:
+        raise InputError(field, f"must not contain control characters ({bad[0]!r} in "
+                         f"{text!r})")
+    return text

@@ -103,6 +103,8 @@ def test_unknown_keys_are_rejected_by_name(text, field):
     ("[timing]\nperiod_cycles = 50001", "timing.period_cycles"),
     ("[timing]\nkinematics_cycles = 30000\nforce_cycles = 20000", "timing.kinematics_cycles"),
     ("[gains\nlam = 1", "--config"),
+    ('[experiment]\nname = "run\\u001b[2J"', "experiment.name"),   # would clear the terminal
+    ('[experiment]\nname = "two\\nlines"', "experiment.name"),
 ])
 def test_bad_values_name_their_field(text, field):
     with pytest.raises(InputError) as exc:
