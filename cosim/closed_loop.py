@@ -96,7 +96,8 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
                  timeout_cycles: int = 100_000, period_cycles: int = 50_000,
                  commit_cycles: int | None = None,
                  sync_window: int = 2_500) -> list[tuple[int, int, bytes]]:
-    """``(dest, type, payload)`` packets that configure every node before the run.
+    """``(dest, type, payload)`` packets that configure every node before the run (the PID
+    gains are zero unless ``controller`` is ``pid-fpga``).
 
     ``period_cycles`` (the master's period), ``commit_cycles`` (the phase at which Comm D takes
     effect) and ``sync_window`` set the nodes' period timer (docs/node.md "Timing"); the
@@ -118,7 +119,11 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
     out = [(k + 1, ref.PacketType.CONFIG, p) for k in range(robot.n) for p in config_payloads(
         {Config.PERIOD: period_cycles, Config.COMMIT: commit_cycles,
          Config.SYNC_WINDOW: sync_window})]
-    pid = pid_gains(robot, gains.pid_fpga_hz)
+    # The PID words only where the node runs its PID: they scale with the torque per count,
+    # and a robot with coarser encoders than mrm3's can need more than the KP word holds,
+    # which must not stop a run that never uses them.
+    pid = (pid_gains(robot, gains.pid_fpga_hz) if controller == "pid-fpga"
+           else dict.fromkeys(("kp", "ki", "kd"), np.zeros(robot.n)))
     for k, mod in enumerate(robot.modules):
         dest = k + 1
         peak = FORCE.encode(mod.type.peak_torque)

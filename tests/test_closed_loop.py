@@ -226,3 +226,15 @@ def test_a_module_encoder_the_node_cannot_hold_is_refused_naming_the_robot():
     with pytest.raises(InputError, match=r"400,000 encoder counts.*613,595 to 823,549") as e:
         run_track(robot_from_dict(_encoder_robot(1000)), "vdc", "model", duration=0.01)
     assert e.value.field == "--robot"
+
+
+def test_pid_words_only_limit_the_runs_that_use_the_nodes_pid():
+    """Every run uploaded the FPGA PID gains, so a robot with 1,700-line encoders (more torque
+    per count than the KP word holds) could not run VDC either: refused as joint1.kp. The gains
+    go only with ``pid-fpga`` now; VDC's trace is what it was (the PID words are unused)."""
+    robot = robot_from_dict(_encoder_robot(1700))
+    _, summary = run_track(robot, "vdc", "model", duration=0.01)
+    assert summary["overruns"] == 0
+    with pytest.raises(InputError) as e:
+        run_track(robot, "pid-fpga", "model", duration=0.01)
+    assert e.value.field == "joint1.kp"
