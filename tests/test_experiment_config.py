@@ -167,7 +167,7 @@ def test_cli_names_the_field_exits_2_and_writes_nothing(tmp_path, capsys):
 
 
 def test_friction_comp_uploads_the_nominal_friction_as_vdc_joint_estimates():
-    from cosim.closed_loop import Gains, JointParams, node_uploads, pid_gains
+    from cosim.closed_loop import Gains, JointParams, node_uploads
     from hdl.node.regs import joint_upload
     from models.actuators import ACTUATORS
     from models.robot import load_robot
@@ -177,14 +177,12 @@ def test_friction_comp_uploads_the_nominal_friction_as_vdc_joint_estimates():
     rich = node_uploads(robot, "vdc", Gains(friction_comp=0.5))
     changed = [(a, b) for a, b in zip(plain, rich, strict=True) if a != b]
     assert changed and all(a[0] == b[0] and a[1] == b[1] for a, b in changed)
-    pid = pid_gains(robot, Gains().pid_fpga_hz)
-    for k, mod in enumerate(robot.modules):
+    for k, mod in enumerate(robot.modules):   # VDC uploads no PID gains (only pid-fpga does)
         spec = ACTUATORS[mod.type.actuator]
         expect = JointParams.from_float(
             counts_per_rev=mod.type.counts_per_rev, tick_cycles=50, lam=Gains().lam,
             k_j=Gains().k_j, inertia=spec.output_inertia, viscous=0.5 * spec.viscous_friction,
-            coulomb=0.5 * spec.coulomb_friction, k_p=pid["kp"][k], k_i=pid["ki"][k],
-            k_d=pid["kd"][k], i_max=0.05)
+            coulomb=0.5 * spec.coulomb_friction, i_max=0.05)
         assert expect.th1 > 0 and expect.th2 > 0
         sent = [p for dest, _, p in rich if dest == k + 1]
         assert all(p in sent for p in joint_upload(expect))
