@@ -4,6 +4,7 @@ backends (issue 5)."""
 
 import numpy as np
 import pytest
+from amaranth.hdl import Fragment
 
 from cosim.closed_loop import Gains, LineFault, node_uploads
 from cosim.track import link_errors_detail, run_loop, run_track
@@ -198,8 +199,10 @@ def test_a_module_encoder_other_than_the_actuators_is_the_one_the_loop_measures_
     plant = Plant(robot)
     plant.reset(np.ones(3))
     assert list(plant.encoder_counts()) == [int(760_000 / (2 * np.pi))] * 3
-    assert [node._core.encoder_params.counts_per_rev
-            for node in loop_system(robot).nodes] == [760_000] * 3
+    one = robot_from_dict({**_encoder_robot(1900), "modules": [{"type": "Ie"}]})
+    system = loop_system(one)
+    Fragment.get(system, None)          # elaborated, as a build would (and so not unused)
+    assert system.nodes[0]._core.encoder_params.counts_per_rev == 760_000
     assert loop_system_key(robot) != loop_system_key(robot_from_dict(_encoder_robot(2000)))
 
     errors = {}
