@@ -32,7 +32,7 @@ from hdl.node.joint_ref import JointParams
 from hdl.node.regs import MODES, Config, NodeEvent, config_payloads, joint_upload, vdc_upload
 from master.cycle import Master, Send
 from models.actuators import ACTUATORS
-from models.encoder import quadrature_levels
+from models.encoder import counts_per_rad, joint_counts, quadrature_levels
 from models.plant import Plant
 from models.robot import Robot
 from mrm.errors import InputError
@@ -99,6 +99,12 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
     """``(dest, type, payload)`` packets that configure every node before the run (the PID
     gains are zero unless ``controller`` is ``pid-fpga``).
 
+    Homing: the arm rests at ``robot.home`` until period 0 (the brakes hold it), and a node's
+    incremental encoder counts from 0 at its reset, so each node's count is preset (CONFIG
+    PRESET) to the count of its joint's home angle, ``floor(home · CPR / 2π)``, what the
+    plant's encoder shows there. Without it a robot whose home is not all zeros ran with
+    every joint's angle off by its home angle, in the master and in the node alike.
+
     ``period_cycles`` (the master's period), ``commit_cycles`` (the phase at which Comm D takes
     effect) and ``sync_window`` set the nodes' period timer (docs/node.md "Timing"); the
     timing record goes first, so it arrives within the first period after reset. The default
@@ -124,6 +130,7 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
     # which must not stop a run that never uses them.
     pid = (pid_gains(robot, gains.pid_fpga_hz) if controller == "pid-fpga"
            else dict.fromkeys(("kp", "ki", "kd"), np.zeros(robot.n)))
+    home_counts = joint_counts(robot.home, counts_per_rad(robot.counts_per_rev))
     for k, mod in enumerate(robot.modules):
         dest = k + 1
         peak = FORCE.encode(mod.type.peak_torque)
@@ -146,6 +153,8 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
             k_p=pid["kp"][k], k_i=pid["ki"][k], k_d=pid["kd"][k], i_max=0.05,
             field=f"joint{dest}")
         out += [(dest, ref.PacketType.PARAM, p) for p in joint_upload(joint)]
+        out += [(dest, ref.PacketType.CONFIG, p)
+                for p in config_payloads({Config.PRESET: int(home_counts[k])})]
         out += [(dest, ref.PacketType.CONFIG, p) for p in config_payloads({Config.ARM: 1})]
     return out
 

@@ -388,6 +388,7 @@ class FastNode(NodeModel):
         self._defer_sample = encoder.defer
         self._defer_many = encoder.defer_range
         self._encoder = encoder
+        self.encoder_preset = encoder.preset
 
     def _materialize(self) -> None:
         d = self._deferred
@@ -654,6 +655,7 @@ class EncoderEvents:
         self._e_last = 0                        # cycle the last edge became visible
         self._ref_t = 0                         # age_ref(c) = min(c - _ref_t, AGE_MAX)
         self._c_ref = 0
+        self._moved = (-1, 0)                   # (cycle, _ref_t before) of the last MEASURE
         self._pipe: list = []                   # (cycle visible, case, num, den), in order
         self._taken = -2
         self._last = (0, 0)
@@ -857,6 +859,30 @@ class EncoderEvents:
             if mag > v:
                 self.velocity = v if self.velocity > 0 else -v
 
+    def preset(self, c: int, value: int) -> None:
+        """CONFIG PRESET in cycle ``c`` (homing): the count and the reference count load
+        ``value`` at the end of the cycle, as :meth:`EncoderModel.cycle
+        <hdl.node.encoder_ref.EncoderModel.cycle>` with ``preset``. Call it after the strobe
+        of cycle ``c``, if any (a read in cycle ``c`` still sees the old count); a decoder
+        step in cycle ``c`` is lost to the preset but is an edge, and a MEASURE strobed in
+        cycle ``c`` does not move the reference."""
+        if self._due:
+            self._flush(c)
+        vis = self._visible
+        vi = self._vi
+        while vi < len(vis) and vis[vi][0] <= c + 1:       # visible by c + 1: decoded by c
+            t, step = vis[vi]
+            vi += 1
+            if step:
+                self.count += step
+                self._e_last = t
+            else:
+                self.errors = min(self.errors + 1, 0xFFFF)
+        self._vi = vi
+        if self._moved[0] == c:
+            self._ref_t = self._moved[1]
+        self.count = self._c_ref = ((int(value) + 2**31) % 2**32) - 2**31
+
     def _strobe(self, c: int) -> tuple[int, int]:
         vis = self._visible
         vi = self._vi
@@ -899,6 +925,7 @@ class EncoderEvents:
             if dc != 0 and window >= self._min_window:
                 pipe.append((due, 1, dc, window))
                 self._c_ref = count
+                self._moved = (c, self._ref_t)
                 self._ref_t = c + 2 - min(age_edge + 2, AGE_MAX)
             elif age_edge >= self._stop_cycles:
                 pipe.append((due, 0, 0, 1))

@@ -71,6 +71,49 @@ def test_encoder_events_equal_the_cycle_reference(seed, params):
     assert len(speeds) > 50 and 0 in speeds          # measured, bounded and stopped
 
 
+
+@pytest.mark.parametrize("seed, params, lazy", [
+    (5, EncoderParams(), False),
+    (6, EncoderParams(min_window=256, stop_cycles=5_000), False),
+    (7, EncoderParams(filter_cycles=1, min_window=64, stop_cycles=3_000), True),
+    (8, EncoderParams(min_window=256, stop_cycles=5_000), True),
+])
+def test_encoder_presets_equal_the_cycle_reference(seed, params, lazy):
+    """CONFIG PRESET (homing) on the model backend's encoder interface: the count and the
+    reference count load the value at the end of the cycle, as in the cycle reference (and the
+    gateware, tests/test_node_encoder.py), on a moving joint, in a strobe's cycle (its MEASURE
+    does not move the reference), the cycle after one, and with the strobes deferred. Before,
+    the model ignored PRESET."""
+    rng = np.random.default_rng(seed)
+    n = 60_000
+    counts = _walk(rng, n)
+    a, b = quadrature_levels(counts)
+    ticks = set(range(0, n, 50)) | {int(x) for x in rng.integers(0, n, 40)}
+    presets = {int(t) + int(rng.integers(0, 3)): int(rng.integers(-2**31, 2**31))
+               for t in rng.choice(sorted(ticks), 60, replace=False)}
+    presets[0] = 777
+    ref = EncoderModel(params)
+    fast = EncoderEvents(params, int(counts[0]))
+    pos = 0
+    checked = 0
+    for c in range(n):
+        if c == pos:
+            size = int(rng.integers(1, 900))
+            fast.feed(c, counts[c:c + size])
+            pos = min(n, c + size)
+        if c in ticks:
+            if lazy and c not in presets and rng.random() < 0.7:
+                assert fast.defer(c) == ref.count, f"cycle {c}"
+            else:
+                assert fast.sample(c) == (ref.count, ref.velocity, ref.errors), f"cycle {c}"
+                checked += 1
+        if c in presets:
+            fast.preset(c, presets[c])
+        ref.cycle(int(a[c]), int(b[c]), sample=c in ticks, preset=presets.get(c))
+    assert checked > 300
+    assert fast.sample(n) == (ref.count, ref.velocity, ref.errors)
+
+
 def test_fast_joint_tick_equals_the_reference():
     """Random words, extremes included, every mode, many ticks in a row (state carried)."""
     from dataclasses import fields

@@ -104,6 +104,13 @@ class NodeModel:
         discarded by the router.
     events : list of (int, NodeEvent) or None
         The observation port's strobes ``(cycle, flag)`` (module docstring); None: not kept.
+    presets : list of (int, int)
+        Every CONFIG PRESET (homing) taken, ``(cycle, count)``: the encoder interface (the
+        caller's) loads the count then (``EncoderModel.cycle(..., preset=count)``).
+    encoder_preset : callable or None
+        ``encoder_preset(cycle, count)``, called for each PRESET: the caller's encoder
+        interface (``cosim.model`` attaches its own). None: the caller applies
+        :attr:`presets` to what its ``sample`` returns itself.
     """
 
     encoder: EncoderParams = field(default_factory=EncoderParams)
@@ -139,6 +146,8 @@ class NodeModel:
     forces: list = field(default_factory=lambda: [0] * 12)
     boundaries: list = field(default_factory=list)
     events: list | None = None
+    presets: list = field(default_factory=list)
+    encoder_preset: object = None
     _vdc_mark: int = -1                   # cycle of the last VDC run's MARK (observation port)
     _snap: tuple = (0, 0, 0, 0, 0, 0)     # torque, status, errors, overruns, sync, late
     _busy_until: int = -1
@@ -470,6 +479,10 @@ class NodeModel:
                 self._landing = None
         elif reg == Config.PRIME:
             self.prime = True
+        elif reg == Config.PRESET:
+            self.presets.append((now, signed))
+            if self.encoder_preset is not None:
+                self.encoder_preset(now, signed)
 
     def _param(self, bank: int, addr: int, w: int) -> None:
         if bank == Bank.JOINT:
