@@ -6,13 +6,15 @@ import pytest
 
 from master.kinematics import UnreachablePose, forward, inverse, jacobian, pose_error, \
     rotation_log
-from models.robot import load_robot
+from models.robot import load_robot, robot_from_dict
 from mrm.errors import InputError
 
 
-@pytest.mark.parametrize("name", ["mrm3", "mrm6"])
+@pytest.mark.parametrize("name", ["mrm3", "mrm6", "odd"])
 def test_jacobian_matches_pinocchio(name):
-    robot = load_robot(name)
+    from .test_vdc_master import ODD
+
+    robot = robot_from_dict(ODD) if name == "odd" else load_robot(name)
     model = robot.pinocchio_model()
     data = model.createData()
     fid = model.getFrameId("tool")

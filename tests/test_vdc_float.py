@@ -7,7 +7,7 @@ import pytest
 from master.vdc_float import (ModuleGains, ModuleVDC, adaptation_signal, link_a_acceleration,
                               link_a_velocity, link_regressor, projection_update,
                               required_net_force, rz)
-from models.robot import load_robot
+from models.robot import load_robot, robot_from_dict
 from models.spatial import regressor, rigid_body_wrench, theta_to_pinocchio, transform_U
 
 G0 = 9.81
@@ -66,9 +66,15 @@ def _frames(model, robot):
     return ids
 
 
-@pytest.mark.parametrize("name", ["mrm3", "mrm6"])
+def _robot(name):
+    from .test_vdc_master import ODD
+
+    return robot_from_dict(ODD) if name == "odd" else load_robot(name)
+
+
+@pytest.mark.parametrize("name", ["mrm3", "mrm6", "odd"])
 def test_velocity_mapping_and_acceleration_match_pinocchio(name):
-    robot = load_robot(name)
+    robot = _robot(name)
     model = robot.pinocchio_model()
     data = model.createData()
     rng = np.random.default_rng(2)
@@ -88,11 +94,11 @@ def test_velocity_mapping_and_acceleration_match_pinocchio(name):
                                        atol=1e-11)
 
 
-@pytest.mark.parametrize("name", ["mrm3", "mrm6"])
+@pytest.mark.parametrize("name", ["mrm3", "mrm6", "odd"])
 def test_link_forces_propagated_give_rnea(name):
     """With V_r = V, exact accelerations and true parameters, the links' required net forces,
     propagated tip → base and projected on each joint, are pinocchio's RNEA torques."""
-    robot = load_robot(name)
+    robot = _robot(name)
     model = robot.pinocchio_model()
     data = model.createData()
     theta = robot.nominal_theta

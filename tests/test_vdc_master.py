@@ -6,20 +6,37 @@ import pytest
 
 from master.vdc import (inverse_dynamics, link_required_forces, propagate_forces,
                         propagate_velocities)
-from models.robot import BUILTIN_DIR, load_robot
+from models.robot import BUILTIN_DIR, load_robot, robot_from_dict
 from mrm.errors import InputError
 
+#: An assembly unlike the built-in ones: a tilted and turned base, a tool pose with a rotation,
+#: twists that are no multiple of 90°, a Type II first, a user type with its own lengths and
+#: Link a, and a spring with a phase.
+ODD = {"name": "odd", "base": {"xyz": [0.1, -0.2, 0.4], "rpy_deg": [25.0, -40.0, 70.0]},
+       "tool": {"xyz": [0.03, -0.02, 0.05], "rpy_deg": [10.0, 20.0, -30.0]},
+       "modules": [{"type": "II", "twist_deg": 33.0}, {"type": "Ix", "twist_deg": -61.0},
+                   {"type": "I", "twist_deg": 120.0},
+                   {"type": "II", "twist_deg": 90.0,
+                    "spring": {"torque": 3.0, "phase_deg": 40.0}}],
+       "module_types": {"Ix": {"like": "I", "length_a": 0.27, "length_b": 0.13,
+                               "link_a": [1.9, 0.20, 0.01, -0.02, 0.021, 0.0, 2.1e-4, 0.0,
+                                          -2e-3, 0.0, 4e-3, 0.012, 0.010]}}}
 
-@pytest.mark.parametrize("name", ["mrm3", "mrm6"])
+
+def _robot(name):
+    return robot_from_dict(ODD) if name == "odd" else load_robot(name)
+
+
+@pytest.mark.parametrize("name", ["mrm3", "mrm6", "odd"])
 @pytest.mark.parametrize("seed", range(5))
 def test_inverse_dynamics_equals_rnea(name, seed):
-    robot = load_robot(name)
+    robot = _robot(name)
     model = robot.pinocchio_model()
     data = model.createData()
     rng = np.random.default_rng(seed)
     q, qd, qdd = (rng.uniform(-2.0, 2.0, robot.n) for _ in range(3))
     expected = pin.rnea(model, data, q, qd, qdd)
-    tau = inverse_dynamics(name, q, qd, qdd)
+    tau = inverse_dynamics(robot, q, qd, qdd)
     assert np.max(np.abs(tau - expected)) <= 1e-12 * np.max(np.abs(expected))
 
 
@@ -83,3 +100,23 @@ def test_rejects_wrong_shapes_and_nan():
         inverse_dynamics("mrm3", np.zeros(3), np.zeros(2), np.zeros(3))
     with pytest.raises(InputError, match="q"):
         inverse_dynamics("mrm3", [0.0, np.nan, 0.0], np.zeros(3), np.zeros(3))
+
+
+@pytest.mark.parametrize("name", ["mrm3", "odd"])
+def test_gravity_sent_to_the_nodes_is_pinocchios_in_every_C_frame(name):
+    """The master's Comm D gravity (upward, in {C_k}) is the world's z in pinocchio's frame of
+    Link b, base pose and twists included."""
+    from master.cycle import Master
+
+    robot = _robot(name)
+    model = robot.pinocchio_model()
+    data = model.createData()
+    master = Master(robot, "vdc", lambda t: (robot.home,) * 3, robot.counts_per_rev)
+    rng = np.random.default_rng(4)
+    for _ in range(5):
+        q = rng.uniform(-2.0, 2.0, robot.n)
+        pin.framesForwardKinematics(model, data, q)
+        g = master.gravity_in_C(q)
+        for k in range(robot.n):
+            R = data.oMf[model.getFrameId(f"link{k + 1}b")].rotation
+            np.testing.assert_allclose(g[k], R.T @ [0.0, 0.0, 9.81], atol=1e-12)
