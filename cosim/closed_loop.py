@@ -93,7 +93,7 @@ def pid_gains(robot: Robot, hz: float) -> dict:
 
 
 def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int = 50,
-                 timeout_cycles: int = 100_000, period_cycles: int = 50_000,
+                 timeout_cycles: int | None = None, period_cycles: int = 50_000,
                  commit_cycles: int | None = None,
                  sync_window: int = 2_500) -> list[tuple[int, int, bytes]]:
     """``(dest, type, payload)`` packets that configure every node before the run (the PID
@@ -109,10 +109,14 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
     effect) and ``sync_window`` set the nodes' period timer (docs/node.md "Timing"); the
     timing record goes first, so it arrives within the first period after reset. The default
     commit phase is a fifth of the period (200 µs of 1 ms: the measured Comm D reaches the last
-    of three nodes at ~82 µs; docs/node.md "Timing" says why the margin).
+    of three nodes at ~82 µs; docs/node.md "Timing" says why the margin). The default
+    watchdog timeout is two periods (docs/node.md "Watchdog"): the nodes hear from the master
+    once a period, so a timeout that did not follow a longer period would trip every node.
     """
     if commit_cycles is None:
         commit_cycles = period_cycles // 5
+    if timeout_cycles is None:
+        timeout_cycles = 2 * period_cycles
     mode = {"vdc": MODES["vdc"], "pid-fpga": MODES["pid"], "pid-1khz": MODES["torque"]}
     if period_cycles % tick_cycles or not 0 < period_cycles < (1 << 24):
         raise InputError("period_cycles", f"must be a multiple of the tick ({tick_cycles}) "

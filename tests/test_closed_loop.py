@@ -307,3 +307,29 @@ def test_the_model_and_the_gateware_preset_the_count_alike():
     for result in results.values():
         assert len(result.master.records) == 2
         assert all(abs(r.q[0] - robot.home[0]) < 1e-5 for r in result.master.records)
+
+
+def test_the_watchdog_timeout_follows_the_period():
+    """The watchdog timeout was 100,000 cycles (2 ms, two default periods) whatever the
+    period: with ``[timing] period_cycles = 150000`` (3 ms) every node tripped between two
+    periods' packets, the torques ramped to zero and the arm fell (1.07 rad off), the run
+    ending with exit 0. The timeout is two periods now, so a 3 ms period tracks as 1 ms does."""
+    from hdl.link.packet_ref import PacketType
+    from hdl.node.regs import Config
+    from models.robot import load_robot
+
+    def timeouts(period):
+        uploads = node_uploads(load_robot("mrm3"), "vdc", Gains(), period_cycles=period)
+        return [int.from_bytes(p[i + 1:i + 5], "little") for _, t, p in uploads
+                if t == PacketType.CONFIG for i in range(0, len(p), 5) if p[i] == Config.TIMEOUT]
+
+    assert timeouts(50_000) == [100_000] * 3
+    assert timeouts(150_000) == [300_000] * 3
+    errors = {}
+    for period in (50_000, 150_000):
+        _, summary = run_track("mrm3", "vdc", "model", duration=0.06,
+                               timing=MasterTiming(period_cycles=period))
+        assert summary["tripped_nodes"] == [] and summary["model_violations"] == []
+        assert summary["overruns"] == summary["missing_replies"] == 0
+        errors[period] = summary["max_joint_error_rad"]
+    assert errors[150_000] < 2 * errors[50_000] < 2e-3
