@@ -109,7 +109,8 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
     effect) and ``sync_window`` set the nodes' period timer (docs/node.md "Timing"); the
     timing record goes first, so it arrives within the first period after reset. The default
     commit phase is a fifth of the period (200 µs of 1 ms: the measured Comm D reaches the last
-    of three nodes at ~82 µs; docs/node.md "Timing" says why the margin). The default
+    of three nodes at ~82 µs; docs/node.md "Timing" says why the margin). The VDC's
+    backward difference (1/T) and adaptation step (ρ·T) are for this period. The default
     watchdog timeout is two periods (docs/node.md "Watchdog"): the nodes hear from the master
     once a period, so a timeout that did not follow a longer period would trip every node.
     """
@@ -147,7 +148,7 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
         hi = np.maximum(0.7 * theta, 1.3 * theta)
         out += [(dest, ref.PacketType.PARAM, p) for p in
                 vdc_upload(theta, np.full((2, 6), gains.K), np.full((2, 13), gains.adapt),
-                           lo, hi)]
+                           lo, hi, period=period_cycles / 50e6)]
         spec = ACTUATORS[mod.type.actuator]
         joint = JointParams.from_float(
             counts_per_rev=mod.type.counts_per_rev, tick_cycles=tick_cycles, lam=gains.lam,

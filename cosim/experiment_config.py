@@ -182,9 +182,10 @@ def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
     duration = _duration(exp.get("duration", default_duration), "experiment.duration")
 
     gains = _gains(_table(data, "gains"))
-    _gains_fit_the_nodes(robot, controllers, gains)
+    timing = _timing(_table(data, "timing"))
+    _gains_fit_the_nodes(robot, controllers, gains, timing.period_cycles)
     return ExperimentConfig(name, robot, controllers, backend, seed, duration, trajectory,
-                            _plant(_table(data, "plant")), gains, _timing(_table(data, "timing")))
+                            _plant(_table(data, "plant")), gains, timing)
 
 
 def _table(data: dict, name: str) -> dict:
@@ -318,16 +319,20 @@ def _gains(table: dict) -> Gains:
     return Gains(**values)
 
 
-def _gains_fit_the_nodes(robot: str, controllers, gains: Gains) -> None:
-    """Encode the uploads each controller needs: every gain must fit its fixed-point word."""
+def _gains_fit_the_nodes(robot: str, controllers, gains: Gains, period_cycles: int) -> None:
+    """Encode the uploads each controller needs: every gain must fit its fixed-point word
+    (the adaptation step ρ·T is the period's)."""
     from cosim.closed_loop import node_uploads
     from models.robot import load_robot
 
     r = load_robot(robot)
     for c in controllers:
         try:
-            node_uploads(r, c, gains)
+            node_uploads(r, c, gains, period_cycles=period_cycles)
         except InputError as exc:
+            if exc.field in ("period_cycles", "commit_cycles", "sync_window"):
+                raise InputError("timing.period_cycles", f"the nodes' period timer cannot "
+                                 f"run it ({exc.field}: {exc.message})") from None
             raise InputError(_gain_field(exc.field), f"does not fit the node's registers "
                              f"for {c} ({exc.field}: {exc.message})") from None
 

@@ -333,3 +333,39 @@ def test_the_watchdog_timeout_follows_the_period():
         assert summary["overruns"] == summary["missing_replies"] == 0
         errors[period] = summary["max_joint_error_rad"]
     assert errors[150_000] < 2 * errors[50_000] < 2e-3
+
+
+def test_the_vdc_differences_and_adapts_over_the_masters_period():
+    """The VDC's backward difference 1/T and adaptation step ρ·T were uploaded for 1 ms
+    whatever ``[timing] period_cycles``: at 2 ms every required acceleration (dV_r/dt, q̈_r)
+    the nodes computed was twice the truth, and the adaptation half as fast; the run ended
+    normally with a tip error 3x the 1 ms run's. The words follow the period now."""
+    from cosim import experiment_config as ec
+    from cosim.model import ModelLoop
+    from cosim.track import _trajectory, node_encoders
+    from hdl.node.fixed import INVT, RHOT
+    from hdl.node.regs import Config
+    from models.robot import load_robot
+
+    robot = load_robot("mrm3")
+    for period in (50_000, 100_000):
+        uploads = node_uploads(robot, "vdc", Gains(adapt=0.5), period_cycles=period)
+        master = Master(robot, "vdc", _trajectory(robot), robot.counts_per_rev,
+                        MasterTiming(period_cycles=period), uploads=uploads)
+        plant = Plant(robot)
+        plant.reset(robot.home)
+        loop = ModelLoop(robot, master, plant, 100_000, uploads, encoder=node_encoders(robot))
+        loop.run(500)
+        for node in loop.nodes:
+            assert node.config[Config.PERIOD] == period
+            assert INVT.decode(node.vdc.params.inv_T) == 50e6 / period
+            assert node.vdc.params.rho_T[0][0] == RHOT[0].encode(0.5 * period / 50e6)
+
+    cfg = ec.load()
+    errors = {}
+    for period in (50_000, 100_000):
+        _, summary = run_track(cfg.robot, "vdc", "model", duration=0.5, gains=cfg.gains,
+                               timing=MasterTiming(period_cycles=period))
+        assert summary["node_counters"] == dict.fromkeys(summary["node_counters"], 0)
+        errors[period] = summary["max_tip_error_m"]
+    assert errors[100_000] < 1.5 * errors[50_000]

@@ -102,6 +102,11 @@ def test_unknown_keys_are_rejected_by_name(text, field):
     ("[timing]\nforce_cycles = 0", "timing.force_cycles"),
     ("[timing]\nperiod_cycles = 50001", "timing.period_cycles"),
     ("[timing]\nkinematics_cycles = 30000\nforce_cycles = 20000", "timing.kinematics_cycles"),
+    # rho·T of a 2 ms period is past the RHOT word (fits at 1 ms): checked for the period run
+    ("[timing]\nperiod_cycles = 100000\n[gains]\nadapt = 1.0", "gains.adapt"),
+    # the nodes' sync window (2,500 cycles) must lie inside the period
+    ("[timing]\nperiod_cycles = 2500\nkinematics_cycles = 1\nforce_cycles = 1",
+     "timing.period_cycles"),
     ("[gains\nlam = 1", "--config"),
     ('[experiment]\nname = "run\\u001b[2J"', "experiment.name"),   # would clear the terminal
     ('[experiment]\nname = "two\\nlines"', "experiment.name"),
