@@ -182,10 +182,12 @@ def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
     duration = _duration(exp.get("duration", default_duration), "experiment.duration")
 
     gains = _gains(_table(data, "gains"))
+    plant = _plant(_table(data, "plant"))
     timing = _timing(_table(data, "timing"))
+    _period_on_the_plant_grid(timing, plant)
     _gains_fit_the_nodes(robot, controllers, gains, timing.period_cycles)
     return ExperimentConfig(name, robot, controllers, backend, seed, duration, trajectory,
-                            _plant(_table(data, "plant")), gains, timing)
+                            plant, gains, timing)
 
 
 def _table(data: dict, name: str) -> dict:
@@ -345,6 +347,16 @@ def _gain_field(word: str) -> str:
                        "kj": "k_j", "lam": "lam", "lamc": "lam", "ivlc": "lam"}.get(leaf, "*")
 
 
+def _period_on_the_plant_grid(timing: MasterTiming, plant: PlantConfig) -> None:
+    """The loop polls the master and steps the plant on the plant's grid: a period that is not
+    a whole number of plant steps would start its time-code up to a step late."""
+    step = plant.cycles_per_step
+    if timing.period_cycles % step:
+        field = "plant.dt" if plant.dt != PlantConfig().dt else "timing.period_cycles"
+        raise InputError(field, f"the master's period ({timing.period_cycles:,} cycles) must be "
+                         f"a whole number of plant steps ({step:,} cycles = {plant.dt:g} s)")
+
+
 def _timing(table: dict) -> MasterTiming:
     _keys(table, "timing.", {f.name for f in fields(MasterTiming)})
     d = MasterTiming()
@@ -355,9 +367,6 @@ def _timing(table: dict) -> MasterTiming:
             raise InputError(f"timing.{f.name}", f"must be a positive whole number of 20 ns "
                              f"cycles, not {raw!r}")
         values[f.name] = raw
-    if values["period_cycles"] % 500:
-        raise InputError("timing.period_cycles", "must be a multiple of the 500-cycle plant "
-                         f"step, not {values['period_cycles']!r}")
     if values["kinematics_cycles"] + values["force_cycles"] >= values["period_cycles"]:
         raise InputError("timing.kinematics_cycles", "the master's compute time "
                          "(kinematics + force) must be shorter than the period")

@@ -113,6 +113,12 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     if duration > MAX_DURATION:
         raise InputError("--duration", f"must be at most {MAX_DURATION} s, not {duration!r}")
     step = (plant_config or PlantConfig()).dt
+    step_cycles = (plant_config or PlantConfig()).cycles_per_step
+    if timing.period_cycles % step_cycles:
+        # the loops poll the master on the plant's grid: a period boundary inside a step
+        # would send its time-code up to a step late
+        raise InputError("plant.dt", f"the master's period ({timing.period_cycles:,} cycles) "
+                         f"must be a whole number of plant steps ({step_cycles:,} cycles)")
     if duration < step:
         raise InputError("--duration", f"must be at least one plant step ({step * 1e6:g} µs), "
                          f"not {duration!r}")

@@ -104,6 +104,9 @@ def test_unknown_keys_are_rejected_by_name(text, field):
     ("[timing]\nkinematics_cycles = 30000\nforce_cycles = 20000", "timing.kinematics_cycles"),
     # rho·T of a 2 ms period is past the RHOT word (fits at 1 ms): checked for the period run
     ("[timing]\nperiod_cycles = 100000\n[gains]\nadapt = 1.0", "gains.adapt"),
+    # a period that is not a whole number of plant steps (1,500 and 1,000 cycles)
+    ("[plant]\ndt = 3e-5", "plant.dt"),
+    ("[plant]\ndt = 2e-5\n[timing]\nperiod_cycles = 25500", "plant.dt"),
     # the nodes' sync window (2,500 cycles) must lie inside the period
     ("[timing]\nperiod_cycles = 2500\nkinematics_cycles = 1\nforce_cycles = 1",
      "timing.period_cycles"),
@@ -212,3 +215,20 @@ def test_a_robot_with_more_modules_than_nodes_is_refused_as_the_robot(tmp_path):
     from models.robot import load_robot
 
     check_robot_fits(load_robot(str(_long_robot(tmp_path, 16))), "experiment.robot")
+
+
+def test_the_period_must_be_a_whole_number_of_the_configured_plant_steps():
+    """The loader checked the period against a 500-cycle plant step whatever ``[plant] dt``:
+    dt = 20 µs with a 0.51 ms period was accepted and every other period's time-code and
+    Comm A request left 10 µs late (the loops poll the master on the plant's grid; the
+    summary's phase A moved from 10.3 to 15.3 µs), and dt = 30 µs got past the loader to fail
+    at run time as ``start_cycle``. Both are refused naming plant.dt; a 5 µs step allows a
+    period of 25,250 cycles, which the old check refused."""
+    cfg = ec.loads("[plant]\ndt = 5e-6\n[timing]\nperiod_cycles = 25250\n")
+    assert cfg.timing.period_cycles == 25_250 and cfg.plant.cycles_per_step == 250
+    from cosim.track import run_track
+
+    with pytest.raises(InputError) as exc:
+        run_track("mrm3", "vdc", "model", duration=0.01, plant_config=PlantConfig(dt=2e-5),
+                  timing=MasterTiming(period_cycles=25_500))
+    assert exc.value.field == "plant.dt"
