@@ -111,13 +111,16 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
     commit phase is a fifth of the period (200 µs of 1 ms: the measured Comm D reaches the last
     of three nodes at ~82 µs; docs/node.md "Timing" says why the margin). The VDC's
     backward difference (1/T) and adaptation step (ρ·T) are for this period. The default
-    watchdog timeout is two periods (docs/node.md "Watchdog"): the nodes hear from the master
-    once a period, so a timeout that did not follow a longer period would trip every node.
+    watchdog timeout is two periods, at least 2 ms (docs/node.md "Watchdog"): the nodes hear
+    from the master once a period, so a timeout that did not follow a longer period would trip
+    every node, and before period 0 they hear nothing for up to 1 ms after their ARM.
     """
     if commit_cycles is None:
         commit_cycles = period_cycles // 5
     if timeout_cycles is None:
-        timeout_cycles = 2 * period_cycles
+        # two periods, and never less than the silence between the uploads' ARM and period 0
+        # (up to START_CYCLE, 1 ms): two 0.4 ms periods tripped every node before period 0
+        timeout_cycles = max(2 * period_cycles, 2 * 50_000)
     mode = {"vdc": MODES["vdc"], "pid-fpga": MODES["pid"], "pid-1khz": MODES["torque"]}
     if period_cycles % tick_cycles or not 0 < period_cycles < (1 << 24):
         raise InputError("period_cycles", f"must be a multiple of the tick ({tick_cycles}) "

@@ -298,6 +298,14 @@ def table_markdown(summary: dict) -> str:
             f"| {1e3 * s['max_tip_error_m']:.4f} | {s['rho_s']:.6f} | {v} | {1e3 * e:.4g} "
             f"| {r:.6f} | {1e3 * s['max_joint_error_rad']:.4f} | {s['overruns']} "
             f"| {s['link_errors']} |")
+    from cosim.track import run_faults
+
+    faults = {c: run_faults(s) for c, s in summary["controllers"].items()}
+    lines += [""] + [f"**NOT A CLEAN RUN**, `{c}`: " + "; ".join(f) + "."
+                     for c, f in faults.items() if f]
+    if not any(faults.values()):
+        lines.append("Every run clean: no overrun, missing, late or unexpected reply, upload "
+                     "or link error, watchdog trip or node counter.")
     order = summary["ordering"]
     lines += ["", "Ordering by ρ, best first: " + " < ".join(order["best_to_worst"])
               + (" — as in the paper." if order["as_paper"] else

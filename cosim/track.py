@@ -17,7 +17,8 @@ from models.robot import load_robot
 from mrm.errors import InputError, require_positive
 
 __all__ = ["run_track", "BACKENDS", "link_errors_detail", "link_fault_places", "loop_system",
-           "loop_system_key", "check_robot_fits", "node_encoders", "node_counts_range"]
+           "loop_system_key", "check_robot_fits", "node_encoders", "node_counts_range",
+           "run_faults"]
 
 BACKENDS = ("compiled", "pysim", "model")
 START_CYCLE = 50_000          # period 0 at 1 ms: links up (21 µs) and uploads done well before
@@ -182,6 +183,33 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         "rtf": wall / (duration + start / 50e6),
     }
     return result, summary
+
+
+#: What each node counter of a summary's ``node_counters`` counts (Comm A, docs/node.md).
+NODE_COUNTER_NAMES = {"overruns": "skipped control ticks", "sync_errors": "time-codes out of "
+                      "the sync window", "late_d": "late Comm D", "errors": "illegal encoder "
+                      "steps"}
+
+
+def run_faults(summary: dict) -> list[str]:
+    """Everything a run's ``summary`` counted that a clean run does not have, one phrase each
+    (empty for a clean run): the master's overruns and bad replies, upload and link errors,
+    tripped nodes, the nodes' own counters, the model backend's violated assumptions."""
+    out = []
+    for key, text in (("overruns", "periods overrun"), ("missing_replies", "missing replies"),
+                      ("unexpected_replies", "unexpected replies"),
+                      ("late_replies", "late replies"), ("upload_errors", "upload errors"),
+                      ("link_errors", "link errors")):
+        if summary.get(key):
+            out.append(f"{summary[key]} {text}")
+    if summary.get("tripped_nodes"):
+        out.append("watchdog tripped on node " + ", ".join(map(str, summary["tripped_nodes"])))
+    for key, value in summary.get("node_counters", {}).items():
+        if value:
+            out.append(f"{value} {NODE_COUNTER_NAMES.get(key, key)} (nodes' {key})")
+    if summary.get("model_violations"):
+        out.append(f"{len(summary['model_violations'])} model backend assumptions violated")
+    return out
 
 
 def link_errors_detail(result) -> dict:

@@ -369,3 +369,27 @@ def test_the_vdc_differences_and_adapts_over_the_masters_period():
         assert summary["node_counters"] == dict.fromkeys(summary["node_counters"], 0)
         errors[period] = summary["max_tip_error_m"]
     assert errors[100_000] < 1.5 * errors[50_000]
+
+
+def test_a_run_that_is_not_clean_says_so_and_short_periods_do_not_trip_the_watchdog():
+    """Late Comm D, tripped nodes and the model's violated assumptions were in summary.json
+    only: ``mrm run track`` and table2.md printed overruns and link errors and looked clean.
+    :func:`run_faults` names everything a clean run does not have; the CLI and table2.md say
+    NOT A CLEAN RUN. With a 0.4 ms period (commit phase 80 µs, before Comm D reaches node 3)
+    every Comm D is late — counted and said. The watchdog timeout of two periods (0.8 ms) had
+    tripped every node in the silence between the uploads' ARM and period 0; it is at least
+    2 ms now."""
+    from cosim.table2 import table_markdown
+    from cosim.track import run_faults
+
+    _, clean = run_track("mrm3", "vdc", "model", duration=0.01)
+    assert run_faults(clean) == []
+    _, short = run_track("mrm3", "vdc", "model", duration=0.05,
+                         timing=MasterTiming(period_cycles=20_000))
+    assert short["tripped_nodes"] == []
+    faults = run_faults(short)
+    assert any("late Comm D" in f for f in faults) and not any("watchdog" in f for f in faults)
+    md = table_markdown({"robot": "mrm3", "backend": "model", "seed": 0, "duration_s": 0.05,
+                         "controllers": {"vdc": short, "pid-fpga": clean},
+                         "ordering": {"best_to_worst": ["vdc", "pid-fpga"], "as_paper": True}})
+    assert "**NOT A CLEAN RUN**, `vdc`: " in md and "`pid-fpga`: " not in md

@@ -200,9 +200,12 @@ def _write_track(args, robot, result, summary, duration, vcd_tmp) -> None:
               f"late replies {summary.get('late_replies', 0)}, "
               f"A/B/C/D done at " + _phases_text(summary["phases_us"])
               + f"; RTF {summary['rtf']:.0f}")
-        if summary["link_errors"]:
-            from cosim.track import link_fault_places
+        from cosim.track import link_fault_places, run_faults
 
+        faults = run_faults(summary)
+        if faults:
+            print("NOT A CLEAN RUN: " + "; ".join(faults))
+        if summary["link_errors"]:
             print("link faults counted at: " + link_fault_places(summary["link_error_detail"]))
         print(f"results in {args.out}/" + (" (waves.vcd: the --vcd window)" if vcd_tmp else ""))
 
