@@ -27,6 +27,17 @@ from hdl.node.top import SlaveNode, slave_node_top
 from hdl.synth import synth_component
 
 
+def _shift_out(m: Module, load, sout, outs) -> None:
+    """``outs`` leave through ``sout`` one bit a cycle: captured while ``load`` is high, then
+    shifted out, bit 0 first (every output stays a register endpoint of the design)."""
+    shift_out = Signal(len(outs))
+    with m.If(load):
+        m.d.sync += shift_out.eq(outs)
+    with m.Else():
+        m.d.sync += shift_out.eq(shift_out >> 1)
+    m.d.comb += sout.eq(shift_out[0])
+
+
 class SerialCore(wiring.Component):
     """NodeCore with its wide ports behind shift registers (timing-study wrapper)."""
 
@@ -47,15 +58,10 @@ class SerialCore(wiring.Component):
                 core.rx.payload.eq(shift_in[:-1]),
                 core.rx.valid.eq(shift_in[-1]),
             ]
-        outs = Cat(core.tx.payload.as_value(), core.tx.valid, core.rx.ready, core.torque,
-                   core.status, core.count, core.velocity)
-        shift_out = Signal(len(outs))
-        with m.If(self.load):
-            m.d.sync += shift_out.eq(outs)
-        with m.Else():
-            m.d.sync += shift_out.eq(shift_out >> 1)
+        _shift_out(m, self.load, self.sout,
+                   Cat(core.tx.payload.as_value(), core.tx.valid, core.rx.ready, core.torque,
+                       core.status, core.count, core.velocity))
         m.d.comb += [
-            self.sout.eq(shift_out[0]),
             core.tx.ready.eq(shift_in[3]),
             core.enc_a.eq(self.enc_a),
             core.enc_b.eq(self.enc_b),
@@ -92,14 +98,8 @@ class SerialNode(wiring.Component):
         m.d.sync += shift_in.eq(Cat(self.sin, shift_in[:-1]))
         with m.If(self.load):
             m.d.sync += address.eq(shift_in)
-        outs = Cat(node.torque, node.status, node.count, node.events)
-        shift_out = Signal(len(outs))
-        with m.If(self.load):
-            m.d.sync += shift_out.eq(outs)
-        with m.Else():
-            m.d.sync += shift_out.eq(shift_out >> 1)
+        _shift_out(m, self.load, self.sout, Cat(node.torque, node.status, node.count, node.events))
         m.d.comb += [
-            self.sout.eq(shift_out[0]),
             node.address.eq(address),
             node.enc_a.eq(self.enc_a),
             node.enc_b.eq(self.enc_b),

@@ -869,8 +869,18 @@ class EncoderEvents:
         if self._due:
             self._flush(c)
         vis = self._visible
+        if self._vi < len(vis) and vis[self._vi][0] <= c + 1:
+            self._decode(c + 1)                             # visible by c + 1: decoded by c
+        if self._moved[0] == c:
+            self._ref_t = self._moved[1]
+        self.count = self._c_ref = ((int(value) + 2**31) % 2**32) - 2**31
+
+    def _decode(self, upto: int) -> None:
+        """Take every decoder step visible by cycle ``upto`` into the count (an illegal step
+        into the error counter), dropping taken steps from the list now and then."""
+        vis = self._visible
         vi = self._vi
-        while vi < len(vis) and vis[vi][0] <= c + 1:       # visible by c + 1: decoded by c
+        while vi < len(vis) and vis[vi][0] <= upto:
             t, step = vis[vi]
             vi += 1
             if step:
@@ -878,27 +888,15 @@ class EncoderEvents:
                 self._e_last = t
             else:
                 self.errors = min(self.errors + 1, 0xFFFF)
+        if vi > 64:
+            del vis[:vi]
+            vi = 0
         self._vi = vi
-        if self._moved[0] == c:
-            self._ref_t = self._moved[1]
-        self.count = self._c_ref = ((int(value) + 2**31) % 2**32) - 2**31
 
     def _strobe(self, c: int) -> tuple[int, int]:
         vis = self._visible
-        vi = self._vi
-        if vi < len(vis) and vis[vi][0] <= c:
-            while vi < len(vis) and vis[vi][0] <= c:
-                t, step = vis[vi]
-                vi += 1
-                if step:
-                    self.count += step
-                    self._e_last = t
-                else:
-                    self.errors = min(self.errors + 1, 0xFFFF)
-            if vi > 64:
-                del vis[:vi]
-                vi = 0
-            self._vi = vi
+        if self._vi < len(vis) and vis[self._vi][0] <= c:
+            self._decode(c)
         pipe = self._pipe
         if pipe and pipe[0][0] <= c:
             self._apply_pipe(c)
