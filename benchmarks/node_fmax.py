@@ -22,6 +22,7 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from hdl.link.node import line_signature
 from hdl.node.core import NodeCore
 from hdl.node.top import SlaveNode, slave_node_top
 from hdl.synth import synth_component
@@ -84,10 +85,7 @@ class SerialNode(wiring.Component):
         slots = len(node.up.d_out)
         super().__init__({
             "sin": In(1), "load": In(1), "enc_a": In(1), "enc_b": In(1), "sout": Out(1),
-            "up_d_in": In(slots), "up_s_in": In(slots),
-            "up_d_out": Out(slots), "up_s_out": Out(slots),
-            "down_d_in": In(slots), "down_s_in": In(slots),
-            "down_d_out": Out(slots), "down_s_out": Out(slots),
+            "up": Out(line_signature(slots)), "down": Out(line_signature(slots)),
         })
 
     def elaborate(self, platform):
@@ -104,14 +102,8 @@ class SerialNode(wiring.Component):
             node.enc_a.eq(self.enc_a),
             node.enc_b.eq(self.enc_b),
         ]
-        for port in ("up", "down"):
-            lines = getattr(node, port)
-            m.d.comb += [
-                lines.d_in.eq(getattr(self, f"{port}_d_in")),
-                lines.s_in.eq(getattr(self, f"{port}_s_in")),
-                getattr(self, f"{port}_d_out").eq(lines.d_out),
-                getattr(self, f"{port}_s_out").eq(lines.s_out),
-            ]
+        wiring.connect(m, wiring.flipped(self.up), node.up)      # the link stays on pins
+        wiring.connect(m, wiring.flipped(self.down), node.down)
         return m
 
 

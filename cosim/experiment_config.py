@@ -184,7 +184,9 @@ def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
     gains = _gains(_table(data, "gains"))
     plant = _plant(_table(data, "plant"))
     timing = _timing(_table(data, "timing"))
-    _period_on_the_plant_grid(timing, plant)
+    check_period_on_plant_grid(timing.period_cycles, plant,
+                               "plant.dt" if plant.dt != PlantConfig().dt
+                               else "timing.period_cycles")
     _gains_fit_the_nodes(robot, controllers, gains, timing.period_cycles)
     return ExperimentConfig(name, robot, controllers, backend, seed, duration, trajectory,
                             plant, gains, timing)
@@ -347,14 +349,14 @@ def _gain_field(word: str) -> str:
                        "kj": "k_j", "lam": "lam", "lamc": "lam", "ivlc": "lam"}.get(leaf, "*")
 
 
-def _period_on_the_plant_grid(timing: MasterTiming, plant: PlantConfig) -> None:
-    """The loop polls the master and steps the plant on the plant's grid: a period that is not
-    a whole number of plant steps would start its time-code up to a step late."""
+def check_period_on_plant_grid(period_cycles: int, plant: PlantConfig, field: str) -> None:
+    """``InputError`` naming ``field`` unless the period is a whole number of plant steps: the
+    loops poll the master and step the plant on the plant's grid, so a period boundary inside
+    a step would send its time-code up to a step late."""
     step = plant.cycles_per_step
-    if timing.period_cycles % step:
-        field = "plant.dt" if plant.dt != PlantConfig().dt else "timing.period_cycles"
-        raise InputError(field, f"the master's period ({timing.period_cycles:,} cycles) must be "
-                         f"a whole number of plant steps ({step:,} cycles = {plant.dt:g} s)")
+    if period_cycles % step:
+        raise InputError(field, f"the master's period ({period_cycles:,} cycles) must be a "
+                         f"whole number of plant steps ({step:,} cycles = {plant.dt:g} s)")
 
 
 def _timing(table: dict) -> MasterTiming:

@@ -64,7 +64,8 @@ import numpy as np
 
 from hdl.link import packet_ref as ref
 from hdl.node.core_ref import _NEVER, _TIME_MAX, NodeModel
-from hdl.node.encoder_ref import AGE_MAX, DC_MAX, VEL_LATENCY, EncoderParams, velocity_word
+from hdl.node.encoder_ref import AGE_MAX, DC_MAX, VEL_LATENCY, EncoderParams, encoders_per_node, \
+    velocity_word
 from hdl.node.fixed import ACC, FORCE, GAIN, INVT, RHOT, SIG, THETA, TRIG, VEL, WORD_MAX, \
     WORD_MIN, theta_group
 from hdl.node.joint import joint_microcode
@@ -975,10 +976,7 @@ class ModelLoop:
         self.phases = {"timecode": 0, "comm_d": 0}
         self.cycle = 0
         self.frames = []
-        encs = (list(encoder) if isinstance(encoder, list | tuple)
-                else [encoder or EncoderParams()] * self.n)
-        if len(encs) != self.n:
-            raise ValueError(f"encoder: {len(encs)} parameter sets for {self.n} nodes")
+        encs = encoders_per_node(encoder, self.n)
         self.lazy = bool(lazy)
         self.nodes = [FastNode(encoder=enc) for enc in encs]
         for node in self.nodes:

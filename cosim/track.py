@@ -8,7 +8,7 @@ import numpy as np
 
 from cosim.backends import CompiledBackend, PysimBackend, Recorder, drive
 from cosim.closed_loop import ClosedLoop, Gains, node_uploads, pid_gains
-from cosim.experiment_config import MAX_DURATION
+from cosim.experiment_config import MAX_DURATION, check_period_on_plant_grid
 from cosim.preview import paper_test_profile
 from master.cycle import Master, MasterTiming
 from master.kinematics import jacobian
@@ -114,12 +114,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     if duration > MAX_DURATION:
         raise InputError("--duration", f"must be at most {MAX_DURATION} s, not {duration!r}")
     step = (plant_config or PlantConfig()).dt
-    step_cycles = (plant_config or PlantConfig()).cycles_per_step
-    if timing.period_cycles % step_cycles:
-        # the loops poll the master on the plant's grid: a period boundary inside a step
-        # would send its time-code up to a step late
-        raise InputError("plant.dt", f"the master's period ({timing.period_cycles:,} cycles) "
-                         f"must be a whole number of plant steps ({step_cycles:,} cycles)")
+    check_period_on_plant_grid(timing.period_cycles, plant_config or PlantConfig(), "plant.dt")
     if duration < step:
         raise InputError("--duration", f"must be at least one plant step ({step * 1e6:g} µs), "
                          f"not {duration!r}")

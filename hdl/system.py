@@ -19,6 +19,7 @@ from amaranth.lib.wiring import In, Out
 from .link.chain import faulty_line, line_fault_layout
 from .link.chars import ERROR_CLASSES, Char, ErrorCounts, LinkState, saturating_sum
 from .master_port import MasterPort
+from .node.encoder_ref import encoders_per_node
 from .node.fixed import WORD
 from .node.top import SlaveNode
 
@@ -79,11 +80,8 @@ class System(wiring.Component):
         self.n_nodes = n_nodes
         self.line_faults = bool(line_faults)
         self.master = MasterPort(codec=codec)
-        encoders = (list(encoder) if isinstance(encoder, list | tuple)
-                    else [encoder] * n_nodes)
-        if len(encoders) != n_nodes:
-            raise ValueError(f"encoder: {len(encoders)} parameter sets for {n_nodes} nodes")
-        self.nodes = [SlaveNode(codec=codec, encoder=e) for e in encoders]
+        self.nodes = [SlaveNode(codec=codec, encoder=e)
+                      for e in encoders_per_node(encoder, n_nodes)]
         members = {
             "tx_valid":    In(1),
             "tx_char":     In(Char),

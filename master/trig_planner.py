@@ -75,9 +75,14 @@ def trig_min_duration(distance: float, limits: AxisLimits) -> float:
     d = require_nonnegative(distance, "distance")
     if d == 0.0:
         return 0.0
-    return max(2.0 * d / limits.velocity,
-               math.sqrt(8.0 * d / limits.acceleration),
-               (16.0 * math.pi * d / limits.jerk) ** (1.0 / 3.0))
+    return max(_duration_terms(d, limits).values())
+
+
+def _duration_terms(d: float, limits: AxisLimits) -> dict[str, float]:
+    """The duration each bound alone would need over ``d`` (eqs. 15/16), by bound name."""
+    return {"velocity": 2.0 * d / limits.velocity,
+            "acceleration": math.sqrt(8.0 * d / limits.acceleration),
+            "jerk": (16.0 * math.pi * d / limits.jerk) ** (1.0 / 3.0)}
 
 
 def limiting_field(geometry, limits: LineLimits, translation_time: float,
@@ -94,10 +99,7 @@ def limiting_field(geometry, limits: LineLimits, translation_time: float,
 
 def limiting_bound(distance: float, limits: AxisLimits) -> str:
     """Which of ``velocity``, ``acceleration``, ``jerk`` sets :func:`trig_min_duration`."""
-    d = require_nonnegative(distance, "distance")
-    terms = {"velocity": 2.0 * d / limits.velocity,
-             "acceleration": math.sqrt(8.0 * d / limits.acceleration),
-             "jerk": (16.0 * math.pi * d / limits.jerk) ** (1.0 / 3.0)}
+    terms = _duration_terms(require_nonnegative(distance, "distance"), limits)
     return max(terms, key=terms.get)
 
 

@@ -44,6 +44,7 @@ from mrm.errors import InputError
 from .fixed import VEL, round_shift, saturate
 
 __all__ = ["AGE_BITS", "AGE_MAX", "DC_MAX", "VEL_LATENCY", "RECIP_TABLE", "EncoderParams",
+           "encoders_per_node",
            "reciprocal", "velocity_word", "EncoderModel"]
 
 AGE_BITS = 26
@@ -113,6 +114,16 @@ class EncoderParams:
         """``K_v`` in Q8: rad/s per count/cycle times 2^8 (17 bits at 50 MHz, 800,000 cpr);
         :meth:`__post_init__` has checked that it fits."""
         return self._kv_q8(self.counts_per_rev)
+
+
+def encoders_per_node(encoder, n: int) -> list:
+    """``encoder`` as one :class:`EncoderParams` per node: a list or tuple of ``n`` (node 1
+    first), or one set (``None``: the default) for every node."""
+    encoders = (list(encoder) if isinstance(encoder, list | tuple)
+                else [encoder or EncoderParams()] * n)
+    if len(encoders) != n:
+        raise ValueError(f"encoder: {len(encoders)} parameter sets for {n} nodes")
+    return encoders
 
 
 def reciprocal(den: int) -> tuple[int, int]:
