@@ -25,8 +25,8 @@ import argparse
 import json
 import time
 
-from cosim.compiled import CompiledModel
-from hdl.tops import build_top
+from mrm_cosim.cosim.compiled import CompiledModel
+from mrm_cosim.hdl.tops import build_top
 
 #: the closed loop's cycle: 20 ns at 50 MHz; RTF 20 allows 400 ns of wall time per cycle
 CYCLE_NS = 20.0

@@ -98,13 +98,13 @@ class _Taping:
 
 
 def record(cycles: int, path: Path) -> None:
-    from cosim.backends import CompiledBackend, drive
-    from cosim.closed_loop import ClosedLoop, Gains, node_uploads, pid_gains
-    from cosim.preview import paper_test_profile
-    from cosim.track import loop_system, loop_system_key
-    from master.cycle import Master, MasterTiming
-    from models.plant import Plant
-    from models.robot import load_robot
+    from mrm_cosim.cosim.backends import CompiledBackend, drive
+    from mrm_cosim.cosim.closed_loop import ClosedLoop, Gains, node_uploads, pid_gains
+    from mrm_cosim.cosim.preview import paper_test_profile
+    from mrm_cosim.cosim.track import loop_system, loop_system_key
+    from mrm_cosim.master.cycle import Master, MasterTiming
+    from mrm_cosim.models.plant import Plant
+    from mrm_cosim.models.robot import load_robot
 
     robot = load_robot("mrm3")
     profile = paper_test_profile(robot)
@@ -134,7 +134,7 @@ LEGACY = None
 
 
 def _model(tape, kwargs):
-    from cosim.compiled import CompiledModel
+    from mrm_cosim.cosim.compiled import CompiledModel
 
     if kwargs.get("legacy"):
         import importlib.util
@@ -201,8 +201,8 @@ def bench(legacy: Path, rounds: int) -> int:
     """``mrm bench``'s compiled window, alternating the legacy engine and the current one."""
     import importlib.util
 
-    import cosim.compiled as cc
-    from cosim.bench import bench_backend
+    import mrm_cosim.cosim.compiled as cc
+    from mrm_cosim.cosim.bench import bench_backend
 
     spec = importlib.util.spec_from_file_location("compiled_legacy", legacy)
     old = importlib.util.module_from_spec(spec)
@@ -241,7 +241,7 @@ def _pgo_model(tape, stage: str):
     :data:`PGO_WORK`, so their object files, and the profile's names, are the same."""
     import shutil
 
-    import cosim.compiled as cc
+    import mrm_cosim.cosim.compiled as cc
 
     def fixed_mkdtemp(prefix="", dir=None):
         shutil.rmtree(PGO_WORK, ignore_errors=True)

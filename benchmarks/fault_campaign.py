@@ -26,8 +26,8 @@ import time
 
 import numpy as np
 
-from cosim.closed_loop import FAULT_KINDS, LineFault
-from cosim.track import link_fault_places, run_track
+from mrm_cosim.cosim.closed_loop import FAULT_KINDS, LineFault
+from mrm_cosim.cosim.track import link_fault_places, run_track
 
 PERIOD = 50_000
 LENGTHS = {"bit": (1, 1), "cut": (10, 120), "stuck-d": (10, 120)}   # cycles, min and max

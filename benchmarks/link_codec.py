@@ -15,9 +15,9 @@ import time
 from amaranth import *
 from amaranth.sim import Simulator
 
-from hdl.link.chars import CharKind
-from hdl.link.codec import Codec
-from hdl.link.codec_ref import CodecRef, char_value
+from mrm_cosim.hdl.link.chars import CharKind
+from mrm_cosim.hdl.link.codec import Codec
+from mrm_cosim.hdl.link.codec_ref import CodecRef, char_value
 
 
 class _Pair(Elaboratable):

@@ -21,13 +21,14 @@ import math
 import numpy as np
 import pinocchio as pin
 
-from hdl.node.fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, theta_group
-from hdl.node.joint_ref import JointInputs, JointModel, JointParams
-from hdl.node.vdc_ref import VdcInputs, VdcModel, VdcParams
-from master.quintic import QuinticProfile
-from master.vdc_float import (ModuleGains, ModuleVDC, link_a_acceleration, link_a_velocity,
-                              required_net_force, rz)
-from models.robot import load_robot
+from mrm_cosim.hdl.node.fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, theta_group
+from mrm_cosim.hdl.node.joint_ref import JointInputs, JointModel, JointParams
+from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel, VdcParams
+from mrm_cosim.master.quintic import QuinticProfile
+from mrm_cosim.master.vdc_float import (
+    ModuleGains, ModuleVDC, link_a_acceleration, link_a_velocity, required_net_force, rz,
+)
+from mrm_cosim.models.robot import load_robot
 
 G0 = 9.81
 

@@ -22,10 +22,10 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from hdl.link.node import line_signature
-from hdl.node.core import NodeCore
-from hdl.node.top import SlaveNode, slave_node_top
-from hdl.synth import synth_component
+from mrm_cosim.hdl.link.node import line_signature
+from mrm_cosim.hdl.node.core import NodeCore
+from mrm_cosim.hdl.node.top import SlaveNode, slave_node_top
+from mrm_cosim.hdl.synth import synth_component
 
 
 def _shift_out(m: Module, load, sout, outs) -> None:

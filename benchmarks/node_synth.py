@@ -11,7 +11,7 @@ import argparse
 import json
 import time
 
-from hdl.synth import synth_top
+from mrm_cosim.hdl.synth import synth_top
 
 
 def main():

@@ -33,8 +33,8 @@ import time
 import numpy as np
 import pinocchio as pin
 
-from models.plant import Plant, PlantConfig, true_parameters
-from models.robot import load_robot
+from mrm_cosim.models.plant import Plant, PlantConfig, true_parameters
+from mrm_cosim.models.robot import load_robot
 
 
 def _holding(plant_truth, q):

@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from cosim.experiment_config import from_dict, load
-from cosim.track import run_track
-from master.cycle import CONTROLLERS
-from mrm.output import atomic_write_text
+from mrm_cosim.cosim.experiment_config import from_dict, load
+from mrm_cosim.cosim.track import run_track
+from mrm_cosim.master.cycle import CONTROLLERS
+from mrm_cosim.results import atomic_write_text
 
 
 def _point(config, controller: str) -> dict:
@@ -46,8 +46,8 @@ def _point(config, controller: str) -> dict:
 
 
 def _final_error(config, result) -> np.ndarray:
-    from cosim.preview import paper_test_profile
-    from models.robot import load_robot
+    from mrm_cosim.cosim.preview import paper_test_profile
+    from mrm_cosim.models.robot import load_robot
 
     profile = paper_test_profile(load_robot(config.robot), config.trajectory.amplitude,
                                  config.trajectory.duration)

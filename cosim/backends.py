@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mrm.errors import InputError
+from mrm_cosim.errors import InputError
 
 __all__ = ["CompiledBackend", "PysimBackend", "Recorder", "VcdWindow", "drive",
            "system_verilog", "CLOCK_HZ"]
@@ -26,20 +26,36 @@ CLOCK_HZ = 50_000_000
 _PERIOD_PS = 1_000_000_000_000 // CLOCK_HZ
 
 
+_FINGERPRINTED: tuple[str, ...] | None = None
+
+
 def _hdl_fingerprint() -> str:
-    """Hash of every gateware source file: the Verilog of a design depends on nothing else."""
+    """Hash of the source files the gateware is built from, with Amaranth's version: every
+    module of the gateware, the protocol room and the kernel that the process had imported once
+    :mod:`mrm_cosim.hdl.system` and :mod:`mrm_cosim.hdl.tops` were (the Verilog of a design
+    depends on nothing else; the references and the master are not among them)."""
     import hashlib
+    import sys
     from pathlib import Path
 
     import amaranth
 
-    import hdl
+    global _FINGERPRINTED
+    if _FINGERPRINTED is None:
+        import mrm_cosim.hdl.system  # noqa: F401 - the gateware is imported before it is fingerprinted
+        import mrm_cosim.hdl.tops  # noqa: F401
 
+        rooms = ("mrm_cosim.hdl", "mrm_cosim.protocol")
+        kernel = ("mrm_cosim", "mrm_cosim.errors", "mrm_cosim.units")
+        _FINGERPRINTED = tuple(sorted(name for name in list(sys.modules)
+                                      if name.startswith(rooms) or name in kernel))
     digest = hashlib.sha256(amaranth.__version__.encode())
-    root = Path(hdl.__file__).parent
-    for path in sorted(root.rglob("*.py")):
-        digest.update(str(path.relative_to(root)).encode())
-        digest.update(path.read_bytes())
+    for name in _FINGERPRINTED:
+        path = getattr(sys.modules[name], "__file__", None)
+        if path is None:  # a namespace package
+            continue
+        digest.update(name.encode())
+        digest.update(Path(path).read_bytes())
     return digest.hexdigest()
 
 
@@ -53,9 +69,6 @@ def _imported_fingerprint() -> str:
     under the sources the running design was built from — not the files on disk now."""
     global _IMPORTED_FINGERPRINT
     if _IMPORTED_FINGERPRINT is None:
-        import hdl.system  # noqa: F401 - the gateware is imported before it is fingerprinted
-        import hdl.tops  # noqa: F401
-
         _IMPORTED_FINGERPRINT = _hdl_fingerprint()
     return _IMPORTED_FINGERPRINT
 
@@ -68,8 +81,8 @@ def system_verilog(factory, key: str) -> tuple[str, dict]:
 
     from amaranth.back import verilog
 
-    from cosim.compiled import cache_dir, signed_port_map
-    from mrm.output import atomic_write_text
+    from mrm_cosim.cosim.compiled import cache_dir, signed_port_map
+    from mrm_cosim.results import atomic_write_text
 
     fingerprint = _imported_fingerprint()
     path = cache_dir() / "verilog" / f"{key}-{fingerprint[:20]}.v"
@@ -192,7 +205,7 @@ class CompiledBackend:
     name = "compiled"
 
     def __init__(self, factory, key: str, quiet: bool = True, vcd: VcdWindow | None = None):
-        from cosim.compiled import CompiledModel
+        from mrm_cosim.cosim.compiled import CompiledModel
 
         text, signed = system_verilog(factory, key)
         self.model = CompiledModel(None, "system", quiet=quiet, verilog_text=text,
@@ -228,7 +241,7 @@ class CompiledBackend:
     def finish(self) -> list[str] | None:
         """Close the window now (also at its end, or if the run ends inside it) and write the
         VCD of the selected signals. Returns their names, or ``None`` if nothing was open."""
-        from cosim.compiled import filter_vcd
+        from mrm_cosim.cosim.compiled import filter_vcd
 
         if self._raw is None:
             return None
@@ -372,7 +385,7 @@ class _VcdOut:
         self._widths = [len(sig) for sig in self.signals]
         self._last: list | None = None
         self._ids = [_vcd_id(k) for k in range(len(self.signals))]
-        from cosim.compiled import vcd_header
+        from mrm_cosim.cosim.compiled import vcd_header
 
         def var(name, k):
             w = self._widths[k]

@@ -4,12 +4,12 @@ side by side in one process on the same closed-loop window (3-module VDC loop by
 from __future__ import annotations
 
 
-from cosim.closed_loop import Gains, node_uploads, pid_gains
-from cosim.preview import paper_test_profile
-from cosim.track import check_robot_fits, run_loop
-from master.cycle import Master, MasterTiming
-from models.plant import Plant
-from models.robot import load_robot
+from mrm_cosim.cosim.closed_loop import Gains, node_uploads, pid_gains
+from mrm_cosim.cosim.preview import paper_test_profile
+from mrm_cosim.cosim.track import check_robot_fits, run_loop
+from mrm_cosim.master.cycle import Master, MasterTiming
+from mrm_cosim.models.plant import Plant
+from mrm_cosim.models.robot import load_robot
 
 __all__ = ["bench_backend", "WINDOWS"]
 

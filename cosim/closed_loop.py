@@ -25,17 +25,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hdl.link import packet_ref as ref
-from hdl.link.chain import char_int, char_value, line_fault_layout
-from hdl.node.fixed import FORCE
-from hdl.node.joint_ref import JointParams
-from hdl.node.regs import MODES, Config, NodeEvent, config_payloads, joint_upload, vdc_upload
-from master.cycle import Master, Send
-from models.actuators import ACTUATORS
-from models.encoder import counts_per_rad, joint_counts, quadrature_levels
-from models.plant import Plant
-from models.robot import Robot
-from mrm.errors import InputError
+from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.hdl.link.chain import char_int, char_value, line_fault_layout
+from mrm_cosim.hdl.node.fixed import FORCE
+from mrm_cosim.hdl.node.joint_ref import JointParams
+from mrm_cosim.hdl.node.regs import (
+    MODES, Config, NodeEvent, config_payloads, joint_upload, vdc_upload,
+)
+from mrm_cosim.master.cycle import Master, Send
+from mrm_cosim.models.actuators import ACTUATORS
+from mrm_cosim.models.encoder import counts_per_rad, joint_counts, quadrature_levels
+from mrm_cosim.models.plant import Plant
+from mrm_cosim.models.robot import Robot
+from mrm_cosim.errors import InputError
 
 __all__ = ["Gains", "ClosedLoop", "LoopResult", "LineFault", "FAULT_KINDS", "node_uploads",
            "startup_sends", "EEP", "EOP"]
@@ -229,7 +231,7 @@ class LineFault:
     def parse(cls, spec: str, field: str = "--line-fault") -> LineFault:
         """``KIND:DIRECTION:NODE@TIME[+DURATION]``, times from period 0 with optional units:
         ``bit:up:2@2.006ms`` (one cycle), ``cut:down:2@10ms+2us``. ``InputError(field)``."""
-        from cosim.backends import parse_time
+        from mrm_cosim.cosim.backends import parse_time
 
         text = str(spec)
         where, _, when = text.partition("@")

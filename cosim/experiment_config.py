@@ -14,7 +14,7 @@ folder plus its ``config.toml`` reproduces the run bit for bit::
     [timing]       master.cycle.MasterTiming: period_cycles, kinematics_cycles, force_cycles
 
 Every key is optional (defaults are the dataclasses' own); an unknown key, a wrong type or an
-out-of-range value raises :class:`mrm.errors.InputError` naming the dotted field
+out-of-range value raises :class:`mrm_cosim.errors.InputError` naming the dotted field
 (``gains.lam``). :meth:`ExperimentConfig.to_toml` writes the resolved configuration (every
 default filled in) and :func:`loads` of that text gives back an equal configuration.
 """
@@ -26,16 +26,19 @@ import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
-from cosim.closed_loop import Gains
-from master.cycle import CONTROLLERS, MasterTiming
-from models.plant import Perturbation, PlantConfig
-from mrm.errors import InputError, reject_control_characters, reject_strings, require_finite, \
-    require_nonnegative, require_positive
+from mrm_cosim import configs
+from mrm_cosim.cosim.closed_loop import Gains
+from mrm_cosim.master.cycle import CONTROLLERS, MasterTiming
+from mrm_cosim.models.plant import Perturbation, PlantConfig
+from mrm_cosim.errors import (
+    InputError, reject_control_characters, reject_strings, require_finite, require_nonnegative,
+    require_positive,
+)
 
 __all__ = ["ExperimentConfig", "TrajectoryConfig", "load", "loads", "from_dict", "DEFAULT_CONFIG",
            "PAPER_AMPLITUDE", "PAPER_DURATION"]
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "table2.toml"
+DEFAULT_CONFIG = Path(configs.__file__).resolve().parent / "table2.toml"
 PAPER_AMPLITUDE = 0.1571      # rad, p_f − p_0 of the MRM paper's eq. (4) (20,000 counts)
 PAPER_DURATION = 1.0          # s, t_f of eq. (4)
 MAX_DURATION = 60.0           # s of simulated time per controller
@@ -212,7 +215,7 @@ def _string(value, name: str) -> str:
 
 
 def _robot(value, base_dir) -> str:
-    from models.robot import load_robot
+    from mrm_cosim.models.robot import load_robot
 
     value = _string(value, "experiment.robot")
     if value.endswith(".toml"):
@@ -220,7 +223,7 @@ def _robot(value, base_dir) -> str:
         if not path.is_absolute() and base_dir is not None:
             path = Path(base_dir) / path
         value = str(path.resolve())
-    from cosim.track import check_robot_fits
+    from mrm_cosim.cosim.track import check_robot_fits
 
     try:
         check_robot_fits(load_robot(value), "experiment.robot")
@@ -245,7 +248,7 @@ def _controllers(value) -> tuple[str, ...]:
 
 
 def _backend(value, name: str) -> str:
-    from cosim.track import BACKENDS
+    from mrm_cosim.cosim.track import BACKENDS
 
     if value not in BACKENDS:
         raise InputError(name, f"must be one of {', '.join(BACKENDS)}, not {value!r}")
@@ -326,8 +329,8 @@ def _gains(table: dict) -> Gains:
 def _gains_fit_the_nodes(robot: str, controllers, gains: Gains, period_cycles: int) -> None:
     """Encode the uploads each controller needs: every gain must fit its fixed-point word
     (the adaptation step ρ·T is the period's)."""
-    from cosim.closed_loop import node_uploads
-    from models.robot import load_robot
+    from mrm_cosim.cosim.closed_loop import node_uploads
+    from mrm_cosim.models.robot import load_robot
 
     r = load_robot(robot)
     for c in controllers:

@@ -62,21 +62,23 @@ import time
 
 import numpy as np
 
-from hdl.link import packet_ref as ref
-from hdl.node.core_ref import _NEVER, _TIME_MAX, NodeModel
-from hdl.node.encoder_ref import AGE_MAX, DC_MAX, VEL_LATENCY, EncoderParams, encoders_per_node, \
-    velocity_word
-from hdl.node.fixed import ACC, FORCE, GAIN, INVT, RHOT, SIG, THETA, TRIG, VEL, WORD_MAX, \
-    WORD_MIN, theta_group
-from hdl.node.joint import joint_microcode
-from hdl.node.joint_ref import MODES as JOINT_MODES
-from hdl.node.joint_ref import JointModel
-from hdl.node.regs import Config
-from hdl.node.vdc_ref import Y_TABLE, VdcModel, link_terms
-from master.cycle import Master, Send
-from models.plant import Plant
-from models.robot import Robot
-from mrm.errors import InputError
+from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.hdl.node.core_ref import _NEVER, _TIME_MAX, NodeModel
+from mrm_cosim.hdl.node.encoder_ref import (
+    AGE_MAX, DC_MAX, VEL_LATENCY, EncoderParams, encoders_per_node, velocity_word,
+)
+from mrm_cosim.hdl.node.fixed import (
+    ACC, FORCE, GAIN, INVT, RHOT, SIG, THETA, TRIG, VEL, WORD_MAX, WORD_MIN, theta_group,
+)
+from mrm_cosim.hdl.node.joint import joint_microcode
+from mrm_cosim.hdl.node.joint_ref import MODES as JOINT_MODES
+from mrm_cosim.hdl.node.joint_ref import JointModel
+from mrm_cosim.hdl.node.regs import Config
+from mrm_cosim.hdl.node.vdc_ref import Y_TABLE, VdcModel, link_terms
+from mrm_cosim.master.cycle import Master, Send
+from mrm_cosim.models.plant import Plant
+from mrm_cosim.models.robot import Robot
+from mrm_cosim.errors import InputError
 
 from .closed_loop import LoopResult, startup_sends
 

@@ -14,12 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from master.feedforward_pid import FeedforwardPID
-from master.kinematics import jacobian
-from master.quintic import QuinticProfile
-from models.plant import Plant, PlantConfig
-from models.robot import load_robot
-from mrm.errors import InputError, require_positive
+from mrm_cosim.master.feedforward_pid import FeedforwardPID
+from mrm_cosim.master.kinematics import jacobian
+from mrm_cosim.master.quintic import QuinticProfile
+from mrm_cosim.models.plant import Plant, PlantConfig
+from mrm_cosim.models.robot import load_robot
+from mrm_cosim.errors import InputError, require_positive
 
 __all__ = ["PreviewResult", "run_preview", "paper_test_profile"]
 

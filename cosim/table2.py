@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cosim.experiment_config import PAPER_AMPLITUDE, PAPER_DURATION, ExperimentConfig
-from mrm.errors import InputError
+from mrm_cosim.cosim.experiment_config import PAPER_AMPLITUDE, PAPER_DURATION, ExperimentConfig
+from mrm_cosim.errors import InputError
 
 __all__ = ["PAPER_TABLE2", "run_table2", "table_markdown", "Progress", "timeline_json"]
 
@@ -130,7 +130,7 @@ def _run_kwargs(runner, config: ExperimentConfig, robot) -> dict:
         raise InputError("trajectory", "this tree's run_track runs only the paper's quintic "
                          f"({PAPER_AMPLITUDE} rad in {PAPER_DURATION} s); amplitude "
                          f"{tr.amplitude!r} rad in {tr.duration!r} s needs its profile argument")
-    from cosim.preview import paper_test_profile
+    from mrm_cosim.cosim.preview import paper_test_profile
 
     return {"profile": paper_test_profile(robot, tr.amplitude, tr.duration)}
 
@@ -156,13 +156,13 @@ def run_table2(config: ExperimentConfig, out, *, progress: Progress | None = Non
     dict
         What ``summary.json`` holds.
     """
-    from cosim.preview import paper_test_profile
-    from models.robot import load_robot
-    from mrm import __version__
-    from mrm.output import atomic_output_dir, atomic_write_text, write_json
+    from mrm_cosim.cosim.preview import paper_test_profile
+    from mrm_cosim.models.robot import load_robot
+    from mrm_cosim import __version__
+    from mrm_cosim.results import atomic_output_dir, atomic_write_text, write_json
 
     if runner is None:
-        from cosim.track import run_track as runner
+        from mrm_cosim.cosim.track import run_track as runner
     robot = load_robot(config.robot)
     extra = _run_kwargs(runner, config, robot)
     profile = paper_test_profile(robot, config.trajectory.amplitude, config.trajectory.duration)
@@ -298,7 +298,7 @@ def table_markdown(summary: dict) -> str:
             f"| {1e3 * s['max_tip_error_m']:.4f} | {s['rho_s']:.6f} | {v} | {1e3 * e:.4g} "
             f"| {r:.6f} | {1e3 * s['max_joint_error_rad']:.4f} | {s['overruns']} "
             f"| {s['link_errors']} |")
-    from cosim.track import run_faults
+    from mrm_cosim.cosim.track import run_faults
 
     faults = {c: run_faults(s) for c, s in summary["controllers"].items()}
     lines += [""] + [f"**NOT A CLEAN RUN**, `{c}`: " + "; ".join(f) + "."
@@ -338,8 +338,8 @@ def _every_ms(t) -> int:
 
 
 def _write_controller(folder: Path, robot, controller, config, result, summary, profile):
-    from cosim.plots import pick_period, plot_parameters, plot_timeline, plot_tracking
-    from mrm.output import write_json
+    from mrm_cosim.cosim.plots import pick_period, plot_parameters, plot_timeline, plot_tracking
+    from mrm_cosim.results import write_json
 
     folder.mkdir()
     write_json(folder / "timeline.json", timeline_json(result.master.records))
@@ -390,7 +390,7 @@ def tip_error(robot, q_d, q) -> np.ndarray:
 
 
 def _comparison_plots(folder: Path, robot, config, runs, profile) -> None:
-    from cosim.plots import plot_error_comparison, plot_joint_tracking, plot_torques
+    from mrm_cosim.cosim.plots import plot_error_comparison, plot_joint_tracking, plot_torques
 
     first = next(iter(runs.values()))[0]
     every = _every_ms(first.t)

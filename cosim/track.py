@@ -6,15 +6,15 @@ import time
 
 import numpy as np
 
-from cosim.backends import CompiledBackend, PysimBackend, Recorder, drive
-from cosim.closed_loop import ClosedLoop, Gains, node_uploads, pid_gains
-from cosim.experiment_config import MAX_DURATION, check_period_on_plant_grid
-from cosim.preview import paper_test_profile
-from master.cycle import Master, MasterTiming
-from master.kinematics import jacobian
-from models.plant import Plant, PlantConfig
-from models.robot import load_robot
-from mrm.errors import InputError, require_positive
+from mrm_cosim.cosim.backends import CompiledBackend, PysimBackend, Recorder, drive
+from mrm_cosim.cosim.closed_loop import ClosedLoop, Gains, node_uploads, pid_gains
+from mrm_cosim.cosim.experiment_config import MAX_DURATION, check_period_on_plant_grid
+from mrm_cosim.cosim.preview import paper_test_profile
+from mrm_cosim.master.cycle import Master, MasterTiming
+from mrm_cosim.master.kinematics import jacobian
+from mrm_cosim.models.plant import Plant, PlantConfig
+from mrm_cosim.models.robot import load_robot
+from mrm_cosim.errors import InputError, require_positive
 
 __all__ = ["run_track", "BACKENDS", "link_errors_detail", "link_fault_places", "loop_system",
            "loop_system_key", "check_robot_fits", "node_encoders", "node_counts_range",
@@ -29,7 +29,7 @@ def check_robot_fits(robot, field: str) -> None:
     than the system has nodes (:data:`hdl.system.MAX_NODES`), or a module whose encoder counts
     per joint revolution the node's fixed-point formats cannot hold (:func:`node_counts_range`).
     Every backend runs the same system."""
-    from hdl.system import MAX_NODES
+    from mrm_cosim.hdl.system import MAX_NODES
 
     if robot.n > MAX_NODES:
         raise InputError(field, f"{robot.name!r} has {robot.n} modules; the co-simulated system "
@@ -51,8 +51,8 @@ def node_counts_range() -> tuple[int, int]:
     program's ``KC`` word (the high end)."""
     import math
 
-    from hdl.node.encoder_ref import EncoderParams
-    from hdl.node.fixed import KC
+    from mrm_cosim.hdl.node.encoder_ref import EncoderParams
+    from mrm_cosim.hdl.node.fixed import KC
 
     lo, hi = EncoderParams().counts_per_rev_range()
 
@@ -74,7 +74,7 @@ def node_counts_range() -> tuple[int, int]:
 def node_encoders(robot) -> list:
     """The encoder interface of each module's node, built for that module's counts per
     revolution (the node's velocity constant and its angle scale depend on them)."""
-    from hdl.node.encoder_ref import EncoderParams
+    from mrm_cosim.hdl.node.encoder_ref import EncoderParams
 
     return [EncoderParams(counts_per_rev=mod.type.counts_per_rev) for mod in robot.modules]
 
@@ -136,7 +136,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     start = -(-START_CYCLE // timing.period_cycles) * timing.period_cycles
     window = None
     if vcd is not None:
-        from cosim.backends import VcdWindow
+        from mrm_cosim.cosim.backends import VcdWindow
 
         if backend == "model":
             raise InputError("--vcd", "the model backend has no signals; use pysim or compiled")
@@ -265,7 +265,7 @@ def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
         With ``record``, the recorder holds every per-cycle output the loop sampled.
     """
     if backend == "model":
-        from cosim.model import ModelLoop
+        from mrm_cosim.cosim.model import ModelLoop
 
         if faults:
             raise InputError("--line-fault", "the model backend's link is ideal: inject line "
@@ -305,7 +305,7 @@ def loop_system(robot):
     """The design every closed-loop run of ``robot`` simulates: :class:`hdl.system.System`
     with a node per module, each built for its module's encoder (:func:`node_encoders`), and
     the line-fault inputs (held at zero unless a run injects faults)."""
-    from hdl.system import System
+    from mrm_cosim.hdl.system import System
 
     return System(robot.n, encoder=node_encoders(robot), line_faults=True)
 
@@ -313,7 +313,7 @@ def loop_system(robot):
 def loop_system_key(robot) -> str:
     """The compiled-model cache key of :func:`loop_system`: the number of nodes and, where
     they are not the gateware's default, the nodes' counts per revolution."""
-    from hdl.node.encoder_ref import EncoderParams
+    from mrm_cosim.hdl.node.encoder_ref import EncoderParams
 
     cprs = [e.counts_per_rev for e in node_encoders(robot)]
     key = f"system{robot.n}-faults"

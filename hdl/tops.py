@@ -72,9 +72,9 @@ def build_top(name: str, **params) -> wiring.Component:
 
 
 def param_error(exc: ValueError, top: str):
-    """The :class:`~mrm.errors.InputError` for a top that refused its parameters: named
+    """The :class:`~mrm_cosim.errors.InputError` for a top that refused its parameters: named
     ``--param NAME`` when the error names one of ``top``'s parameters, else ``--param``."""
-    from mrm.errors import InputError
+    from mrm_cosim.errors import InputError
 
     if isinstance(exc, InputError) and exc.field in TOPS[top].parameters():
         return InputError(f"--param {exc.field}", exc.message)

@@ -47,12 +47,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hdl.link.packet_ref import BROADCAST, PacketType
-from hdl.node.fixed import FORCE, VEL
-from hdl.node.regs import (LINK_HEALTH, Status, pack_comm_b, pack_comm_d, parse_comm_a,
-                           parse_comm_c, upload_check)
-from master.vdc import propagate_forces, propagate_velocities
-from models.robot import Robot
+from mrm_cosim.hdl.link.packet_ref import BROADCAST, PacketType
+from mrm_cosim.hdl.node.fixed import FORCE, VEL
+from mrm_cosim.hdl.node.regs import (
+    LINK_HEALTH, Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c, upload_check,
+)
+from mrm_cosim.master.vdc import propagate_forces, propagate_velocities
+from mrm_cosim.models.robot import Robot
 
 __all__ = ["Send", "Master", "MasterTiming", "PeriodRecord", "CONTROLLERS", "NODE_COUNTERS"]
 
@@ -175,7 +176,7 @@ class Master:
         """Check every Comm A against the uploads ``[(dest, type, payload), ...]`` sent to the
         nodes since their reset, in order (CONFIG and PARAM count; broadcasts go to every
         node). Replaces any earlier expectation; clears :attr:`upload_errors`."""
-        from hdl.link.packet_ref import BROADCAST as _ALL
+        from mrm_cosim.hdl.link.packet_ref import BROADCAST as _ALL
 
         kinds = (PacketType.CONFIG, PacketType.PARAM)
         self.expected_uploads = {

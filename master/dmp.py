@@ -34,7 +34,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from mrm.errors import InputError, require_finite, require_positive
+from mrm_cosim.errors import InputError, require_finite, require_positive
 
 __all__ = ["Dmp", "DmpRollout", "learn_dmp", "forcing_targets"]
 

@@ -16,9 +16,9 @@ import math
 
 import numpy as np
 
-from models.actuators import ACTUATORS
-from models.robot import load_robot
-from mrm.errors import require_positive
+from mrm_cosim.models.actuators import ACTUATORS
+from mrm_cosim.models.robot import load_robot
+from mrm_cosim.errors import require_positive
 
 __all__ = ["FeedforwardPID"]
 

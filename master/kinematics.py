@@ -14,8 +14,8 @@ import math
 
 import numpy as np
 
-from models.robot import Robot, load_robot
-from mrm.errors import InputError
+from mrm_cosim.models.robot import Robot, load_robot
+from mrm_cosim.errors import InputError
 
 __all__ = ["forward", "jacobian", "inverse", "pose_error", "UnreachablePose", "rotation_log"]
 

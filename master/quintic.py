@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mrm.errors import InputError, require_finite, require_positive
+from mrm_cosim.errors import InputError, require_finite, require_positive
 
 __all__ = ["QuinticProfile", "PEAK_VELOCITY_COEFF", "PEAK_ACCELERATION_COEFF",
            "PEAK_JERK_COEFF", "mrm_test_profile"]

@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from ruckig import InputParameter, Result, Ruckig, RuckigError, Synchronization, Trajectory
 
-from master.trig_planner import CartesianSamples, LineGeometry, LineLimits, LinePlan
-from mrm.errors import InputError
+from mrm_cosim.master.trig_planner import CartesianSamples, LineGeometry, LineLimits, LinePlan
+from mrm_cosim.errors import InputError
 
 __all__ = ["RuckigPath", "RuckigLinePlan", "plan_line_ruckig"]
 

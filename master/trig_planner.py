@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from master import quaternion as quat
-from mrm.errors import InputError, require_nonnegative, require_positive
+from mrm_cosim.master import quaternion as quat
+from mrm_cosim.errors import InputError, require_nonnegative, require_positive
 
 __all__ = ["AxisLimits", "LineLimits", "TrigProfile", "LineGeometry", "CartesianSamples",
            "LinePlan", "limiting_bound", "limiting_field", "trig_min_duration", "pose_from_matrix",

@@ -27,9 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.robot import load_robot
-from models.spatial import rigid_body_wrench
-from mrm.errors import InputError
+from mrm_cosim.models.robot import load_robot
+from mrm_cosim.models.spatial import rigid_body_wrench
+from mrm_cosim.errors import InputError
 
 __all__ = ["ModuleKinematics", "propagate_velocities", "link_required_forces",
            "propagate_forces", "inverse_dynamics", "BASE_ACCELERATION"]

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models.spatial import N_PARAMS
+from mrm_cosim.models.spatial import N_PARAMS
 
 __all__ = ["rz", "link_regressor", "link_a_velocity", "link_a_acceleration", "required_net_force",
            "adaptation_signal", "projection_update", "ModuleGains", "ModuleVDC"]

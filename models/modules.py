@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from models.actuators import ACTUATORS
-from models.spatial import theta_from_physical
+from mrm_cosim.models.actuators import ACTUATORS
+from mrm_cosim.models.spatial import theta_from_physical
 
 __all__ = ["LinkParams", "SpringSpec", "ModuleType", "MODULE_TYPES", "TABLE1", "TABLE1_ERRATA"]
 

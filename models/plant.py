@@ -40,11 +40,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pinocchio as pin
 
-from models.actuators import ACTUATORS, ActuatorSpec
-from models.drive import CurrentLoop, FrictionParams, solve_stick_slip
-from models.encoder import CYCLE, EncoderCycles, count_changes_lists, counts_per_rad, \
-    cycle_counts, joint_counts, quadrature_levels
-from mrm.errors import InputError, require_finite, require_nonnegative, require_positive
+from mrm_cosim.models.actuators import ACTUATORS, ActuatorSpec
+from mrm_cosim.models.drive import CurrentLoop, FrictionParams, solve_stick_slip
+from mrm_cosim.models.encoder import (
+    CYCLE, EncoderCycles, count_changes_lists, counts_per_rad, cycle_counts, joint_counts,
+    quadrature_levels,
+)
+from mrm_cosim.errors import InputError, require_finite, require_nonnegative, require_positive
 
 __all__ = ["Perturbation", "PlantConfig", "PlantTruth", "true_parameters", "perturb_inertia",
            "Plant", "SPRING_PHASE_SCALE"]

@@ -31,10 +31,12 @@ from pathlib import Path
 
 import numpy as np
 
-from models.actuators import ACTUATORS
-from models.modules import MODULE_TYPES, LinkParams, ModuleType, SpringSpec
-from mrm.errors import InputError, reject_control_characters, reject_strings, require_finite, \
-    require_nonnegative, require_positive, require_vector
+from mrm_cosim.models.actuators import ACTUATORS
+from mrm_cosim.models.modules import MODULE_TYPES, LinkParams, ModuleType, SpringSpec
+from mrm_cosim.errors import (
+    InputError, reject_control_characters, reject_strings, require_finite, require_nonnegative,
+    require_positive, require_vector,
+)
 
 __all__ = ["Module", "Robot", "load_robot", "builtin_robots", "GRAVITY", "rot_x", "rot_z",
            "rpy_to_matrix", "matrix_to_rpy", "homogeneous"]

@@ -1,8 +1,5 @@
-"""mrm-cosim: cycle-accurate FPGA co-simulation of a modular robot manipulator.
+"""The ``mrm`` command line: argument parsing, flag names and exit codes, nothing else.
 
-The package ``mrm`` holds the command-line interface and what every layer shares (input
-errors). The system itself lives in the top-level packages ``hdl`` (gateware), ``master``
-(upper controller and trajectories) and ``models`` (robot descriptions and the plant).
+Library code raises :class:`mrm_cosim.errors.InputError` naming configuration fields and API
+arguments; :mod:`mrm_cosim.mrm.cli` maps them to flags and exit codes.
 """
-
-__version__ = "0.1.0"

@@ -12,8 +12,8 @@ import argparse
 import importlib
 import sys
 
-from mrm import __version__
-from mrm.errors import InputError
+from mrm_cosim import __version__
+from mrm_cosim.errors import InputError
 
 # Subcommand modules, in the order they appear in ``mrm --help``.
 COMMANDS = ("robot", "plan", "run", "hdl", "bench")
@@ -34,7 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"mrm-cosim {__version__}")
     subparsers = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     for name in COMMANDS:
-        importlib.import_module(f"mrm.commands.{name}").register(subparsers)
+        importlib.import_module(f"mrm_cosim.mrm.commands.{name}").register(subparsers)
     return parser
 
 

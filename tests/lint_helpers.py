@@ -3,7 +3,7 @@
 import subprocess
 from pathlib import Path
 
-from cosim.compiled import verilator_path
+from mrm_cosim.cosim.compiled import verilator_path
 
 __all__ = ["assert_lint_clean"]
 

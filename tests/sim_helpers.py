@@ -12,8 +12,8 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.sim import Simulator
 
-from hdl.link.chars import ERROR_CLASSES
-from hdl.link.codec import Codec
+from mrm_cosim.hdl.link.chars import ERROR_CLASSES
+from mrm_cosim.hdl.link.codec import Codec
 
 __all__ = [
     "stream_put", "stream_get", "packet_ends", "run_simulation", "FaultyLine", "CodecPair",
@@ -121,7 +121,7 @@ class CodecPair(Elaboratable):
 
 def read_codec_outputs(ctx, codec):
     """The gateware codec's outputs this cycle, in the shape of ``CodecOutputs``."""
-    from hdl.link.codec_ref import CodecOutputs
+    from mrm_cosim.hdl.link.codec_ref import CodecOutputs
     errors = ctx.get(codec.errors)
     return CodecOutputs(
         tx_ready=ctx.get(codec.tx.ready),
@@ -166,7 +166,7 @@ class RandomHost:
 
     def __init__(self, rng, *, p_offer=0.6, p_stall=0.02, p_unstall=0.05, p_tick=0.004,
                  max_len=20, p_eep=0.1):
-        from hdl.link.codec_ref import char_value
+        from mrm_cosim.hdl.link.codec_ref import char_value
         self._char_value = char_value
         self.rng = rng
         self.p_offer, self.p_stall, self.p_unstall = p_offer, p_stall, p_unstall
@@ -432,7 +432,7 @@ class PeerBench:
 
     async def bring_up(self, ctx, *, fast_div=1):
         """Handshake to Run: NULLs once the DUT has started, an FCT once it sends FCTs."""
-        from hdl.link.chars import LinkState
+        from mrm_cosim.hdl.link.chars import LinkState
         dut = self.dut
         ctx.set(dut.link_start, 1)
         await self.until(ctx, lambda: ctx.get(dut.state) == LinkState.STARTED)

@@ -5,9 +5,9 @@ import math
 
 import pytest
 
-from models.actuators import ACTUATORS, RPM, ActuatorSpec
-from models.encoder import CYCLE
-from models.robot import load_robot
+from mrm_cosim.models.actuators import ACTUATORS, RPM, ActuatorSpec
+from mrm_cosim.models.encoder import CYCLE
+from mrm_cosim.models.robot import load_robot
 
 # MRM paper Table 1 (seeds/003_*.txt), typed in independently of models/actuators.py.
 TABLE1 = {

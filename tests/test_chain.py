@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from amaranth.sim import Simulator
 
-from hdl.link import packet_ref as ref
-from hdl.link.chain import (Chain, master_receive, master_send, node_receive, node_send,
-                            put_chars, read_stats)
+from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.hdl.link.chain import (
+    Chain, master_receive, master_send, node_receive, node_send, put_chars, read_stats,
+)
 from .sim_helpers import run_simulation
 
 SHORT = {"reset_cycles": 60, "wait_cycles": 150}

@@ -19,10 +19,11 @@ import numpy as np
 import pytest
 from amaranth.sim import Simulator
 
-from hdl.link import packet_ref as ref
-from hdl.link.chain import (Chain, master_receive, master_send, node_receive, node_send,
-                            read_stats)
-from hdl.link.chars import LinkState
+from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.hdl.link.chain import (
+    Chain, master_receive, master_send, node_receive, node_send, read_stats,
+)
+from mrm_cosim.hdl.link.chars import LinkState
 
 from .sim_helpers import ERROR_CLASSES, run_simulation
 

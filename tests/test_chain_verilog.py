@@ -5,8 +5,8 @@ import re
 
 import pytest
 
-from mrm.commands import hdl as hdl_command
-from mrm.errors import InputError
+from mrm_cosim.mrm.commands import hdl as hdl_command
+from mrm_cosim.errors import InputError
 
 from .lint_helpers import assert_lint_clean
 from .test_verilog_codec import LINT_WAIVERS, run_cli

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import mrm.cli as cli
-from master import quaternion as quat
+import mrm_cosim.mrm.cli as cli
+from mrm_cosim.master import quaternion as quat
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "line.toml"
 

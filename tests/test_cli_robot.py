@@ -7,7 +7,7 @@ import sys
 import pinocchio as pin
 import pytest
 
-from mrm.cli import main
+from mrm_cosim.mrm.cli import main
 
 
 def test_show_json_describes_modules(capsys):
@@ -44,7 +44,8 @@ def test_robot_file(tmp_path, capsys):
     (["robot", "urdf"], "robot"),
 ])
 def test_errors_are_one_line_with_exit_2(argv, field):
-    proc = subprocess.run([sys.executable, "-m", "mrm", *argv], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "mrm_cosim", *argv], capture_output=True,
+                          text=True)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and field in lines[0]
@@ -54,7 +55,7 @@ def test_errors_are_one_line_with_exit_2(argv, field):
 def test_bad_file_field_named(tmp_path):
     path = tmp_path / "arm.toml"
     path.write_text('[[modules]]\ntype = "II"\nspring = { torque = 30.0 }\n')
-    proc = subprocess.run([sys.executable, "-m", "mrm", "robot", "urdf", str(path)],
+    proc = subprocess.run([sys.executable, "-m", "mrm_cosim", "robot", "urdf", str(path)],
                           capture_output=True, text=True)
     assert proc.returncode == 2 and proc.stdout == ""
     assert "modules[0].spring.torque" in proc.stderr

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 from amaranth.hdl import Fragment
 
-from cosim.closed_loop import Gains, LineFault, node_uploads
-from cosim.track import link_errors_detail, run_loop, run_track
-from master.cycle import Master, MasterTiming
-from master.quintic import QuinticProfile
-from models.plant import Plant
-from models.robot import robot_from_dict
-from mrm.errors import InputError
+from mrm_cosim.cosim.closed_loop import Gains, LineFault, node_uploads
+from mrm_cosim.cosim.track import link_errors_detail, run_loop, run_track
+from mrm_cosim.master.cycle import Master, MasterTiming
+from mrm_cosim.master.quintic import QuinticProfile
+from mrm_cosim.models.plant import Plant
+from mrm_cosim.models.robot import robot_from_dict
+from mrm_cosim.errors import InputError
 
 
 @pytest.fixture(scope="module")
@@ -106,7 +106,7 @@ def test_pysim_and_compiled_agree_under_a_line_fault():
 
 
 def test_bench_reports_speed_of_the_compiled_loop():
-    from cosim.bench import bench_backend
+    from mrm_cosim.cosim.bench import bench_backend
 
     r = bench_backend("compiled", "mrm3", cycles=20_000)
     assert r["cycles"] == 20_000 and r["wall_s"] > 0 and r["cycles_per_s"] > 0
@@ -149,7 +149,7 @@ def test_a_period_the_run_cuts_short_is_not_judged():
 def test_run_track_refuses_a_duration_it_cannot_run(tmp_path, capsys, duration, words):
     """Refused naming the flag, before anything is built (1e9 s used to die allocating the
     trace, 1e-9 s on an empty one), and nothing is written."""
-    from mrm.cli import main
+    from mrm_cosim.mrm.cli import main
 
     with pytest.raises(InputError, match=words) as e:
         run_track("mrm3", "vdc", "model", duration=duration)
@@ -163,7 +163,7 @@ def test_run_track_refuses_a_duration_it_cannot_run(tmp_path, capsys, duration, 
 
 def test_run_track_refuses_a_robot_longer_than_the_system(tmp_path, capsys):
     """A 17-module robot is refused naming --robot before anything runs or is written."""
-    from mrm.cli import main
+    from mrm_cosim.mrm.cli import main
 
     path = tmp_path / "long.toml"
     path.write_text('name = "long"\n' + '[[modules]]\ntype = "I"\ntwist_deg = 90.0\n' * 17)
@@ -193,7 +193,7 @@ def test_a_module_encoder_other_than_the_actuators_is_the_one_the_loop_measures_
     The arm stopped 5 % short of every target (max joint error 24 mrad instead of 0.8) and the
     nodes reported velocities 5 % low. Now all use the module's counts: the run tracks as with
     the catalogue encoder, and the velocity in Comm A is the count's derivative."""
-    from cosim.track import loop_system, loop_system_key
+    from mrm_cosim.cosim.track import loop_system, loop_system_key
 
     robot = robot_from_dict(_encoder_robot(1900))
     plant = Plant(robot)
@@ -260,9 +260,9 @@ def test_a_robot_with_a_home_posture_tracks_from_it():
     instead of 0.8 mrad, exit 0). Now each node is preset to its home count (CONFIG PRESET,
     what the plant's encoder shows there): the master reads the home posture in period 0 and
     the run tracks as well as from zero."""
-    from hdl.link.packet_ref import PacketType
-    from hdl.node.regs import Config
-    from models.encoder import counts_per_rad, joint_counts
+    from mrm_cosim.hdl.link.packet_ref import PacketType
+    from mrm_cosim.hdl.node.regs import Config
+    from mrm_cosim.models.encoder import counts_per_rad, joint_counts
 
     robot = robot_from_dict(_home_robot([10.0, 20.0, -30.0]))
     plant = Plant(robot)
@@ -314,9 +314,9 @@ def test_the_watchdog_timeout_follows_the_period():
     period: with ``[timing] period_cycles = 150000`` (3 ms) every node tripped between two
     periods' packets, the torques ramped to zero and the arm fell (1.07 rad off), the run
     ending with exit 0. The timeout is two periods now, so a 3 ms period tracks as 1 ms does."""
-    from hdl.link.packet_ref import PacketType
-    from hdl.node.regs import Config
-    from models.robot import load_robot
+    from mrm_cosim.hdl.link.packet_ref import PacketType
+    from mrm_cosim.hdl.node.regs import Config
+    from mrm_cosim.models.robot import load_robot
 
     def timeouts(period):
         uploads = node_uploads(load_robot("mrm3"), "vdc", Gains(), period_cycles=period)
@@ -340,12 +340,12 @@ def test_the_vdc_differences_and_adapts_over_the_masters_period():
     whatever ``[timing] period_cycles``: at 2 ms every required acceleration (dV_r/dt, q̈_r)
     the nodes computed was twice the truth, and the adaptation half as fast; the run ended
     normally with a tip error 3x the 1 ms run's. The words follow the period now."""
-    from cosim import experiment_config as ec
-    from cosim.model import ModelLoop
-    from cosim.track import _trajectory, node_encoders
-    from hdl.node.fixed import INVT, RHOT
-    from hdl.node.regs import Config
-    from models.robot import load_robot
+    from mrm_cosim.cosim import experiment_config as ec
+    from mrm_cosim.cosim.model import ModelLoop
+    from mrm_cosim.cosim.track import _trajectory, node_encoders
+    from mrm_cosim.hdl.node.fixed import INVT, RHOT
+    from mrm_cosim.hdl.node.regs import Config
+    from mrm_cosim.models.robot import load_robot
 
     robot = load_robot("mrm3")
     for period in (50_000, 100_000):
@@ -379,8 +379,8 @@ def test_a_run_that_is_not_clean_says_so_and_short_periods_do_not_trip_the_watch
     every Comm D is late — counted and said. The watchdog timeout of two periods (0.8 ms) had
     tripped every node in the silence between the uploads' ARM and period 0; it is at least
     2 ms now."""
-    from cosim.table2 import table_markdown
-    from cosim.track import run_faults
+    from mrm_cosim.cosim.table2 import table_markdown
+    from mrm_cosim.cosim.track import run_faults
 
     _, clean = run_track("mrm3", "vdc", "model", duration=0.01)
     assert run_faults(clean) == []

@@ -7,8 +7,8 @@ restart, and the recovery time (reported in docs/link.md from benchmarks/link_co
 
 import pytest
 
-from hdl.link.chars import CharKind, LinkState
-from hdl.link.codec_ref import char_value
+from mrm_cosim.hdl.link.chars import CharKind, LinkState
+from mrm_cosim.hdl.link.codec_ref import char_value
 
 from .sim_helpers import PairBench
 

@@ -8,8 +8,8 @@
 import pytest
 from amaranth.sim import Simulator
 
-from hdl.link.chars import LinkState
-from hdl.link.codec import Codec
+from mrm_cosim.hdl.link.chars import LinkState
+from mrm_cosim.hdl.link.codec import Codec
 
 from .sim_helpers import ERROR_CLASSES, CodecPair, LineMonitor, PeerBench, run_simulation
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from amaranth.sim import Simulator
 
-from hdl.link.codec_ref import CodecRef
-from hdl.link.chars import LinkState
+from mrm_cosim.hdl.link.codec_ref import CodecRef
+from mrm_cosim.hdl.link.chars import LinkState
 
 from .sim_helpers import (CodecPair, RandomHost, apply_line_faults, assert_outputs_equal,
                           drive_codec_inputs, read_codec_outputs, run_simulation)

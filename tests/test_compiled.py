@@ -8,7 +8,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.sim import Simulator
 
-from cosim.compiled import BuildError, CompiledModel
+from mrm_cosim.cosim.compiled import BuildError, CompiledModel
 
 
 class MacDemo(wiring.Component):
@@ -159,7 +159,7 @@ class NestedPorts(wiring.Component):
 def test_ports_of_nested_signatures_are_reachable():
     """A component with ``a__b`` ports (any sub-signature, e.g. the ``node_core`` top's streams)
     builds and drives them; the build used to fail on the wrapper's member names."""
-    from cosim.compiled import cxx_member
+    from mrm_cosim.cosim.compiled import cxx_member
 
     assert cxx_member("rx__payload") == "rx___05Fpayload"
     assert cxx_member("en_x") == "en_x"

@@ -5,8 +5,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from master.dmp import forcing_targets, learn_dmp
-from mrm.errors import InputError
+from mrm_cosim.master.dmp import forcing_targets, learn_dmp
+from mrm_cosim.errors import InputError
 
 DT = 0.005                                   # demo sample period, s
 T_DEMO = np.arange(201) * DT                 # 0 … 1 s

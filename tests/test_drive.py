@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from models.drive import CurrentLoop, FrictionParams, solve_stick_slip, \
-    solve_stick_slip_bruteforce, spring_energy, spring_torque
-from models.modules import SpringSpec
+from mrm_cosim.models.drive import (
+    CurrentLoop, FrictionParams, solve_stick_slip, solve_stick_slip_bruteforce, spring_energy,
+    spring_torque,
+)
+from mrm_cosim.models.modules import SpringSpec
 
 FR = FrictionParams(coulomb=[0.5, 1.0], static=[0.7, 1.4], stribeck_velocity=[0.01, 0.02],
                     viscous=[0.08, 0.16])

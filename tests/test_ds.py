@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from amaranth.sim import Simulator
 
-from hdl.link.ds import DSReceiver, DSTransmitter
+from mrm_cosim.hdl.link.ds import DSReceiver, DSTransmitter
 
 from .sim_helpers import run_simulation
 

@@ -7,10 +7,11 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from models.actuators import ACTUATORS
-from models.encoder import CYCLE, EncoderOverspeed, count_changes, counts_per_rad, \
-    cycle_counts, cycle_counts_sampled, decode_quadrature, joint_counts, max_legal_speed, \
-    quadrature_levels
+from mrm_cosim.models.actuators import ACTUATORS
+from mrm_cosim.models.encoder import (
+    CYCLE, EncoderOverspeed, count_changes, counts_per_rad, cycle_counts, cycle_counts_sampled,
+    decode_quadrature, joint_counts, max_legal_speed, quadrature_levels,
+)
 
 K = counts_per_rad(np.array([800_000]))
 

@@ -7,12 +7,12 @@ from pathlib import Path
 
 import pytest
 
-import mrm.cli as cli
-from cosim import experiment_config as ec
-from cosim.closed_loop import Gains
-from master.cycle import MasterTiming
-from models.plant import Perturbation, PlantConfig
-from mrm.errors import InputError
+import mrm_cosim.mrm.cli as cli
+from mrm_cosim.cosim import experiment_config as ec
+from mrm_cosim.cosim.closed_loop import Gains
+from mrm_cosim.master.cycle import MasterTiming
+from mrm_cosim.models.plant import Perturbation, PlantConfig
+from mrm_cosim.errors import InputError
 
 ROBOTS = Path(__file__).resolve().parents[1] / "models" / "robots"
 
@@ -175,10 +175,10 @@ def test_cli_names_the_field_exits_2_and_writes_nothing(tmp_path, capsys):
 
 
 def test_friction_comp_uploads_the_nominal_friction_as_vdc_joint_estimates():
-    from cosim.closed_loop import Gains, JointParams, node_uploads
-    from hdl.node.regs import joint_upload
-    from models.actuators import ACTUATORS
-    from models.robot import load_robot
+    from mrm_cosim.cosim.closed_loop import Gains, JointParams, node_uploads
+    from mrm_cosim.hdl.node.regs import joint_upload
+    from mrm_cosim.models.actuators import ACTUATORS
+    from mrm_cosim.models.robot import load_robot
 
     robot = load_robot("mrm3")
     plain = node_uploads(robot, "vdc", Gains())
@@ -211,8 +211,8 @@ def test_a_robot_with_more_modules_than_nodes_is_refused_as_the_robot(tmp_path):
     with pytest.raises(InputError, match="17 modules.*at most 16") as exc:
         ec.loads(f"[experiment]\nrobot = '{path}'\n")
     assert exc.value.field == "experiment.robot"
-    from cosim.track import check_robot_fits
-    from models.robot import load_robot
+    from mrm_cosim.cosim.track import check_robot_fits
+    from mrm_cosim.models.robot import load_robot
 
     check_robot_fits(load_robot(str(_long_robot(tmp_path, 16))), "experiment.robot")
 
@@ -226,7 +226,7 @@ def test_the_period_must_be_a_whole_number_of_the_configured_plant_steps():
     period of 25,250 cycles, which the old check refused."""
     cfg = ec.loads("[plant]\ndt = 5e-6\n[timing]\nperiod_cycles = 25250\n")
     assert cfg.timing.period_cycles == 25_250 and cfg.plant.cycles_per_step == 250
-    from cosim.track import run_track
+    from mrm_cosim.cosim.track import run_track
 
     with pytest.raises(InputError) as exc:
         run_track("mrm3", "vdc", "model", duration=0.01, plant_config=PlantConfig(dt=2e-5),

@@ -4,10 +4,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from master.kinematics import UnreachablePose, forward, inverse, jacobian, pose_error, \
-    rotation_log
-from models.robot import load_robot, robot_from_dict
-from mrm.errors import InputError
+from mrm_cosim.master.kinematics import (
+    UnreachablePose, forward, inverse, jacobian, pose_error, rotation_log,
+)
+from mrm_cosim.models.robot import load_robot, robot_from_dict
+from mrm_cosim.errors import InputError
 
 
 @pytest.mark.parametrize("name", ["mrm3", "mrm6", "odd"])

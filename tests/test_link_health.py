@@ -14,14 +14,14 @@ import pytest
 from amaranth import Signal
 from amaranth.sim import Simulator
 
-from cosim.closed_loop import FAULT_KINDS, LineFault
-from hdl.link.chain import get_packet, line_fault_layout, put_packet
-from hdl.link.chars import ERROR_CLASSES, saturating_sum, saturating_sum_ref
-from hdl.link.packet_ref import Header, PacketType
-from hdl.node.core import NodeCore
-from hdl.node.core_ref import NodeModel
-from hdl.node.regs import LINK_HEALTH, RX_DROPS, parse_comm_a
-from mrm.errors import InputError
+from mrm_cosim.cosim.closed_loop import FAULT_KINDS, LineFault
+from mrm_cosim.hdl.link.chain import get_packet, line_fault_layout, put_packet
+from mrm_cosim.hdl.link.chars import ERROR_CLASSES, saturating_sum, saturating_sum_ref
+from mrm_cosim.hdl.link.packet_ref import Header, PacketType
+from mrm_cosim.hdl.node.core import NodeCore
+from mrm_cosim.hdl.node.core_ref import NodeModel
+from mrm_cosim.hdl.node.regs import LINK_HEALTH, RX_DROPS, parse_comm_a
+from mrm_cosim.errors import InputError
 
 from .sim_helpers import packet_ends, run_simulation
 from .test_node_core import ENC
@@ -136,7 +136,7 @@ def test_line_fault_values_and_bad_input():
 
 
 def test_the_model_backend_refuses_line_faults():
-    from cosim.track import run_track
+    from mrm_cosim.cosim.track import run_track
 
     with pytest.raises(InputError) as e:
         run_track(backend="model", duration=0.002, faults=[LineFault(1, "up", "bit", 10)])
@@ -147,7 +147,7 @@ def test_the_model_backend_refuses_line_faults():
 def faulted_run():
     """3-node VDC loop on the compiled gateware; one inverted bit on the line from node 2 up to
     node 1, 6 µs into period 2 (while the Comm A replies of nodes 2 and 3 cross it)."""
-    from cosim.track import run_track
+    from mrm_cosim.cosim.track import run_track
 
     fault = LineFault(node=2, direction="up", kind="bit", cycle=2 * 50_000 + 300)
     return run_track(controller="vdc", backend="compiled", duration=0.006, faults=[fault])
@@ -188,7 +188,7 @@ def test_a_bit_error_in_the_closed_loop_is_counted_where_it_happened(faulted_run
     ("bit:up:2@1.5ms", "after the run's end"),
 ])
 def test_cli_refuses_bad_line_faults_naming_the_flag(tmp_path, capsys, spec, words):
-    from mrm import cli
+    from mrm_cosim.mrm import cli
 
     out = tmp_path / "o"
     code = cli.main(["run", "track", "--backend", "compiled", "--duration", "0.001",
@@ -199,7 +199,7 @@ def test_cli_refuses_bad_line_faults_naming_the_flag(tmp_path, capsys, spec, wor
 
 
 def test_cli_refuses_line_faults_on_the_model_backend(tmp_path, capsys):
-    from mrm import cli
+    from mrm_cosim.mrm import cli
 
     code = cli.main(["run", "track", "--backend", "model", "--duration", "0.001",
                      "--line-fault", "bit:up:1@0.5ms", "--out", str(tmp_path / "o"), "--quiet"])
@@ -219,7 +219,7 @@ def test_cli_track_with_a_line_fault_says_where_it_was_counted(tmp_path, capsys)
     lost, both codecs of that line count it, the command says so and records the fault."""
     import json
 
-    from mrm import cli
+    from mrm_cosim.mrm import cli
 
     out = tmp_path / "o"
     code = cli.main(["run", "track", "--backend", "compiled", "--duration", "0.003",

@@ -5,9 +5,9 @@ step, the torque words, and every reply payload the master receives (issue 5).""
 import numpy as np
 import pytest
 
-from cosim.model import EncoderEvents, ModelAssumptionError
-from hdl.node.encoder_ref import EncoderModel, EncoderParams
-from models.encoder import quadrature_levels
+from mrm_cosim.cosim.model import EncoderEvents, ModelAssumptionError
+from mrm_cosim.hdl.node.encoder_ref import EncoderModel, EncoderParams
+from mrm_cosim.models.encoder import quadrature_levels
 
 
 def _walk(rng, n):
@@ -118,8 +118,8 @@ def test_fast_joint_tick_equals_the_reference():
     """Random words, extremes included, every mode, many ticks in a row (state carried)."""
     from dataclasses import fields
 
-    from cosim.model import fast_joint_tick
-    from hdl.node.joint_ref import MODES, JointInputs, JointModel, JointParams
+    from mrm_cosim.cosim.model import fast_joint_tick
+    from mrm_cosim.hdl.node.joint_ref import MODES, JointInputs, JointModel, JointParams
 
     rng = np.random.default_rng(7)
     lo, hi = -(1 << 23), (1 << 23) - 1
@@ -150,12 +150,12 @@ def test_fast_joint_tick_equals_the_reference():
 def test_strict_model_refuses_a_grid_it_cannot_match():
     """Period 0 off the nodes' timer grid: the time-code resynchronises them, which the model
     can only place by its approximate latency, so a strict run stops and says why."""
-    from cosim.closed_loop import Gains, node_uploads
-    from cosim.model import ModelLoop
-    from cosim.track import _trajectory
-    from master.cycle import Master
-    from models.plant import Plant
-    from models.robot import load_robot
+    from mrm_cosim.cosim.closed_loop import Gains, node_uploads
+    from mrm_cosim.cosim.model import ModelLoop
+    from mrm_cosim.cosim.track import _trajectory
+    from mrm_cosim.master.cycle import Master
+    from mrm_cosim.models.plant import Plant
+    from mrm_cosim.models.robot import load_robot
 
     robot = load_robot("mrm3")
     master = Master(robot, "vdc", _trajectory(robot), robot.counts_per_rev)
@@ -172,8 +172,8 @@ class RecordingMaster:
 
     @staticmethod
     def make(robot, controller):
-        from cosim.closed_loop import Gains, pid_gains
-        from master.cycle import Master, MasterTiming
+        from mrm_cosim.cosim.closed_loop import Gains, pid_gains
+        from mrm_cosim.master.cycle import Master, MasterTiming
 
         gains = Gains()
         master = Master(robot, controller, _wiggle(robot), robot.counts_per_rev,
@@ -204,10 +204,10 @@ def _wiggle(robot):
 
 
 def _loop(backend, controller, cycles, seed=3):
-    from cosim.closed_loop import Gains, node_uploads
-    from cosim.track import run_loop
-    from models.plant import Plant
-    from models.robot import load_robot
+    from mrm_cosim.cosim.closed_loop import Gains, node_uploads
+    from mrm_cosim.cosim.track import run_loop
+    from mrm_cosim.models.plant import Plant
+    from mrm_cosim.models.robot import load_robot
 
     robot = load_robot("mrm3")
     master = RecordingMaster.make(robot, controller)
@@ -251,12 +251,12 @@ def test_model_reports_a_comm_d_near_the_commit_phase():
     the commit phase: the gateware may commit it this period or the next, so the model says
     it cannot vouch for the result. A Comm D well after the phase is late on both backends,
     counted, committed a period later, and the runs are still identical."""
-    from cosim.closed_loop import Gains, node_uploads
-    from cosim.model import ModelLoop
-    from cosim.track import _trajectory, run_loop
-    from master.cycle import Master, MasterTiming
-    from models.plant import Plant
-    from models.robot import load_robot
+    from mrm_cosim.cosim.closed_loop import Gains, node_uploads
+    from mrm_cosim.cosim.model import ModelLoop
+    from mrm_cosim.cosim.track import _trajectory, run_loop
+    from mrm_cosim.master.cycle import Master, MasterTiming
+    from mrm_cosim.models.plant import Plant
+    from mrm_cosim.models.robot import load_robot
 
     robot = load_robot("mrm3")
 
@@ -287,12 +287,12 @@ def test_model_reports_a_comm_d_near_the_commit_phase():
 def _quintic_loop(controller, cycles, lazy, uploads=None, hook=None, start=50_000):
     """The paper's quintic on mrm3 for ``cycles`` after period 0, model backend only;
     ``hook(loop)`` before the run."""
-    from cosim.closed_loop import Gains, node_uploads, pid_gains
-    from cosim.model import ModelLoop
-    from cosim.track import _trajectory
-    from master.cycle import Master, MasterTiming
-    from models.plant import Plant
-    from models.robot import load_robot
+    from mrm_cosim.cosim.closed_loop import Gains, node_uploads, pid_gains
+    from mrm_cosim.cosim.model import ModelLoop
+    from mrm_cosim.cosim.track import _trajectory
+    from mrm_cosim.master.cycle import Master, MasterTiming
+    from mrm_cosim.models.plant import Plant
+    from mrm_cosim.models.robot import load_robot
 
     robot = load_robot("mrm3")
     gains = Gains()
@@ -348,12 +348,12 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
     """PID in the node with an anti-windup bound of a few IHI words: the coarse integral sits
     on its clip for much of the run; the lazy path's integral (updated on every tick, torque
     only where observed) is still the eager one."""
-    from cosim.closed_loop import Gains, node_uploads, pid_gains
-    from hdl.link import packet_ref as ref
-    from hdl.node.joint_ref import JointParams
-    from hdl.node.regs import Config, config_payloads, joint_upload
-    from models.actuators import ACTUATORS
-    from models.robot import load_robot
+    from mrm_cosim.cosim.closed_loop import Gains, node_uploads, pid_gains
+    from mrm_cosim.hdl.link import packet_ref as ref
+    from mrm_cosim.hdl.node.joint_ref import JointParams
+    from mrm_cosim.hdl.node.regs import Config, config_payloads, joint_upload
+    from mrm_cosim.models.actuators import ACTUATORS
+    from mrm_cosim.models.robot import load_robot
 
     robot = load_robot("mrm3")
     gains = Gains()
@@ -434,7 +434,7 @@ def test_deferred_strobes_equal_strobing_every_tick(seed, params):
     into the next sample) against strobing at every tick: the same counts at every deferred
     tick and the same (count, velocity, errors) at every sample, through measurements, bounds,
     stops, strobes closer than the velocity latency, and ages that saturate."""
-    from hdl.node.encoder_ref import AGE_MAX
+    from mrm_cosim.hdl.node.encoder_ref import AGE_MAX
 
     rng = np.random.default_rng(100 + seed)
     n = 60_000
@@ -475,7 +475,7 @@ def test_the_bound_never_grows_with_its_denominator():
     ``y1 · 2^−p`` of every denominator 1 … AGE_MAX is at most that of the one before, so
     ``velocity_word(num, den)`` is non-increasing in ``den`` (a rounding of a non-increasing
     value). All 2^26 denominators, vectorised, spot-checked against ``reciprocal``."""
-    from hdl.node.encoder_ref import AGE_MAX, RECIP_TABLE, reciprocal
+    from mrm_cosim.hdl.node.encoder_ref import AGE_MAX, RECIP_TABLE, reciprocal
 
     table = np.array(RECIP_TABLE, dtype=np.int64)
     prev = None
@@ -498,8 +498,8 @@ def test_lazy_ticks_equal_the_eager_path_when_the_watchdog_trips(controller):
     """A watchdog timeout shorter than the period: every node trips between packets, ramps
     its torque down and is re-armed by nothing; the ticks around the trip (the ramp reads the
     torque, PRIME follows) are computed one by one and the runs stay identical."""
-    from cosim.closed_loop import Gains, node_uploads
-    from models.robot import load_robot
+    from mrm_cosim.cosim.closed_loop import Gains, node_uploads
+    from mrm_cosim.models.robot import load_robot
 
     uploads = node_uploads(load_robot("mrm3"), controller, Gains(), timeout_cycles=30_000)
     runs = [_quintic_loop(controller, 1_500_000, lazy, uploads) for lazy in (True, False)]
@@ -512,8 +512,8 @@ def test_fast_vdc_equals_the_reference():
     """FastVdc (the lazy path's VDC) against hdl.node.vdc_ref.VdcModel: random words,
     extremes included so that every saturation and clip acts, ten periods in a row (the
     estimates and the previous required velocities carry)."""
-    from cosim.model import FastVdc
-    from hdl.node.vdc_ref import VdcInputs, VdcModel, VdcParams
+    from mrm_cosim.cosim.model import FastVdc
+    from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel, VdcParams
 
     rng = np.random.default_rng(21)
     lo, hi = -(1 << 23), (1 << 23) - 1
@@ -558,7 +558,7 @@ def test_lazy_ticks_equal_the_eager_path_off_the_plant_grid(controller, start):
 
 
 def test_progress_is_reported_every_simulated_millisecond():
-    from cosim.track import run_track
+    from mrm_cosim.cosim.track import run_track
 
     calls = []
     run_track("mrm3", "vdc", "model", duration=0.003,

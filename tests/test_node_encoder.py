@@ -7,11 +7,12 @@ from amaranth.sim import Simulator
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdl.node.encoder import QuadratureEncoder
-from hdl.node.encoder_ref import (AGE_MAX, VEL_LATENCY, EncoderModel, EncoderParams,
-                                  reciprocal, velocity_word)
-from hdl.node.fixed import VEL
-from models.encoder import counts_per_rad, quadrature_levels
+from mrm_cosim.hdl.node.encoder import QuadratureEncoder
+from mrm_cosim.hdl.node.encoder_ref import (
+    AGE_MAX, VEL_LATENCY, EncoderModel, EncoderParams, reciprocal, velocity_word,
+)
+from mrm_cosim.hdl.node.fixed import VEL
+from mrm_cosim.models.encoder import counts_per_rad, quadrature_levels
 
 from .sim_helpers import run_simulation
 

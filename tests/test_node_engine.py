@@ -9,10 +9,10 @@ from amaranth.sim import Simulator
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hdl.node.engine import MacEngine
-from hdl.node.engine_ref import EngineModel, mem_depth, run_statements
-from hdl.node.fixed import WORD_MAX, WORD_MIN, Fmt, round_shift, saturate
-from hdl.node.isa import IO_BASE, LATENCY, Instr, Op, Program, T, decode, encode
+from mrm_cosim.hdl.node.engine import MacEngine
+from mrm_cosim.hdl.node.engine_ref import EngineModel, mem_depth, run_statements
+from mrm_cosim.hdl.node.fixed import WORD_MAX, WORD_MIN, Fmt, round_shift, saturate
+from mrm_cosim.hdl.node.isa import IO_BASE, LATENCY, Instr, Op, Program, T, decode, encode
 
 from .sim_helpers import run_simulation
 

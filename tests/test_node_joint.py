@@ -9,12 +9,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hdl.node.engine_ref import EngineModel
-from hdl.node.fixed import ACC, FORCE, POS, VEL, WORD_MAX, WORD_MIN
-from hdl.node.isa import IO_BASE
-from hdl.node.joint import (joint_input_words, joint_microcode, joint_param_words,
-                            joint_state_words)
-from hdl.node.joint_ref import MODES, JointInputs, JointModel, JointParams
+from mrm_cosim.hdl.node.engine_ref import EngineModel
+from mrm_cosim.hdl.node.fixed import ACC, FORCE, POS, VEL, WORD_MAX, WORD_MIN
+from mrm_cosim.hdl.node.isa import IO_BASE
+from mrm_cosim.hdl.node.joint import (
+    joint_input_words, joint_microcode, joint_param_words, joint_state_words,
+)
+from mrm_cosim.hdl.node.joint_ref import MODES, JointInputs, JointModel, JointParams
 
 from .test_node_engine import run_engine
 
@@ -167,6 +168,6 @@ def test_pid_integral_is_clamped_and_torque_mode_passes_through():
 
 
 def test_rejects_gains_that_do_not_fit():
-    from mrm.errors import InputError
+    from mrm_cosim.errors import InputError
     with pytest.raises(InputError, match="joint.kj"):
         JointParams.from_float(k_j=1e6)

@@ -8,16 +8,17 @@ from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.sim import Simulator
 
-from hdl.link import packet_ref as ref
-from hdl.link.chain import master_receive, put_chars
-from hdl.link.chars import Char
-from hdl.link.codec import Codec
-from hdl.node.core_ref import NodeModel
-from hdl.node.encoder_ref import EncoderParams
-from hdl.node.regs import Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c, \
-    vdc_upload
-from hdl.node.top import SlaveNode
-from models.robot import load_robot
+from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.hdl.link.chain import master_receive, put_chars
+from mrm_cosim.hdl.link.chars import Char
+from mrm_cosim.hdl.link.codec import Codec
+from mrm_cosim.hdl.node.core_ref import NodeModel
+from mrm_cosim.hdl.node.encoder_ref import EncoderParams
+from mrm_cosim.hdl.node.regs import (
+    Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c, vdc_upload,
+)
+from mrm_cosim.hdl.node.top import SlaveNode
+from mrm_cosim.models.robot import load_robot
 
 from .sim_helpers import run_simulation
 

@@ -9,9 +9,9 @@ from amaranth.sim import Simulator
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdl.node.fixed import TRIG
-from hdl.node.trig import LATENCY, SinCos
-from hdl.node.trig_ref import binary_angle, sin_cos
+from mrm_cosim.hdl.node.fixed import TRIG
+from mrm_cosim.hdl.node.trig import LATENCY, SinCos
+from mrm_cosim.hdl.node.trig_ref import binary_angle, sin_cos
 
 from .sim_helpers import run_simulation
 

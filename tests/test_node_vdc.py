@@ -7,16 +7,19 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from hdl.node.engine_ref import EngineModel
-from hdl.node.isa import IO_BASE
-from hdl.node.fixed import ACC, FORCE, GAIN, RHOT, THETA, VEL, WORD_MAX, WORD_MIN, theta_group
-from hdl.node.vdc import (VdcUnit, vdc_input_words, vdc_microcode, vdc_param_words,
-                          vdc_state_words)
-from hdl.node.vdc_ref import Y_TABLE, VdcInputs, VdcModel, VdcParams
-from master.quintic import QuinticProfile
-from master.vdc_float import ModuleGains, ModuleVDC
-from models.robot import load_robot
-from models.spatial import regressor
+from mrm_cosim.hdl.node.engine_ref import EngineModel
+from mrm_cosim.hdl.node.isa import IO_BASE
+from mrm_cosim.hdl.node.fixed import (
+    ACC, FORCE, GAIN, RHOT, THETA, VEL, WORD_MAX, WORD_MIN, theta_group,
+)
+from mrm_cosim.hdl.node.vdc import (
+    VdcUnit, vdc_input_words, vdc_microcode, vdc_param_words, vdc_state_words,
+)
+from mrm_cosim.hdl.node.vdc_ref import Y_TABLE, VdcInputs, VdcModel, VdcParams
+from mrm_cosim.master.quintic import QuinticProfile
+from mrm_cosim.master.vdc_float import ModuleGains, ModuleVDC
+from mrm_cosim.models.robot import load_robot
+from mrm_cosim.models.spatial import regressor
 
 from .test_node_engine import run_engine
 

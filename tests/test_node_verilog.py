@@ -6,10 +6,10 @@ import re
 
 import pytest
 
-from hdl.node.joint import JointUnit
-from hdl.synth import count_cells, find_yosys, synth_component
-from mrm.commands import hdl as hdl_command
-from mrm.errors import InputError
+from mrm_cosim.hdl.node.joint import JointUnit
+from mrm_cosim.hdl.synth import count_cells, find_yosys, synth_component
+from mrm_cosim.mrm.commands import hdl as hdl_command
+from mrm_cosim.errors import InputError
 
 from .lint_helpers import assert_lint_clean
 
@@ -72,7 +72,7 @@ def test_encoder_parameters_the_estimator_cannot_take_are_named(tmp_path, top, p
 
 
 def test_the_counts_per_rev_range_is_exact():
-    from hdl.node.encoder_ref import EncoderParams
+    from mrm_cosim.hdl.node.encoder_ref import EncoderParams
 
     lo, hi = EncoderParams().counts_per_rev_range()
     assert lo <= 800_000 <= hi
@@ -122,7 +122,7 @@ def test_a_place_and_route_that_runs_out_of_time_is_a_clear_error(tmp_path, monk
     with exit code 1; it was a TimeoutExpired traceback."""
     import subprocess
 
-    import hdl.synth as synth
+    import mrm_cosim.hdl.synth as synth
 
     monkeypatch.setattr(synth, "find_nextpnr", lambda: "nextpnr-ecp5")
 

@@ -5,9 +5,9 @@ from amaranth.sim import Simulator
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hdl.node.fixed import WORD_MAX, WORD_MIN
-from hdl.node.watchdog import Watchdog
-from hdl.node.watchdog_ref import WatchdogModel
+from mrm_cosim.hdl.node.fixed import WORD_MAX, WORD_MIN
+from mrm_cosim.hdl.node.watchdog import Watchdog
+from mrm_cosim.hdl.node.watchdog_ref import WatchdogModel
 
 from .sim_helpers import run_simulation
 

@@ -8,12 +8,12 @@ import pinocchio as pin
 import pytest
 from scipy.integrate import solve_ivp
 
-from models.actuators import ACTUATORS
-from models.drive import solve_stick_slip_bruteforce
-from models.encoder import decode_quadrature
-from models.plant import Perturbation, Plant, PlantConfig, true_parameters
-from models.robot import load_robot
-from mrm.errors import InputError
+from mrm_cosim.models.actuators import ACTUATORS
+from mrm_cosim.models.drive import solve_stick_slip_bruteforce
+from mrm_cosim.models.encoder import decode_quadrature
+from mrm_cosim.models.plant import Perturbation, Plant, PlantConfig, true_parameters
+from mrm_cosim.models.robot import load_robot
+from mrm_cosim.errors import InputError
 
 ROBOTS = ["mrm3", "mrm6"]
 NOMINAL = dict(perturbation=0.0)

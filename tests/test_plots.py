@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from cosim import plots
-from master.cycle import PeriodRecord
+from mrm_cosim.cosim import plots
+from mrm_cosim.master.cycle import PeriodRecord
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -127,7 +127,7 @@ def test_timeline_bars_of_a_pid_period_skip_b_and_c():
 def test_timeline_bars_of_a_pid_period_from_the_nodes_events():
     """PID modes: per node A↓, A↑ and D↓ from the observation port, no B, VDC or C; the
     boundary and commit markers; the timeline JSON keeps the events per node."""
-    from cosim.table2 import timeline_json
+    from mrm_cosim.cosim.table2 import timeline_json
 
     r = PeriodRecord(index=2, start=100_000, complete=True)
     r.arrivals = {("A", 1): 100_200, ("A", 2): 100_355}

@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cosim.preview import paper_test_profile, run_preview
-from models.robot import load_robot
-from mrm.cli import main
-from mrm.errors import InputError
-from mrm.output import atomic_output_dir
+from mrm_cosim.cosim.preview import paper_test_profile, run_preview
+from mrm_cosim.models.robot import load_robot
+from mrm_cosim.mrm.cli import main
+from mrm_cosim.errors import InputError
+from mrm_cosim.results import atomic_output_dir
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ import pytest
 import scipy.linalg
 from scipy.spatial.transform import Rotation, Slerp
 
-from master import quaternion as quat
+from mrm_cosim.master import quaternion as quat
 
 
 def random_rotations(n, seed=0):

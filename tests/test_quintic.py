@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numpy.polynomial import Polynomial
 
-from master.quintic import QuinticProfile, mrm_test_profile
-from mrm.errors import InputError
+from mrm_cosim.master.quintic import QuinticProfile, mrm_test_profile
+from mrm_cosim.errors import InputError
 
 DELTA = 0.1571   # the MRM paper's p_f − p_0, rad (20,000 encoder counts)
 

@@ -4,7 +4,7 @@ import re
 import shlex
 from pathlib import Path
 
-from mrm.cli import build_parser
+from mrm_cosim.mrm.cli import build_parser
 
 ROOT = Path(__file__).parents[1]
 

@@ -7,11 +7,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from models.actuators import ACTUATORS
-from models.modules import MODULE_TYPES, TABLE1, TABLE1_ERRATA
-from models.robot import load_robot, matrix_to_rpy, robot_from_dict, rot_x, rpy_to_matrix
-from models.spatial import theta_to_pinocchio, transform_theta
-from mrm.errors import InputError
+from mrm_cosim.models.actuators import ACTUATORS
+from mrm_cosim.models.modules import MODULE_TYPES, TABLE1, TABLE1_ERRATA
+from mrm_cosim.models.robot import load_robot, matrix_to_rpy, robot_from_dict, rot_x, rpy_to_matrix
+from mrm_cosim.models.spatial import theta_to_pinocchio, transform_theta
+from mrm_cosim.errors import InputError
 
 ROBOTS = ["mrm3", "mrm6"]
 
@@ -261,8 +261,8 @@ def test_counts_per_rev_beyond_the_joint_count_is_refused_at_load(fields, field)
 
 
 def test_the_largest_counts_per_rev_loads_and_runs():
-    from cosim.preview import run_preview
-    from models.robot import MAX_COUNTS_PER_REV
+    from mrm_cosim.cosim.preview import run_preview
+    from mrm_cosim.models.robot import MAX_COUNTS_PER_REV
 
     robot = robot_from_dict(_doc(module_types={"III": {"like": "I", "encoder_lines": 10_737_418}},
                                  modules=[{"type": "III"}]))

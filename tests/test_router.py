@@ -3,9 +3,9 @@
 import numpy as np
 from amaranth.sim import Simulator
 
-from hdl.link import packet_ref as ref
-from hdl.link.chain import char_int, char_value, get_chars, put_chars
-from hdl.link.router import Router
+from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.hdl.link.chain import char_int, char_value, get_chars, put_chars
+from mrm_cosim.hdl.link.router import Router
 from .sim_helpers import run_simulation
 
 ADDRESS = 2

@@ -7,9 +7,9 @@ from hypothesis import strategies as st
 from ruckig import InputParameter, Ruckig, Synchronization, Trajectory
 from scipy.spatial.transform import Rotation
 
-from master import quaternion as quat
-from master.ruckig_profile import plan_line_ruckig
-from master.trig_planner import AxisLimits, LineLimits, plan_line, sample_times
+from mrm_cosim.master import quaternion as quat
+from mrm_cosim.master.ruckig_profile import plan_line_ruckig
+from mrm_cosim.master.trig_planner import AxisLimits, LineLimits, plan_line, sample_times
 
 START = [[1, 0, 0, 0.3], [0, 1, 0, 0.0], [0, 0, 1, 0.4], [0, 0, 0, 1]]
 END = [[0, -1, 0, 0.1], [1, 0, 0, 0.2], [0, 0, 1, 0.5], [0, 0, 0, 1]]

@@ -4,10 +4,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from models.spatial import (coriolis_matrix, force_to, gravity_in_frame, gravity_wrench,
-                            mass_matrix, physical_from_theta, regressor, rigid_body_wrench,
-                            skew, theta_from_physical, theta_to_pinocchio, transform_theta,
-                            transform_U, velocity_to)
+from mrm_cosim.models.spatial import (
+    coriolis_matrix, force_to, gravity_in_frame, gravity_wrench, mass_matrix,
+    physical_from_theta, regressor, rigid_body_wrench, skew, theta_from_physical,
+    theta_to_pinocchio, transform_theta, transform_U, velocity_to,
+)
 
 
 def random_body(rng):

@@ -2,7 +2,7 @@
 """``mrm hdl verilog --top system``: the whole robot's gateware as Verilog, lint-clean."""
 
 
-from mrm.cli import main
+from mrm_cosim.mrm.cli import main
 
 from .lint_helpers import assert_lint_clean
 from .test_chain_verilog import NODE_WAIVERS, module_ports

@@ -8,13 +8,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-import mrm.cli as cli
-from cosim import experiment_config as ec
-from cosim import table2
-from cosim.track import BACKENDS, run_track
-from master.cycle import MasterTiming, PeriodRecord
-from mrm import __version__
-from mrm.errors import InputError
+import mrm_cosim.mrm.cli as cli
+from mrm_cosim.cosim import experiment_config as ec
+from mrm_cosim.cosim import table2
+from mrm_cosim.cosim.track import BACKENDS, run_track
+from mrm_cosim.master.cycle import MasterTiming, PeriodRecord
+from mrm_cosim import __version__
+from mrm_cosim.errors import InputError
 
 FIELDS = {"controller", "backend", "rho_s", "max_tip_error_m", "max_tip_speed_m_s",
           "max_joint_error_rad", "overruns", "link_errors", "phases_us", "trace_sha256"}
@@ -179,9 +179,9 @@ def test_progress_reports_each_controller_with_speed_and_eta():
 
 
 def test_cli_prints_progress_unless_quiet(tmp_path, monkeypatch, capsys):
-    import cosim.track
+    import mrm_cosim.cosim.track as track
 
-    monkeypatch.setattr(cosim.track, "run_track", FakeRunner())
+    monkeypatch.setattr(track, "run_track", FakeRunner())
     cfg = tmp_path / "c.toml"
     cfg.write_text("[experiment]\nduration = 0.01\ncontrollers = ['pid-fpga', 'vdc']\n")
     assert cli.main(["run", "table2", "--config", str(cfg), "--out", str(tmp_path / "a"),

@@ -9,17 +9,12 @@ from hypothesis import strategies as st
 from scipy.integrate import cumulative_trapezoid
 from scipy.spatial.transform import Rotation
 
-from master import quaternion as quat
-from master.trig_planner import (
-    AxisLimits,
-    LineLimits,
-    TrigProfile,
-    plan_line,
-    pose_from_matrix,
-    sample_times,
+from mrm_cosim.master import quaternion as quat
+from mrm_cosim.master.trig_planner import (
+    AxisLimits, LineLimits, TrigProfile, plan_line, pose_from_matrix, sample_times,
     trig_min_duration,
 )
-from mrm.errors import InputError
+from mrm_cosim.errors import InputError
 
 EXAMPLE_START = [[1, 0, 0, 0.3], [0, 1, 0, 0.0], [0, 0, 1, 0.4], [0, 0, 0, 1]]
 EXAMPLE_END = [[0, -1, 0, 0.1], [1, 0, 0, 0.2], [0, 0, 1, 0.5], [0, 0, 0, 1]]

@@ -5,12 +5,12 @@ tests/test_node_core.py)."""
 
 import numpy as np
 
-from cosim.closed_loop import Gains, node_uploads
-from hdl.link.packet_ref import BROADCAST, PacketType, crc16
-from hdl.node.core_ref import NodeModel
-from hdl.node.regs import Config, config_payloads, parse_comm_a
-from master.cycle import Master, MasterTiming
-from models.robot import load_robot
+from mrm_cosim.cosim.closed_loop import Gains, node_uploads
+from mrm_cosim.hdl.link.packet_ref import BROADCAST, PacketType, crc16
+from mrm_cosim.hdl.node.core_ref import NodeModel
+from mrm_cosim.hdl.node.regs import Config, config_payloads, parse_comm_a
+from mrm_cosim.master.cycle import Master, MasterTiming
+from mrm_cosim.models.robot import load_robot
 
 ROBOT = load_robot("mrm3")
 
@@ -142,9 +142,9 @@ def test_a_comm_d_still_waiting_at_the_period_end_is_an_overrun():
 def test_model_backend_run_reports_a_lost_upload():
     """End to end on the model backend: node 3 never gets one PARAM packet; the master, which
     expects the full list, counts every Comm A of node 3 and nothing else."""
-    from cosim.model import ModelLoop
-    from cosim.track import _trajectory
-    from models.plant import Plant, PlantConfig
+    from mrm_cosim.cosim.model import ModelLoop
+    from mrm_cosim.cosim.track import _trajectory
+    from mrm_cosim.models.plant import Plant, PlantConfig
 
     gains = Gains()
     ups = node_uploads(ROBOT, "pid-fpga", gains)

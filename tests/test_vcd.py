@@ -8,8 +8,8 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 from vcd.reader import TokenKind, tokenize
 
-from cosim.backends import CompiledBackend, PysimBackend, VcdWindow, drive
-from mrm.errors import InputError
+from mrm_cosim.cosim.backends import CompiledBackend, PysimBackend, VcdWindow, drive
+from mrm_cosim.errors import InputError
 
 PERIOD_PS = 20_000
 
@@ -203,7 +203,7 @@ def test_pysim_vcd_needs_the_backends_simulator(tmp_path):
     (["--backend", "compiled", "--signals", "torque*"], "--signals"),
 ])
 def test_track_refuses_bad_waveform_requests_before_running(tmp_path, capsys, argv, field):
-    from mrm.cli import main
+    from mrm_cosim.mrm.cli import main
 
     out = tmp_path / "out"
     assert main(["run", "track", "--quiet", "--out", str(out), *argv]) == 2

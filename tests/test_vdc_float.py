@@ -4,11 +4,12 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from master.vdc_float import (ModuleGains, ModuleVDC, adaptation_signal, link_a_acceleration,
-                              link_a_velocity, link_regressor, projection_update,
-                              required_net_force, rz)
-from models.robot import load_robot, robot_from_dict
-from models.spatial import regressor, rigid_body_wrench, theta_to_pinocchio, transform_U
+from mrm_cosim.master.vdc_float import (
+    ModuleGains, ModuleVDC, adaptation_signal, link_a_acceleration, link_a_velocity,
+    link_regressor, projection_update, required_net_force, rz,
+)
+from mrm_cosim.models.robot import load_robot, robot_from_dict
+from mrm_cosim.models.spatial import regressor, rigid_body_wrench, theta_to_pinocchio, transform_U
 
 G0 = 9.81
 

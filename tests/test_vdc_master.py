@@ -4,10 +4,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from master.vdc import (inverse_dynamics, link_required_forces, propagate_forces,
-                        propagate_velocities)
-from models.robot import BUILTIN_DIR, load_robot, robot_from_dict
-from mrm.errors import InputError
+from mrm_cosim.master.vdc import (
+    inverse_dynamics, link_required_forces, propagate_forces, propagate_velocities,
+)
+from mrm_cosim.models.robot import BUILTIN_DIR, load_robot, robot_from_dict
+from mrm_cosim.errors import InputError
 
 #: An assembly unlike the built-in ones: a tilted and turned base, a tool pose with a rotation,
 #: twists that are no multiple of 90°, a Type II first, a user type with its own lengths and
@@ -106,7 +107,7 @@ def test_rejects_wrong_shapes_and_nan():
 def test_gravity_sent_to_the_nodes_is_pinocchios_in_every_C_frame(name):
     """The master's Comm D gravity (upward, in {C_k}) is the world's z in pinocchio's frame of
     Link b, base pose and twists included."""
-    from master.cycle import Master
+    from mrm_cosim.master.cycle import Master
 
     robot = _robot(name)
     model = robot.pinocchio_model()

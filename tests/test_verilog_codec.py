@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from mrm.commands import hdl as hdl_command
-from mrm.errors import InputError
+from mrm_cosim.mrm.commands import hdl as hdl_command
+from mrm_cosim.errors import InputError
 
 from .lint_helpers import assert_lint_clean
 

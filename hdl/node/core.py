@@ -49,9 +49,9 @@ from amaranth import *
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from hdl.link.chars import ERROR_CLASSES, ErrorCounts, saturating_sum
-from hdl.link.crc import CRC16_INIT, crc16_next
-from hdl.link.packet import Beat, PacketType, RxStats
+from mrm_cosim.hdl.link.chars import ERROR_CLASSES, ErrorCounts, saturating_sum
+from mrm_cosim.hdl.link.crc import CRC16_INIT, crc16_next
+from mrm_cosim.hdl.link.packet import Beat, PacketType, RxStats
 
 from .encoder import QuadratureEncoder
 from .encoder_ref import EncoderParams

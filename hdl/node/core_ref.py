@@ -38,9 +38,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cache
 
-from hdl.link.chars import ERROR_CLASSES, saturating_sum_ref
-from hdl.link.crc import CRC16_INIT
-from hdl.link.packet_ref import PacketType, crc16
+from mrm_cosim.hdl.link.chars import ERROR_CLASSES, saturating_sum_ref
+from mrm_cosim.hdl.link.crc import CRC16_INIT
+from mrm_cosim.hdl.link.packet_ref import PacketType, crc16
 
 from .encoder_ref import EncoderParams
 from .fixed import saturate

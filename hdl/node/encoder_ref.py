@@ -39,7 +39,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from mrm.errors import InputError
+from mrm_cosim.errors import InputError
 
 from .fixed import VEL, round_shift, saturate
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from mrm.errors import InputError, require_finite
+from mrm_cosim.errors import InputError, require_finite
 
 __all__ = ["WORD", "WORD_MIN", "WORD_MAX", "Fmt", "round_shift", "saturate", "wrap",
            "VEL", "ACC", "TRIG", "FORCE", "GAIN", "THETA", "RHOT", "SIG", "INVT", "POS",

@@ -40,8 +40,8 @@ import math
 
 import numpy as np
 
-from hdl.link.crc import CRC16_INIT
-from mrm.errors import InputError
+from mrm_cosim.hdl.link.crc import CRC16_INIT
+from mrm_cosim.errors import InputError
 
 from .fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, WORD, saturate, theta_group
 from .joint_ref import JointParams
@@ -192,7 +192,7 @@ def upload_check(payloads) -> tuple[int, int]:
         CRC-16/CCITT-FALSE (:mod:`hdl.link.crc`, initial 0xFFFF) over the concatenated
         payloads, and the number of packets modulo 2^16.
     """
-    from hdl.link.packet_ref import crc16
+    from mrm_cosim.hdl.link.packet_ref import crc16
 
     crc, n = CRC16_INIT, 0
     for p in payloads:

@@ -15,8 +15,8 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from hdl.link.node import LinkNode, line_signature
-from hdl.link.params import rejecting
+from mrm_cosim.hdl.link.node import LinkNode, line_signature
+from mrm_cosim.hdl.link.params import rejecting
 
 from .core import NodeCore
 from .encoder_ref import EncoderParams

@@ -15,7 +15,7 @@ def register(subparsers) -> None:
 
 
 def _bench(args) -> int:
-    from cosim.bench import bench_backend
+    from mrm_cosim.cosim.bench import bench_backend
 
     backends = args.backend or ["model", "compiled", "pysim"]
     out = {"robot": args.robot, "backends": {}}

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mrm.errors import InputError
-from mrm.output import atomic_write_text, check_writable_folder, make_folder, remove_empty
+from mrm_cosim.errors import InputError
+from mrm_cosim.results import atomic_write_text, check_writable_folder, make_folder, remove_empty
 
 
 def register(subparsers) -> None:
@@ -50,7 +50,7 @@ def parse_params(items: list[str]) -> dict[str, int]:
 
 def write_verilog(top: str, out: Path, params: dict[str, int]) -> Path:
     """Generate ``top`` with ``params`` and write ``out/<top>.v`` atomically; return its path."""
-    from hdl.tops import TOPS, build_top, component_verilog, param_error
+    from mrm_cosim.hdl.tops import TOPS, build_top, component_verilog, param_error
 
     if top not in TOPS:
         raise InputError("--top", f"unknown top {top!r}; known: {', '.join(sorted(TOPS))}")
@@ -88,7 +88,7 @@ def _verilog(args) -> int:
 
 
 def _tops(args) -> int:
-    from hdl.tops import TOPS
+    from mrm_cosim.hdl.tops import TOPS
 
     for name, top in sorted(TOPS.items()):
         params = ", ".join(f"{k}={v}" for k, v in top.parameters().items())
@@ -97,6 +97,6 @@ def _tops(args) -> int:
 
 
 def _synth(args) -> int:
-    from hdl.synth import cli_report
+    from mrm_cosim.hdl.synth import cli_report
 
     return cli_report(args.top, args.family, parse_params(args.param), args.json)

@@ -14,8 +14,8 @@ import tomllib
 
 import numpy as np
 
-from mrm.errors import InputError, require_finite, require_positive
-from mrm.output import atomic_write_text
+from mrm_cosim.errors import InputError, require_finite, require_positive
+from mrm_cosim.results import atomic_write_text
 
 LIMIT_KEYS = ("velocity", "acceleration", "jerk")
 
@@ -100,7 +100,7 @@ def _parse_float(text: str, field: str) -> float:
 
 def quintic_figures(q0: list[float], qf: list[float], tf: float) -> dict:
     """Closed-form figures of the quintic; scalars for one joint, lists for several."""
-    from master.quintic import QuinticProfile
+    from mrm_cosim.master.quintic import QuinticProfile
 
     if len(q0) not in (1, len(qf)):
         raise InputError("--qf", f"has {len(qf)} joints but --q0 has {len(q0)}")
@@ -115,7 +115,7 @@ def quintic_figures(q0: list[float], qf: list[float], tf: float) -> dict:
 
 def _sample_times(duration: float, dt: float):
     """:func:`master.trig_planner.sample_times`, its errors naming the flag ``--dt``."""
-    from master.trig_planner import sample_times
+    from mrm_cosim.master.trig_planner import sample_times
 
     try:
         return sample_times(duration, dt)
@@ -124,7 +124,7 @@ def _sample_times(duration: float, dt: float):
 
 
 def _quintic(args) -> int:
-    from master.quintic import QuinticProfile
+    from mrm_cosim.master.quintic import QuinticProfile
 
     q0 = _numbers(args.q0, "--q0")
     qf = _numbers(args.qf, "--qf")
@@ -170,7 +170,7 @@ def parse_line_spec(doc: dict):
     :func:`master.trig_planner.pose_from_matrix`); every problem raises :class:`InputError`
     naming its dotted field.
     """
-    from master.trig_planner import AxisLimits, LineLimits
+    from mrm_cosim.master.trig_planner import AxisLimits, LineLimits
 
     _check_keys(doc, ("start", "end", "limits"), "")
     _check_keys(doc["start"], ("pose",), "start")
@@ -206,13 +206,13 @@ def load_line_file(path: str):
 
 
 def _line(args) -> int:
-    from master.trig_planner import plan_line
+    from mrm_cosim.master.trig_planner import plan_line
 
     dt = require_positive(_parse_float(args.dt, "--dt"), "--dt") if args.samples else None
     start, end, limits = load_line_file(args.file)
     plan = plan_line(start, end, limits)
     if args.profile == "ruckig":
-        from master.ruckig_profile import plan_line_ruckig
+        from mrm_cosim.master.ruckig_profile import plan_line_ruckig
 
         plan = plan_line_ruckig(plan)
     for note in plan.notes:

@@ -22,7 +22,7 @@ def register(subparsers) -> None:
 
 
 def _show(args) -> int:
-    from models.robot import load_robot
+    from mrm_cosim.models.robot import load_robot
 
     robot = load_robot(args.robot)
     info = robot.describe()
@@ -45,14 +45,14 @@ def _show(args) -> int:
 
 
 def _urdf(args) -> int:
-    from models.robot import load_robot
+    from mrm_cosim.models.robot import load_robot
 
     sys.stdout.write(load_robot(args.robot).urdf())
     return 0
 
 
 def _list(args) -> int:
-    from models.robot import builtin_robots
+    from mrm_cosim.models.robot import builtin_robots
 
     for name in builtin_robots():
         print(name)

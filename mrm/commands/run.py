@@ -7,8 +7,8 @@ import json
 import os
 from pathlib import Path
 
-from mrm import __version__
-from mrm.errors import InputError
+from mrm_cosim import __version__
+from mrm_cosim.errors import InputError
 
 
 def _seed(text: str) -> int:
@@ -78,11 +78,11 @@ def register(subparsers) -> None:
 
 
 def _preview(args) -> int:
-    from cosim.plots import plot_tracking
-    from cosim.preview import run_preview
-    from models.plant import PlantConfig
-    from models.robot import load_robot
-    from mrm.output import atomic_output_dir, check_output_dir, write_json
+    from mrm_cosim.cosim.plots import plot_tracking
+    from mrm_cosim.cosim.preview import run_preview
+    from mrm_cosim.models.plant import PlantConfig
+    from mrm_cosim.models.robot import load_robot
+    from mrm_cosim.results import atomic_output_dir, check_output_dir, write_json
 
     check_output_dir(args.out)
     robot = load_robot(args.robot)
@@ -119,11 +119,11 @@ def _preview(args) -> int:
 
 
 def _track(args) -> int:
-    from cosim.table2 import Progress
-    from cosim.track import check_robot_fits, run_track
-    from models.robot import load_robot
-    from mrm.errors import require_positive
-    from mrm.output import check_output_dir
+    from mrm_cosim.cosim.table2 import Progress
+    from mrm_cosim.cosim.track import check_robot_fits, run_track
+    from mrm_cosim.models.robot import load_robot
+    from mrm_cosim.errors import require_positive
+    from mrm_cosim.results import check_output_dir
 
     check_output_dir(args.out)
     robot = load_robot(args.robot)
@@ -131,7 +131,7 @@ def _track(args) -> int:
     duration = require_positive(args.duration, "--duration")
     if args.signals is not None and args.vcd is None:
         raise InputError("--signals", "selects the signals of a --vcd window; give --vcd too")
-    from cosim.closed_loop import LineFault
+    from mrm_cosim.cosim.closed_loop import LineFault
 
     faults = [LineFault.parse(spec) for spec in args.line_fault]
     if faults and args.backend == "model":
@@ -165,10 +165,10 @@ def _track(args) -> int:
 def _write_track(args, robot, result, summary, duration, vcd_tmp) -> None:
     import shutil
 
-    from cosim.plots import pick_period, plot_timeline, plot_tracking
-    from cosim.preview import paper_test_profile
-    from cosim.table2 import timeline_json
-    from mrm.output import atomic_output_dir, write_json
+    from mrm_cosim.cosim.plots import pick_period, plot_timeline, plot_tracking
+    from mrm_cosim.cosim.preview import paper_test_profile
+    from mrm_cosim.cosim.table2 import timeline_json
+    from mrm_cosim.results import atomic_output_dir, write_json
 
     q_d = paper_test_profile(robot).evaluate(result.t)[0]
     with atomic_output_dir(args.out) as tmp:
@@ -200,7 +200,7 @@ def _write_track(args, robot, result, summary, duration, vcd_tmp) -> None:
               f"late replies {summary.get('late_replies', 0)}, "
               f"A/B/C/D done at " + _phases_text(summary["phases_us"])
               + f"; RTF {summary['rtf']:.0f}")
-        from cosim.track import link_fault_places, run_faults
+        from mrm_cosim.cosim.track import link_fault_places, run_faults
 
         faults = run_faults(summary)
         if faults:
@@ -222,9 +222,9 @@ def _phases_text(phases: dict) -> str:
 
 
 def _table2(args) -> int:
-    from cosim.experiment_config import load
-    from cosim.table2 import Progress, run_table2
-    from mrm.output import check_output_dir
+    from mrm_cosim.cosim.experiment_config import load
+    from mrm_cosim.cosim.table2 import Progress, run_table2
+    from mrm_cosim.results import check_output_dir
 
     check_output_dir(args.out)
     config = load(args.config).with_overrides(backend=args.backend, seed=args.seed,
@@ -250,7 +250,7 @@ def default_jobs() -> int:
 
 
 def _plant_config(uncertainty: float):
-    from models.plant import PlantConfig
+    from mrm_cosim.models.plant import PlantConfig
 
     try:
         return PlantConfig(perturbation=uncertainty)

@@ -9,7 +9,7 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from mrm.errors import InputError
+from mrm_cosim.errors import InputError
 
 __all__ = ["atomic_output_dir", "atomic_write_text", "check_output_dir", "check_writable_folder",
            "make_folder", "remove_empty", "write_json"]

@@ -1,5 +1,0 @@
-import sys
-
-from mrm.cli import main
-
-sys.exit(main())
