@@ -29,6 +29,7 @@ from mrm_cosim.master.vdc_float import (
     ModuleGains, ModuleVDC, link_a_acceleration, link_a_velocity, required_net_force, rz,
 )
 from mrm_cosim.models.robot import load_robot
+from mrm_cosim.units import CLOCK_HZ
 
 G0 = 9.81
 
@@ -164,7 +165,7 @@ def joint_budget():
         model = JointModel(params)
         t_cyc = int(rng.integers(0, 60_000))
         q_d0, v_d0, a_d0 = rng.uniform(-2, 2), rng.uniform(-0.5, 0.5), rng.uniform(-2, 2)
-        t = t_cyc / 50e6
+        t = t_cyc / CLOCK_HZ
         q_true = q_d0 + v_d0 * t + 0.5 * a_d0 * t * t + rng.normal() * 2e-4
         x = JointInputs(q=math.floor(q_true / rad), qd=VEL.encode(v_d0 + rng.normal() * 1e-2),
                         tn=t_cyc, tau_D=FORCE.encode(rng.uniform(-5, 5)),

@@ -17,12 +17,12 @@ from pathlib import Path
 import numpy as np
 
 from mrm_cosim.errors import InputError
+from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["CompiledBackend", "PysimBackend", "Recorder", "VcdWindow", "drive",
            "system_verilog", "CLOCK_HZ"]
 
-#: The gateware's clock: one cycle is 20 ns.
-CLOCK_HZ = 50_000_000
+#: One cycle of the gateware's clock in picoseconds (20 ns).
 _PERIOD_PS = 1_000_000_000_000 // CLOCK_HZ
 
 

@@ -10,6 +10,7 @@ from mrm_cosim.cosim.track import check_robot_fits, run_loop
 from mrm_cosim.master.cycle import Master, MasterTiming
 from mrm_cosim.models.plant import Plant
 from mrm_cosim.models.robot import load_robot
+from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["bench_backend", "WINDOWS"]
 
@@ -52,4 +53,4 @@ def bench_backend(backend: str, robot="mrm3", cycles: int | None = None) -> dict
     once(0)                              # build (compiled) and warm caches
     wall = once(cycles)
     return {"cycles": cycles, "wall_s": wall, "cycles_per_s": cycles / wall,
-            "rtf": wall / (cycles / 50e6)}
+            "rtf": wall / (cycles / CLOCK_HZ)}

@@ -38,6 +38,7 @@ from mrm_cosim.models.encoder import counts_per_rad, joint_counts, quadrature_le
 from mrm_cosim.models.plant import Plant
 from mrm_cosim.models.robot import Robot
 from mrm_cosim.errors import InputError
+from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["Gains", "ClosedLoop", "LoopResult", "LineFault", "FAULT_KINDS", "node_uploads",
            "startup_sends", "EEP", "EOP"]
@@ -153,7 +154,7 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
         hi = np.maximum(0.7 * theta, 1.3 * theta)
         out += [(dest, ref.PacketType.PARAM, p) for p in
                 vdc_upload(theta, np.full((2, 6), gains.K), np.full((2, 13), gains.adapt),
-                           lo, hi, period=period_cycles / 50e6)]
+                           lo, hi, period=period_cycles / CLOCK_HZ)]
         spec = ACTUATORS[mod.type.actuator]
         joint = JointParams.from_float(
             counts_per_rev=mod.type.counts_per_rev, tick_cycles=tick_cycles, lam=gains.lam,
@@ -243,8 +244,8 @@ class LineFault:
         if not node.isdigit():
             raise InputError(field, f"the node must be a number, not {node!r} in {text!r}")
         at, _, length = when.partition("+")
-        cycle = round(parse_time(at, field) * 50e6)
-        cycles = max(1, round(parse_time(length, field) * 50e6)) if length else 1
+        cycle = round(parse_time(at, field) * CLOCK_HZ)
+        cycles = max(1, round(parse_time(length, field) * CLOCK_HZ)) if length else 1
         try:
             return cls(int(node), direction, kind, cycle, cycles)
         except InputError as e:
@@ -306,7 +307,7 @@ class ClosedLoop:
         self.backend = backend
         self.master = master
         self.plant = plant
-        self.step_cycles = round(plant.dt * 50e6)
+        self.step_cycles = round(plant.dt * CLOCK_HZ)
         if start_cycle % self.step_cycles:
             raise InputError("start_cycle", "must be a multiple of the plant step")
         self.start_cycle = start_cycle
@@ -471,12 +472,12 @@ class ClosedLoop:
             tau = self._torque
             self.plant.step(tau)
             self._encoder_from_plant()
-            t_rec[i] = (self.cycle - self.start_cycle) / 50e6
+            t_rec[i] = (self.cycle - self.start_cycle) / CLOCK_HZ
             q_rec[i] = self.plant.q
             tau_rec[i] = tau
             await self._step(s)
             if progress is not None and (i + 1) % 100 == 0:
-                progress((i + 1) * s / 50e6, steps * s / 50e6)
+                progress((i + 1) * s / CLOCK_HZ, steps * s / CLOCK_HZ)
         self.master.finish(self.cycle)
         window = time.perf_counter() - t_window
         digest = hashlib.sha256()

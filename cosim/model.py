@@ -79,6 +79,7 @@ from mrm_cosim.master.cycle import Master, Send
 from mrm_cosim.models.plant import Plant
 from mrm_cosim.models.robot import Robot
 from mrm_cosim.errors import InputError
+from mrm_cosim.units import CLOCK_HZ
 
 from .closed_loop import LoopResult, startup_sends
 
@@ -968,7 +969,7 @@ class ModelLoop:
         self.n = robot.n
         self.master = master
         self.plant = plant
-        self.step_cycles = round(plant.dt * 50e6)
+        self.step_cycles = round(plant.dt * CLOCK_HZ)
         if start_cycle % self.step_cycles:
             raise InputError("start_cycle", "must be a multiple of the plant step")
         self.start_cycle = start_cycle
@@ -1177,12 +1178,12 @@ class ModelLoop:
             tau = self._torque.copy()
             step(tau)
             cyc = self.plant.encoder_changes() if self.lazy else self.plant.encoder_cycles().counts
-            t_rec[i] = (self.cycle - self.start_cycle) / 50e6
+            t_rec[i] = (self.cycle - self.start_cycle) / CLOCK_HZ
             q_rec[i] = self.plant.q
             tau_rec[i] = tau
             self._chunk(s, cyc)
             if progress is not None and (i + 1) % 100 == 0:
-                progress((i + 1) * s / 50e6, steps * s / 50e6)
+                progress((i + 1) * s / CLOCK_HZ, steps * s / CLOCK_HZ)
         self.master.finish(self.cycle)
         window = time.perf_counter() - t_window
         for k, node in enumerate(self.nodes):

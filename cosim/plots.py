@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["plot_tracking", "plot_joint_tracking", "plot_error_comparison", "plot_torques",
            "plot_parameters", "plot_timeline", "timeline_bars", "timeline_markers",
@@ -217,7 +218,7 @@ def pick_period(records, when: float | None = None, period_s: float = 1e-3):
     return min(complete, key=lambda r: abs(r.index * period_s - when))
 
 
-def timeline_bars(record, n_nodes: int, clock_hz: float = 50e6) -> list[Bar]:
+def timeline_bars(record, n_nodes: int, clock_hz: float = float(CLOCK_HZ)) -> list[Bar]:
     """Bars of one period's exchange from a :class:`master.cycle.PeriodRecord`.
 
     Rows and bars (cycles counted from ``record.start``; a bar is drawn when both its ends
@@ -288,7 +289,7 @@ class Marker:
     at_us: float
 
 
-def timeline_markers(record, n_nodes: int, clock_hz: float = 50e6) -> list[Marker]:
+def timeline_markers(record, n_nodes: int, clock_hz: float = float(CLOCK_HZ)) -> list[Marker]:
     """Node k's period boundary (``BOUNDARY``: its timer's phase 0, the snapshot Comm A
     reports) and Comm D commit (``COMMIT``) in the period of ``record``, where recorded."""
     per_us = clock_hz / 1e6
@@ -314,7 +315,7 @@ _LANES = {"VDC": (-0.38, 0.36), "adapt": (-0.38, 0.36), "A↓": (0.02, 0.36),
 
 
 def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
-                  clock_hz: float = 50e6):
+                  clock_hz: float = float(CLOCK_HZ)):
     """Gantt chart of one period's time-code/A/B/C/D exchange per node.
 
     Parameters

@@ -15,6 +15,7 @@ from mrm_cosim.master.kinematics import jacobian
 from mrm_cosim.models.plant import Plant, PlantConfig
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.errors import InputError, require_positive
+from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["run_track", "BACKENDS", "link_errors_detail", "link_fault_places", "loop_system",
            "loop_system_key", "check_robot_fits", "node_encoders", "node_counts_range",
@@ -126,11 +127,11 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
                     pid=pid_gains(robot, gains.pid_1khz_hz), uploads=uploads)
     plant = Plant(robot, plant_config or PlantConfig(), seed=seed)
     plant.reset(robot.home)
-    duration_cycles = int(round(duration * 50e6))
+    duration_cycles = int(round(duration * CLOCK_HZ))
     for f in faults:
         if f.cycle >= duration_cycles:
-            raise InputError("--line-fault", f"a fault at {f.cycle / 50e6:g} s from period 0 is "
-                             f"after the run's end ({duration:g} s): it would never happen")
+            raise InputError("--line-fault", f"a fault at {f.cycle / CLOCK_HZ:g} s from period 0 "
+                             f"is after the run's end ({duration:g} s): it would never happen")
     t0 = time.perf_counter()
     # period 0 on the nodes' timer grid (a multiple of the period from reset), after start-up
     start = -(-START_CYCLE // timing.period_cycles) * timing.period_cycles
@@ -142,7 +143,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
             raise InputError("--vcd", "the model backend has no signals; use pysim or compiled")
         if vcd_path is None:
             raise InputError("--vcd", "needs an output file")
-        window = VcdWindow.parse(vcd, vcd_path, signals=signals, offset=start / 50e6)
+        window = VcdWindow.parse(vcd, vcd_path, signals=signals, offset=start / CLOCK_HZ)
     result, _ = run_loop(robot, backend, master, plant, start, uploads, duration_cycles,
                          quiet=progress is None, vcd=window, progress=progress, faults=faults)
     wall = time.perf_counter() - t0
@@ -175,7 +176,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         "phases_us": phases,
         "trace_sha256": result.trace_sha256,
         "wall_s": wall,
-        "rtf": wall / (duration + start / 50e6),
+        "rtf": wall / (duration + start / CLOCK_HZ),
     }
     return result, summary
 

@@ -54,6 +54,7 @@ from mrm_cosim.hdl.node.regs import (
 )
 from mrm_cosim.master.vdc import propagate_forces, propagate_velocities
 from mrm_cosim.models.robot import Robot
+from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["Send", "Master", "MasterTiming", "PeriodRecord", "CONTROLLERS", "NODE_COUNTERS"]
 
@@ -133,7 +134,7 @@ class Master:
 
     def __init__(self, robot: Robot, controller: str, trajectory, counts_per_rev,
                  timing: MasterTiming | None = None, lam: float = 50.0, pid=None,
-                 clock_hz: float = 50e6, uploads=None):
+                 clock_hz: float = float(CLOCK_HZ), uploads=None):
         if controller not in CONTROLLERS:
             raise ValueError(f"controller must be one of {CONTROLLERS}, not {controller!r}")
         self.robot = robot

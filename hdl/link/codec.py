@@ -30,12 +30,11 @@ from .ds import DSReceiver
 from .params import codec_params, rejecting
 from .fsm import LinkFSM
 from .rx import CharReceiver
+from mrm_cosim.units import CLOCK_HZ
+
 from .tx import CharTransmitter
 
 __all__ = ["Codec", "CLOCK_HZ"]
-
-#: Node clock the timers are counted in.
-CLOCK_HZ = 50_000_000
 
 
 class Codec(wiring.Component):

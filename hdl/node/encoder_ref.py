@@ -40,6 +40,7 @@ import math
 from dataclasses import dataclass
 
 from mrm_cosim.errors import InputError
+from mrm_cosim.units import CLOCK_HZ
 
 from .fixed import VEL, round_shift, saturate
 
@@ -73,7 +74,7 @@ class EncoderParams:
     """
 
     counts_per_rev: int = 800_000
-    clock_hz: float = 50e6
+    clock_hz: float = float(CLOCK_HZ)
     filter_cycles: int = 2
     min_window: int = 2048
     stop_cycles: int = 1 << 24

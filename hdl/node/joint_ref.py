@@ -41,6 +41,7 @@ from dataclasses import dataclass, fields
 from .fixed import (ACC, ANG, CNT, CT, FORCE, GAIN, IHI, IM, IVLC, IVS, KC, KI, KP, LAM, LAMC,
                     POS, SGN, TIME, TS, VEL, VISC, saturate)
 from .vdc_ref import fx
+from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["MODES", "JointParams", "JointInputs", "JointModel"]
 
@@ -74,7 +75,7 @@ class JointParams:
                    ihi=IHI)
 
     @classmethod
-    def from_float(cls, *, counts_per_rev: int = 800_000, clock_hz: float = 50e6,
+    def from_float(cls, *, counts_per_rev: int = 800_000, clock_hz: float = float(CLOCK_HZ),
                    tick_cycles: int = 50, lam: float = 50.0, k_j: float = 0.0,
                    inertia: float = 0.0, viscous: float = 0.0, coulomb: float = 0.0,
                    offset: float = 0.0, v_smooth: float = 1e-3, k_p: float = 0.0,
