@@ -165,6 +165,8 @@ class JointReference:
         Condition number of the length-scaled Jacobian at each sample.
     ik_residual : float
         Largest IK pose-error norm over the samples (m and rad mixed, ≤ 10⁻⁹ by construction).
+    duration : float, s
+        The planned move's duration (the last sample lies at or after it, at rest).
     """
 
     t: np.ndarray
@@ -174,11 +176,7 @@ class JointReference:
     qddd: np.ndarray
     condition: np.ndarray
     ik_residual: float
-
-    @property
-    def duration(self) -> float:
-        """Time of the last sample, s."""
-        return float(self.t[-1])
+    duration: float
 
     def evaluate(self, t) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Position, velocity, acceleration and jerk at times ``t``.
@@ -248,6 +246,7 @@ class JointReference:
         """Peaks per joint and the checks' figures (JSON-ready, SI units)."""
         return {"duration_s": self.duration,
                 "samples": len(self.t),
+                "dt_s": float(self.t[1] - self.t[0]) if len(self.t) > 1 else 0.0,
                 "peak_speed_rad_s": np.abs(self.qd).max(axis=0).tolist(),
                 "peak_acceleration_rad_s2": np.abs(self.qdd).max(axis=0).tolist(),
                 "peak_jerk_rad_s3": np.abs(self.qddd).max(axis=0).tolist(),
@@ -384,7 +383,7 @@ def joint_reference(robot, plan, dt: float = 1e-3, q_seed=None, *,
         qdd = np.linalg.solve(J, accel[k] - chain.acceleration(q, qd, chain.zero))
         qddd = np.linalg.solve(J, jerk[k] - _drift_rate(chain, q, qd, qdd))
         Q[k], QD[k], QDD[k], QDDD[k] = q, qd, qdd, qddd
-    return JointReference(t, Q, QD, QDD, QDDD, cond, residual)
+    return JointReference(t, Q, QD, QDD, QDDD, cond, residual, float(plan.duration))
 
 
 def _drift_rate(chain: _Chain, q, qd, qdd) -> np.ndarray:
