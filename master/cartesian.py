@@ -485,6 +485,8 @@ def tool_errors(robot, q_desired, q_actual) -> ToolErrors:
         tip_d[i], tip_a[i] = Td[:3, 3], Ta[:3, 3]
         pos[i] = 1e3 * np.linalg.norm(Ta[:3, 3] - Td[:3, 3])
         ori[i] = 1e3 * np.linalg.norm(rotation_log(Td[:3, :3].T @ Ta[:3, :3]))
-        rel = np.linalg.solve(Td, Ta)
+        rel = np.eye(4)                              # T_d⁻¹ T_a of rigid transforms
+        rel[:3, :3] = Td[:3, :3].T @ Ta[:3, :3]
+        rel[:3, 3] = Td[:3, :3].T @ (Ta[:3, 3] - Td[:3, 3])
         se3[i] = np.linalg.norm(se3_log(rel))
     return ToolErrors(pos, ori, se3, tip_d, tip_a)
