@@ -541,7 +541,6 @@ def test_every_backend_is_the_one_gateware_side_and_closed_loop_the_one_loop():
         assert issubclass(cls, GatewareSide), cls
     robot = load_robot("mrm3")
     assert isinstance(loop_backend(robot, "model"), GatewareSide)
-    assert isinstance(loop_backend(robot, "pysim"), GatewareSide)
 
     stepping = []
     for path in sorted(Path(cosim_pkg.__file__).parent.glob("*.py")):
