@@ -99,7 +99,8 @@ class _Taping:
 
 def record(cycles: int, path: Path) -> None:
     from mrm_cosim.cosim.backends import CompiledBackend, drive
-    from mrm_cosim.cosim.closed_loop import ClosedLoop, Gains, node_uploads, pid_gains
+    from mrm_cosim.cosim.closed_loop import ClosedLoop
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
     from mrm_cosim.cosim.preview import paper_test_profile
     from mrm_cosim.cosim.track import loop_system, loop_system_key
     from mrm_cosim.master.cycle import Master, MasterTiming

@@ -1,8 +1,12 @@
-"""Backends that run :class:`hdl.system.System` for the closed loop.
+"""The gateware backends of the closed loop: :class:`hdl.system.System` simulated or compiled.
 
-Each offers ``async run(n, inputs, outputs) -> dict`` with the semantics of
-:meth:`cosim.compiled.CompiledModel.run` (inputs set, outputs sampled, then a clock edge, per
-cycle); the loop is written once, as a coroutine, in :mod:`cosim.closed_loop`.
+:class:`LineSide` implements :class:`cosim.gateware_side.GatewareSide` at character level over
+one cycle primitive, ``async run(n, inputs, outputs) -> dict`` (inputs set, outputs sampled,
+then a clock edge, per cycle: the semantics of :meth:`cosim.compiled.CompiledModel.run`):
+the master's packets framed into the master port's transmit FIFO, received characters
+assembled into frames and checked, the plant's encoder lines as quadrature levels, line faults
+on the chain's wires. :class:`PysimBackend` (Amaranth's simulator, the loop inside one
+testbench) and :class:`CompiledBackend` (Verilator) each supply the primitive.
 """
 
 from __future__ import annotations
@@ -16,14 +20,23 @@ from pathlib import Path
 
 import numpy as np
 
+from mrm_cosim.cosim.gateware_side import GatewareSide, Observed, PlantLines, Reply, drive
 from mrm_cosim.errors import InputError
+from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.hdl.link.chain import char_int, char_value
+from mrm_cosim.hdl.node.fixed import FORCE
+from mrm_cosim.hdl.node.regs import NodeEvent
+from mrm_cosim.models.encoder import quadrature_levels
 from mrm_cosim.units import CLOCK_HZ
 
-__all__ = ["CompiledBackend", "PysimBackend", "Recorder", "VcdWindow", "drive",
+__all__ = ["LineSide", "CompiledBackend", "PysimBackend", "VcdWindow", "drive",
            "system_verilog", "CLOCK_HZ"]
 
 #: One cycle of the gateware's clock in picoseconds (20 ns).
 _PERIOD_PS = 1_000_000_000_000 // CLOCK_HZ
+_NODE_EVENTS = tuple((int(f), f.name) for f in NodeEvent)
+#: Characters the master port's transmit FIFO holds.
+_TX_FIFO = 192
 
 
 _FINGERPRINTED: tuple[str, ...] | None = None
@@ -188,7 +201,179 @@ def _slice_inputs(inputs: dict, n: int, lo: int, hi: int) -> dict:
     return {k: np.broadcast_to(np.asarray(v), (n,))[lo:hi] for k, v in inputs.items()}
 
 
-class CompiledBackend:
+class LineSide(GatewareSide):
+    """:class:`~cosim.gateware_side.GatewareSide` at character level over ``run``.
+
+    Subclasses supply ``async run(n, inputs, outputs) -> dict`` on a :class:`hdl.system.System`
+    (its port names). A packet is encoded to characters (:func:`hdl.link.packet_ref.encode`)
+    and written into the master port's FIFO as room allows, from the cycle it was sent; a
+    time-code strobes ``tick_in`` in the first cycle of the next :meth:`advance`; received
+    characters are assembled into frames and checked (CRC, length) with their arrival cycle.
+
+    Parameters
+    ----------
+    faults : sequence of cosim.closed_loop.LineFault
+        Line faults to inject, cycles counted from period 0 (:meth:`begin`); the system must
+        have been built with ``line_faults=True`` (``line_slots`` slots per line).
+    record : bool
+        Keep every per-cycle output sample the loop reads (:meth:`trace`).
+    """
+
+    def __init__(self, faults=(), line_slots: int = 3, record: bool = False):
+        self.cycle = 0
+        self.n = 0
+        self._faults = list(faults)
+        self._line_slots = line_slots
+        self._start: int | None = None
+        self._tx: list[int] = []          # raw Char values waiting for the FIFO
+        self._tx_level = 0
+        self._rx: list[int] = []
+        self._timecode: int | None = None
+        self._running = False
+        self._torque = np.zeros(0)
+        self._lines: PlantLines | None = None
+        self._enc = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+        self.crc_errors = 0
+        self.link_errors = 0
+        self.samples: dict[str, list] | None = {} if record else None
+
+    # --- GatewareSide ----------------------------------------------------------------------
+    def power_on(self, counts) -> None:
+        self.n = len(counts)
+        self._torque = np.zeros(self.n)
+        for f in self._faults:
+            if f.node > self.n:
+                raise InputError("fault.node", f"the robot has {self.n} nodes, not {f.node}")
+
+    @property
+    def link_up(self) -> bool:
+        return self._running
+
+    @property
+    def torque(self) -> np.ndarray:
+        return self._torque
+
+    def send(self, action) -> None:
+        if action.kind == "timecode":
+            self._timecode = action.time
+            return
+        chars = ref.encode(ref.Header(action.dest, ref.MASTER_ADDRESS, action.ptype,
+                                      action.seq), action.payload)
+        self._tx += [char_value(c) for c in chars]
+
+    def begin(self, cycle: int, period_cycles: int) -> None:
+        self._start = cycle
+
+    async def advance(self, n: int, lines: PlantLines, offset: int = 0) -> Observed:
+        enc_a, enc_b = self._encoder_lines(lines, offset, n)
+        inputs = {"enc_a": enc_a, "enc_b": enc_b}
+        k = min(len(self._tx), max(0, _TX_FIFO - self._tx_level), n)
+        tx_valid = np.zeros(n, dtype=np.int64)
+        tx_char = np.zeros(n, dtype=np.int64)
+        if k:
+            tx_valid[:k] = 1
+            tx_char[:k] = self._tx[:k]
+            del self._tx[:k]
+        inputs["tx_valid"] = tx_valid
+        inputs["tx_char"] = tx_char
+        tick = np.zeros(n, dtype=np.int64)
+        if self._timecode is not None:
+            tick[0] = 1
+            inputs["time_in"] = np.full(n, self._timecode, dtype=np.int64)
+            self._timecode = None
+        inputs["tick_in"] = tick
+        if self._faults:
+            self._fault_inputs(inputs, n)
+        names = ["rx_valid", "rx_char", "tx_level", "running", "link_errors"] + \
+            [f"torque{j + 1}" for j in range(self.n)] + [f"events{j + 1}" for j in range(self.n)]
+        out = await self.run(n, inputs, names)
+        if self.samples is not None:
+            for name, v in out.items():
+                self.samples.setdefault(name, []).append(np.array(v))
+        events = self._node_events(out)
+        valid = np.nonzero(out["rx_valid"])[0]
+        replies = self._take_rx(self.cycle + valid, out["rx_char"][valid]) if len(valid) else []
+        self._tx_level = int(out["tx_level"][-1])
+        self._running = bool(out["running"][-1])
+        self.link_errors = int(out["link_errors"][-1])
+        # torque words at the next cycle's edge are the ones sampled last in this chunk
+        self._torque = np.array([FORCE.decode(int(out[f"torque{j + 1}"][-1]))
+                                 for j in range(self.n)])
+        self.cycle += n
+        return Observed(events, replies)
+
+    async def run(self, n: int, inputs: dict, outputs) -> dict:
+        """``n`` cycles: per cycle the ``inputs`` (arrays of n, or scalars) set, the
+        ``outputs`` sampled, a clock edge; returns the samples, arrays of n per name. An
+        input not given keeps its last value."""
+        raise NotImplementedError
+
+    def trace(self, name: str) -> np.ndarray:
+        """Every sample of output ``name`` the loop read, in cycle order (``record=True``)."""
+        if self.samples is None:
+            raise RuntimeError("this backend was made without record=True")
+        return np.concatenate(self.samples[name])
+
+    # --- lines -----------------------------------------------------------------------------
+    def _encoder_lines(self, lines: PlantLines, offset: int, n: int):
+        """``enc_a``, ``enc_b`` (bit k: node k + 1) for cycles ``offset …`` of ``lines``."""
+        if lines is not self._lines:
+            self._lines = lines
+            if lines.at_rest:
+                a, b = quadrature_levels(lines.counts)
+                self._enc = (int(sum(int(x) << k for k, x in enumerate(a))),
+                             int(sum(int(x) << k for k, x in enumerate(b))))
+            else:
+                cyc = lines.cycles()
+                weights = 1 << np.arange(self.n, dtype=np.int64)
+                self._enc = (cyc.a.astype(np.int64) @ weights, cyc.b.astype(np.int64) @ weights)
+        a, b = self._enc
+        if isinstance(a, int):
+            return np.full(n, a, dtype=np.int64), np.full(n, b, dtype=np.int64)
+        return a[offset:offset + n], b[offset:offset + n]
+
+    def _take_rx(self, cycles: np.ndarray, chars: np.ndarray) -> list[Reply]:
+        replies = []
+        for cyc, raw in zip(cycles.tolist(), chars.tolist(), strict=True):
+            c = char_int(raw)
+            self._rx.append(c)
+            if c in (ref.EOP, ref.EEP):
+                verdict, header, payload = ref.check_frame(self._rx)
+                self._rx = []
+                if verdict != ref.Verdict.GOOD:
+                    self.crc_errors += 1
+                    continue
+                replies.append(Reply(cyc, header.src, header.type, header.seq, bytes(payload)))
+        return replies
+
+    def _node_events(self, out: dict) -> list:
+        """The nodes' observation-port strobes of a chunk (a few per period: found with
+        ``np.nonzero``)."""
+        events = []
+        for k in range(self.n):
+            ev = out[f"events{k + 1}"]
+            for i in np.nonzero(ev)[0].tolist():
+                bits = int(ev[i])
+                for flag, name in _NODE_EVENTS:
+                    if bits & flag:
+                        events.append((self.cycle + i, k + 1, name))
+        return events
+
+    def _fault_inputs(self, inputs: dict, n: int) -> None:
+        """Every fault port, every chunk (an input not passed keeps its last value)."""
+        for k in range(1, self.n + 1):
+            for d in ("down", "up"):
+                inputs[f"fault_{d}{k}"] = np.zeros(n, dtype=np.int64)
+        if self._start is None:
+            return
+        for f in self._faults:
+            first = self._start + f.cycle
+            lo, hi = max(first, self.cycle), min(first + f.cycles, self.cycle + n)
+            if lo < hi:
+                inputs[f.port][lo - self.cycle:hi - self.cycle] |= f.value(self._line_slots)
+
+
+class CompiledBackend(LineSide):
     """Verilator build of the system (Verilog and binary cached by content hashes).
 
     Parameters
@@ -200,13 +385,17 @@ class CompiledBackend:
     vcd : VcdWindow, optional
         Record that window: the model is then a ``--trace`` build (its own cache entry, a
         little slower), tracing switched on only inside the window.
+    faults, line_slots, record
+        As :class:`LineSide`.
     """
 
     name = "compiled"
 
-    def __init__(self, factory, key: str, quiet: bool = True, vcd: VcdWindow | None = None):
+    def __init__(self, factory, key: str, quiet: bool = True, vcd: VcdWindow | None = None,
+                 faults=(), line_slots: int = 3, record: bool = False):
         from mrm_cosim.cosim.compiled import CompiledModel
 
+        super().__init__(faults, line_slots, record)
         text, signed = system_verilog(factory, key)
         self.model = CompiledModel(None, "system", quiet=quiet, verilog_text=text,
                                    signed_ports=signed, trace=vcd is not None)
@@ -258,28 +447,9 @@ class CompiledBackend:
         return names
 
 
-class Recorder:
-    """Wraps a backend and keeps every per-cycle output sample it returns (for comparisons)."""
-
-    def __init__(self, backend):
-        self.backend = backend
-        self.samples: dict[str, list] = {}
-
-    def bind(self, ctx) -> None:
-        self.backend.bind(ctx)
-
-    async def run(self, n, inputs, outputs):
-        out = await self.backend.run(n, inputs, outputs)
-        for k, v in out.items():
-            self.samples.setdefault(k, []).append(np.array(v))
-        return out
-
-    def trace(self, name: str) -> np.ndarray:
-        return np.concatenate(self.samples[name])
-
-
-class PysimBackend:
-    """Amaranth's simulator: the reference, slow. The loop runs inside one testbench.
+class PysimBackend(LineSide):
+    """Amaranth's simulator: the reference, slow. The loop runs inside one testbench
+    (:meth:`execute`).
 
     Parameters
     ----------
@@ -287,14 +457,18 @@ class PysimBackend:
     vcd : VcdWindow, optional
         Record that window. The signal names come from the simulator's own view of the
         design, so the simulator must be made by :meth:`simulator`.
+    faults, line_slots, record
+        As :class:`LineSide`.
     """
 
     name = "pysim"
 
-    def __init__(self, system, vcd: VcdWindow | None = None):
+    def __init__(self, system, vcd: VcdWindow | None = None, faults=(), line_slots: int = 3,
+                 record: bool = False):
+        super().__init__(faults, line_slots, record)
         self.system = system
         self.vcd = vcd
-        self.cycle = 0
+        self._cycle = 0
         self._ctx = None
         self._names = None
         self._trace = None
@@ -312,10 +486,24 @@ class PysimBackend:
         return sim
 
     def bind(self, ctx) -> None:
+        """Run in the testbench whose context is ``ctx`` (:meth:`execute` does it)."""
         self._ctx = ctx
         if self.vcd is not None and self._names is None:
             raise RuntimeError("a VCD from pysim needs the simulator made by "
                                "PysimBackend.simulator()")
+
+    def execute(self, coroutine):
+        """Run the loop's ``coroutine`` in one testbench of a fresh :meth:`simulator`."""
+        box = {}
+
+        async def bench(ctx):
+            self.bind(ctx)
+            box["result"] = await coroutine
+
+        sim = self.simulator()
+        sim.add_testbench(bench)
+        sim.run()
+        return box["result"]
 
     async def run(self, n, inputs, outputs):
         ctx, dut = self._ctx, self.system
@@ -328,18 +516,18 @@ class PysimBackend:
                 ctx.set(sig.as_value() if hasattr(sig, "as_value") else sig, int(values[i]))
             for j, sig in enumerate(outs):
                 rec[i, j] = ctx.get(sig.as_value() if hasattr(sig, "as_value") else sig)
-            if vcd is not None and vcd.start <= self.cycle < vcd.stop:
+            if vcd is not None and vcd.start <= self._cycle < vcd.stop:
                 self._sample(ctx)
             await ctx.tick()
-            self.cycle += 1
-            if vcd is not None and self.cycle == vcd.stop:
+            self._cycle += 1
+            if vcd is not None and self._cycle == vcd.stop:
                 self.finish()
         return {k: rec[:, j] for j, k in enumerate(outputs)}
 
     def _sample(self, ctx) -> None:
         if self._trace is None:
             self._trace = _VcdOut(self.vcd.path, self._names)
-        self._trace.sample(self.cycle, [ctx.get(sig) for sig in self._trace.signals])
+        self._trace.sample(self._cycle, [ctx.get(sig) for sig in self._trace.signals])
 
     def finish(self) -> list[str] | None:
         """Close the window now (also at its end, or if the run ends inside it) and write the
@@ -425,15 +613,6 @@ def _vcd_id(k: int) -> str:
         k //= 94
         if not k:
             return "".join(chars)
-
-
-def drive(coro):
-    """Run a coroutine that never really suspends (the compiled backend) to completion."""
-    try:
-        coro.send(None)
-    except StopIteration as stop:
-        return stop.value
-    raise RuntimeError("the closed loop suspended outside a simulator")
 
 
 _imported_fingerprint()     # now, while the sources on disk are the ones being imported

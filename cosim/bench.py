@@ -4,7 +4,7 @@ side by side in one process on the same closed-loop window (3-module VDC loop by
 from __future__ import annotations
 
 
-from mrm_cosim.cosim.closed_loop import Gains, node_uploads, pid_gains
+from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
 from mrm_cosim.cosim.preview import paper_test_profile
 from mrm_cosim.cosim.track import check_robot_fits, run_loop
 from mrm_cosim.master.cycle import Master, MasterTiming

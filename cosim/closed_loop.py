@@ -1,20 +1,22 @@
-"""Closed loop: the master, the gateware (``hdl.system.System``) and the plant, cycle by cycle.
+"""The closed loop: the master, the gateware side and the plant, on every backend.
+
+One loop (:class:`ClosedLoop`) runs every backend through the one interface of the gateware
+side, :class:`cosim.gateware_side.GatewareSide` (pysim, compiled, model); docs/architecture.md
+"One loop".
 
 Time grid. The gateware runs at 50 MHz; the plant advances in fixed steps of ``plant.dt``
 (10 µs = 500 cycles). Every step: the torque words the nodes output at the step's first cycle
 drive the plant for the step (zero-order hold, the amplifier lag is in the plant); the plant's
-encoder lines for each cycle of the step go into the nodes. The master's packets are written
-into the master port's transmit FIFO at the cycle they are due (its modelled compute time after
-the replies it waited for): the step is run in pieces split there. The harness learns of a
-reply at the end of the piece it arrived in, so a compute time shorter than the plant step can
-be rounded up to that end (the default, 20 µs, never is). Received characters are assembled
-into frames and checked (CRC, length) with their arrival cycle. The same loop drives every
-backend that offers ``run(n, inputs, outputs)`` with Amaranth-testbench semantics
-(``cosim.compiled.CompiledModel``).
+encoder lines for each cycle of the step go into the nodes. The master's packets are handed to
+the backend at the cycle they are due (its modelled compute time after the replies it waited
+for): the step is run in pieces split there. The loop learns of a reply at the end of the
+piece it arrived in, so a compute time shorter than the plant step can be rounded up to that
+end (the default, 20 µs, never is).
 
 Start-up. Links come up from reset (about 21.4 µs at standard timers), the master uploads
-configuration and parameters, then period 0 starts at cycle ``start_cycle``. Until then the
-plant's brakes hold it at its home posture (it is not stepped); the brakes release at period 0.
+configuration and parameters (:func:`master.uploads.startup_sends`), then period 0 starts at
+cycle ``start_cycle``. Until then the plant's brakes hold it at its home posture (it is not
+stepped); the brakes release at period 0.
 """
 
 from __future__ import annotations
@@ -25,161 +27,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mrm_cosim.hdl.link import packet_ref as ref
-from mrm_cosim.hdl.link.chain import char_int, char_value, line_fault_layout
-from mrm_cosim.hdl.node.fixed import FORCE
-from mrm_cosim.hdl.node.joint_ref import JointParams
-from mrm_cosim.hdl.node.regs import (
-    MODES, Config, NodeEvent, config_payloads, joint_upload, vdc_upload,
-)
-from mrm_cosim.master.cycle import Master, Send
-from mrm_cosim.models.actuators import ACTUATORS
-from mrm_cosim.models.encoder import counts_per_rad, joint_counts, quadrature_levels
+from mrm_cosim.cosim.gateware_side import GatewareSide, PlantLines
+from mrm_cosim.errors import InputError
+from mrm_cosim.hdl.link.chain import line_fault_layout
+from mrm_cosim.master.cycle import Master
+from mrm_cosim.master.uploads import startup_sends
 from mrm_cosim.models.plant import Plant
 from mrm_cosim.models.robot import Robot
-from mrm_cosim.errors import InputError
 from mrm_cosim.units import CLOCK_HZ
 
-__all__ = ["Gains", "ClosedLoop", "LoopResult", "LineFault", "FAULT_KINDS", "node_uploads",
-           "startup_sends", "EEP", "EOP"]
-
-EOP, EEP = ref.EOP, ref.EEP
-_RX_CHUNK_OUTPUTS = ("rx_valid", "rx_char")
-_NODE_EVENTS = tuple((int(f), f.name) for f in NodeEvent)
-
-
-@dataclass(frozen=True)
-class Gains:
-    """Controller settings uploaded to the nodes or used by the master (SI units).
-
-    Attributes
-    ----------
-    lam : float, 1/s
-        λ of the required joint velocity (master and node alike).
-    k_j : float, N·m·s/rad
-        VDC joint velocity-error gain.
-    K : float
-        VDC link velocity-error gain (same for the six axes, N·s/m and N·m·s/rad).
-    adapt : float
-        Adaptation gain ρ of every parameter (0: no adaptation), with bounds 0.7×/1.3×.
-    pid_fpga_hz, pid_1khz_hz : float
-        Closed-loop pole frequency of the node's PID and of the master's 1 kHz PID.
-    friction_comp : float
-        VDC joint friction estimates ``θ̂_J`` (viscous, Coulomb) as this fraction of each
-        actuator's nominal (catalogue-level) friction; 0: none. The plant's true friction
-        differs from the nominal one by its perturbation, so 1 is a model, not the truth.
-    """
-
-    lam: float = 50.0
-    k_j: float = 30.0
-    K: float = 0.0
-    adapt: float = 0.0
-    pid_fpga_hz: float = 15.0
-    pid_1khz_hz: float = 5.0
-    friction_comp: float = 0.0
-
-
-def _joint_inertia(robot: Robot) -> np.ndarray:
-    import pinocchio as pin
-
-    model = robot.pinocchio_model()
-    M = pin.crba(model, model.createData(), robot.home)
-    return np.diag(M) + np.array([ACTUATORS[m.type.actuator].output_inertia
-                                  for m in robot.modules])
-
-
-def pid_gains(robot: Robot, hz: float) -> dict:
-    """PID gains placing a triple pole at ``−2π·hz`` for each joint's nominal inertia."""
-    J = _joint_inertia(robot)
-    w = 2 * np.pi * hz
-    return {"kp": 3 * J * w * w, "ki": J * w**3, "kd": 3 * J * w}
-
-
-def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int = 50,
-                 timeout_cycles: int | None = None, period_cycles: int = 50_000,
-                 commit_cycles: int | None = None,
-                 sync_window: int = 2_500) -> list[tuple[int, int, bytes]]:
-    """``(dest, type, payload)`` packets that configure every node before the run (the PID
-    gains are zero unless ``controller`` is ``pid-fpga``).
-
-    Homing: the arm rests at ``robot.home`` until period 0 (the brakes hold it), and a node's
-    incremental encoder counts from 0 at its reset, so each node's count is preset (CONFIG
-    PRESET) to the count of its joint's home angle, ``floor(home · CPR / 2π)``, what the
-    plant's encoder shows there. Without it a robot whose home is not all zeros ran with
-    every joint's angle off by its home angle, in the master and in the node alike.
-
-    ``period_cycles`` (the master's period), ``commit_cycles`` (the phase at which Comm D takes
-    effect) and ``sync_window`` set the nodes' period timer (docs/node.md "Timing"); the
-    timing record goes first, so it arrives within the first period after reset. The default
-    commit phase is a fifth of the period (200 µs of 1 ms: the measured Comm D reaches the last
-    of three nodes at ~82 µs; docs/node.md "Timing" says why the margin). The VDC's
-    backward difference (1/T) and adaptation step (ρ·T) are for this period. The default
-    watchdog timeout is two periods, at least 2 ms (docs/node.md "Watchdog"): the nodes hear
-    from the master once a period, so a timeout that did not follow a longer period would trip
-    every node, and before period 0 they hear nothing for up to 1 ms after their ARM.
-    """
-    if commit_cycles is None:
-        commit_cycles = period_cycles // 5
-    if timeout_cycles is None:
-        # two periods, and never less than the silence between the uploads' ARM and period 0
-        # (up to START_CYCLE, 1 ms): two 0.4 ms periods tripped every node before period 0
-        timeout_cycles = max(2 * period_cycles, 2 * 50_000)
-    mode = {"vdc": MODES["vdc"], "pid-fpga": MODES["pid"], "pid-1khz": MODES["torque"]}
-    if period_cycles % tick_cycles or not 0 < period_cycles < (1 << 24):
-        raise InputError("period_cycles", f"must be a multiple of the tick ({tick_cycles}) "
-                         f"below 2^24, not {period_cycles!r}")
-    if not 0 <= commit_cycles < period_cycles:
-        raise InputError("commit_cycles", f"must lie in [0, {period_cycles}), "
-                         f"not {commit_cycles!r}")
-    if not 0 <= sync_window < period_cycles:
-        raise InputError("sync_window", f"must lie in [0, {period_cycles}), not {sync_window!r}")
-    out = [(k + 1, ref.PacketType.CONFIG, p) for k in range(robot.n) for p in config_payloads(
-        {Config.PERIOD: period_cycles, Config.COMMIT: commit_cycles,
-         Config.SYNC_WINDOW: sync_window})]
-    # The PID words only where the node runs its PID: they scale with the torque per count,
-    # and a robot with coarser encoders than mrm3's can need more than the KP word holds,
-    # which must not stop a run that never uses them.
-    pid = (pid_gains(robot, gains.pid_fpga_hz) if controller == "pid-fpga"
-           else dict.fromkeys(("kp", "ki", "kd"), np.zeros(robot.n)))
-    home_counts = joint_counts(robot.home, counts_per_rad(robot.counts_per_rev))
-    for k, mod in enumerate(robot.modules):
-        dest = k + 1
-        peak = FORCE.encode(mod.type.peak_torque)
-        cfg = {Config.MODE: mode[controller], Config.TICK: tick_cycles,
-               Config.TIMEOUT: timeout_cycles, Config.RAMP: FORCE.encode(0.01),
-               Config.TAU_MIN: -peak, Config.TAU_MAX: peak}
-        out += [(dest, ref.PacketType.CONFIG, p) for p in config_payloads(cfg)]
-        theta = robot.nominal_theta[k]
-        lo = np.minimum(0.7 * theta, 1.3 * theta)
-        hi = np.maximum(0.7 * theta, 1.3 * theta)
-        out += [(dest, ref.PacketType.PARAM, p) for p in
-                vdc_upload(theta, np.full((2, 6), gains.K), np.full((2, 13), gains.adapt),
-                           lo, hi, period=period_cycles / CLOCK_HZ)]
-        spec = ACTUATORS[mod.type.actuator]
-        joint = JointParams.from_float(
-            counts_per_rev=mod.type.counts_per_rev, tick_cycles=tick_cycles, lam=gains.lam,
-            k_j=gains.k_j, inertia=spec.output_inertia,
-            viscous=gains.friction_comp * spec.viscous_friction,
-            coulomb=gains.friction_comp * spec.coulomb_friction,
-            k_p=pid["kp"][k], k_i=pid["ki"][k], k_d=pid["kd"][k], i_max=0.05,
-            field=f"joint{dest}")
-        out += [(dest, ref.PacketType.PARAM, p) for p in joint_upload(joint)]
-        out += [(dest, ref.PacketType.CONFIG, p)
-                for p in config_payloads({Config.PRESET: int(home_counts[k])})]
-        out += [(dest, ref.PacketType.CONFIG, p) for p in config_payloads({Config.ARM: 1})]
-    return out
-
-
-def startup_sends(uploads, master: Master, q0, seq: int) -> tuple[list[Send], int]:
-    """What the master sends once the link is up, before period 0: every upload ``(dest, type,
-    payload)`` with sequence numbers counting on from ``seq``, then its initial Comm D (at the
-    plant's posture ``q0``). Returns the sends and the last sequence number used. Both loops
-    (this one and ``cosim.model.ModelLoop``) start the same way."""
-    sends = []
-    for dest, ptype, payload in uploads:
-        seq = (seq + 1) & 0xFF
-        sends.append(Send("packet", dest, int(ptype), payload, seq))
-    return sends + list(master.initial_packets(q0)), seq
+__all__ = ["ClosedLoop", "LoopResult", "LineFault", "FAULT_KINDS"]
 
 
 #: Line faults :class:`LineFault` can inject (``hdl.link.chain.line_fault_layout`` controls).
@@ -283,25 +140,27 @@ class LoopResult:
 
 
 class ClosedLoop:
-    """The closed loop on one backend.
+    """The closed loop on one backend: the only one (every backend runs through it).
 
     Parameters
     ----------
     robot : Robot
-    backend : object with ``run(n, inputs, outputs)``
-        A compiled or simulated :class:`hdl.system.System` of ``robot.n`` nodes.
+    backend : GatewareSide
+        The gateware side: :class:`cosim.backends.PysimBackend`,
+        :class:`cosim.backends.CompiledBackend` (each of a :class:`hdl.system.System` of
+        ``robot.n`` nodes) or :class:`cosim.model.ModelBackend`.
     master : Master
     plant : Plant
     start_cycle : int
-        Cycle of period 0 (after link start-up and uploads).
+        Cycle of period 0 (after link start-up and uploads), a multiple of the plant step.
     uploads : list of (dest, type, payload)
-    faults : sequence of LineFault
-        Line faults to inject; the backend's system must have been built with
-        ``line_faults=True`` (``line_slots`` slots per line).
+        What the master uploads once the link is up (:func:`master.uploads.node_uploads`).
     """
 
-    def __init__(self, robot: Robot, backend, master: Master, plant: Plant,
-                 start_cycle: int, uploads, faults=(), line_slots: int = 3):
+    def __init__(self, robot: Robot, backend: GatewareSide, master: Master, plant: Plant,
+                 start_cycle: int, uploads):
+        if not isinstance(backend, GatewareSide):
+            raise TypeError(f"backend must be a GatewareSide, not {type(backend).__name__}")
         self.robot = robot
         self.n = robot.n
         self.backend = backend
@@ -312,177 +171,89 @@ class ClosedLoop:
             raise InputError("start_cycle", "must be a multiple of the plant step")
         self.start_cycle = start_cycle
         self.cycle = 0
-        self._tx: list[int] = []          # raw Char values waiting for the FIFO
-        self._tx_level = 0
-        self._rx: list[int] = []
-        self._timecode: int | None = None
-        self.crc_errors = 0
-        self.link_errors = 0              # the master port's codec errors (System.link_errors)
         self.frames = []
         self._uploads = list(uploads)
-        self._faults = list(faults)
-        for f in self._faults:
-            if f.node > self.n:
-                raise InputError("fault.node", f"the robot has {self.n} nodes, not {f.node}")
-        self._line_slots = line_slots
-        self._torque = np.zeros(self.n)
-        self._enc_a = np.zeros(self.step_cycles, dtype=np.int64)
-        self._enc_b = np.zeros(self.step_cycles, dtype=np.int64)
-        self._link_up = False
         self._seq = 0
-        counts = plant.encoder_counts()
-        self._set_static_encoder(counts)
+        self._rest = PlantLines(counts=plant.encoder_counts())
+        backend.power_on(self._rest.counts)
 
-    # --- encoder lines ---------------------------------------------------------------------
-    def _set_static_encoder(self, counts) -> None:
-        a, b = quadrature_levels(np.asarray(counts))
-        self._enc_a[:] = int(sum(int(x) << k for k, x in enumerate(a)))
-        self._enc_b[:] = int(sum(int(x) << k for k, x in enumerate(b)))
-
-    def _encoder_from_plant(self) -> None:
-        cyc = self.plant.encoder_cycles()
-        weights = 1 << np.arange(self.n, dtype=np.int64)
-        self._enc_a[:] = cyc.a.astype(np.int64) @ weights
-        self._enc_b[:] = cyc.b.astype(np.int64) @ weights
-
-    # --- link I/O --------------------------------------------------------------------------
-    def _queue(self, action: Send) -> None:
-        if action.kind == "timecode":
-            self._timecode = action.time
-            return
-        chars = ref.encode(ref.Header(action.dest, ref.MASTER_ADDRESS, action.ptype,
-                                      action.seq), action.payload)
-        self._tx += [char_value(c) for c in chars]
-
-    def _take_rx(self, cycles: np.ndarray, chars: np.ndarray) -> None:
-        for cyc, raw in zip(cycles.tolist(), chars.tolist(), strict=True):
-            c = char_int(raw)
-            self._rx.append(c)
-            if c in (EOP, EEP):
-                verdict, header, payload = ref.check_frame(self._rx)
-                self._rx = []
-                if verdict != ref.Verdict.GOOD:
-                    self.crc_errors += 1
-                    continue
-                self.frames.append((cyc, header.src, header.type))
-                if not self.master.stale(header.type, header.seq):   # else counted late
-                    self.master.on_packet(cyc, header.src, header.type, bytes(payload))
-
-    def _node_events(self, out: dict) -> None:
-        """The nodes' observation-port strobes of a chunk, to the master's period records (a
-        few per period: found with ``np.nonzero``)."""
-        for k in range(self.n):
-            ev = out[f"events{k + 1}"]
-            for i in np.nonzero(ev)[0].tolist():
-                bits = int(ev[i])
-                for flag, name in _NODE_EVENTS:
-                    if bits & flag:
-                        self.master.on_node_event(self.cycle + i, k + 1, name)
-
-    async def _chunk(self, n: int, offset: int = 0) -> dict:
-        """``n`` cycles from the plant step's cycle ``offset``."""
-        inputs = {"enc_a": self._enc_a[offset:offset + n],
-                  "enc_b": self._enc_b[offset:offset + n]}
-        room = max(0, 192 - self._tx_level)
-        k = min(len(self._tx), room, n)
-        tx_valid = np.zeros(n, dtype=np.int64)
-        tx_char = np.zeros(n, dtype=np.int64)
-        if k:
-            tx_valid[:k] = 1
-            tx_char[:k] = self._tx[:k]
-            del self._tx[:k]
-        inputs["tx_valid"] = tx_valid
-        inputs["tx_char"] = tx_char
-        tick = np.zeros(n, dtype=np.int64)
-        if self._timecode is not None:
-            tick[0] = 1
-            inputs["time_in"] = np.full(n, self._timecode, dtype=np.int64)
-            self._timecode = None
-        inputs["tick_in"] = tick
-        if self._faults:
-            self._fault_inputs(inputs, n)
-        names = [*_RX_CHUNK_OUTPUTS, "tx_level", "running", "link_errors"] + \
-            [f"torque{k + 1}" for k in range(self.n)] + [f"events{k + 1}" for k in range(self.n)]
-        out = await self.backend.run(n, inputs, names)
-        self._node_events(out)
-        valid = np.nonzero(out["rx_valid"])[0]
-        if len(valid):
-            self._take_rx(self.cycle + valid, out["rx_char"][valid])
-        self._tx_level = int(out["tx_level"][-1])
-        self._link_up = bool(out["running"][-1])
-        self.link_errors = int(out["link_errors"][-1])
-        # torque words at the next cycle's edge are the ones sampled last in this chunk
-        self._torque = np.array([FORCE.decode(int(out[f"torque{j + 1}"][-1]))
-                                 for j in range(self.n)])
+    # --- the backend's cycles ----------------------------------------------------------------
+    async def _advance(self, n: int, lines: PlantLines, offset: int = 0) -> None:
+        """``n`` cycles from the step's cycle ``offset``; what reached the master, to it."""
+        seen = await self.backend.advance(n, lines, offset)
+        master = self.master
+        for cycle, node, name in seen.events:
+            master.on_node_event(cycle, node, name)
+        for r in seen.replies:
+            self.frames.append((r.cycle, r.src, r.ptype))
+            if not master.stale(r.ptype, r.seq):                # else counted late
+                master.on_packet(r.cycle, r.src, r.ptype, r.payload)
         self.cycle += n
-        return out
 
-    def _fault_inputs(self, inputs: dict, n: int) -> None:
-        """Every fault port, every chunk (an input not passed keeps its last value)."""
-        for k in range(1, self.n + 1):
-            for d in ("down", "up"):
-                inputs[f"fault_{d}{k}"] = np.zeros(n, dtype=np.int64)
-        for f in self._faults:
-            first = self.start_cycle + f.cycle
-            lo, hi = max(first, self.cycle), min(first + f.cycles, self.cycle + n)
-            if lo < hi:
-                inputs[f.port][lo - self.cycle:hi - self.cycle] |= f.value(self._line_slots)
-
-    async def _step(self, s: int) -> None:
-        """One plant step of ``s`` cycles, split where the master has packets due."""
+    async def _step(self, lines: PlantLines) -> None:
+        """One plant step, split where the master has packets due."""
+        s = self.step_cycles
         done = 0
         while done < s:
             n = s - done
             due = self.master.next_due()
             if due is not None and self.cycle < due < self.cycle + n:
                 n = due - self.cycle
-            await self._chunk(n, done)
+            await self._advance(n, lines, done)
             done += n
             if done < s:
                 for action in self.master.poll(self.cycle):
-                    self._queue(action)
+                    self.backend.send(action)
 
-    # --- the run ----------------------------------------------------------------------------
-    async def run(self, duration_cycles: int, progress=None) -> LoopResult:
-        """Run start-up and ``duration_cycles`` of closed loop; return the trace.
+    # --- the run -----------------------------------------------------------------------------
+    def run(self, duration_cycles: int, progress=None) -> LoopResult:
+        """Run start-up and ``duration_cycles`` of closed loop; return the trace. The backend
+        drives the loop (:meth:`GatewareSide.execute`: pysim in a testbench).
 
         ``progress(t_sim, t_total)`` (simulated seconds since period 0, and of the run) is
         called every simulated millisecond."""
+        return self.backend.execute(self.arun(duration_cycles, progress))
+
+    async def arun(self, duration_cycles: int, progress=None) -> LoopResult:
+        """:meth:`run` as a coroutine, for a caller already inside the backend's driver
+        (a testbench)."""
         s = self.step_cycles
+        backend, master, plant = self.backend, self.master, self.plant
         uploads_sent = False
         steps = duration_cycles // s
         t_rec = np.zeros(steps)
         q_rec = np.zeros((steps, self.n))
         tau_rec = np.zeros((steps, self.n))
         while self.cycle < self.start_cycle:
-            if self._link_up and not uploads_sent:
-                sends, self._seq = startup_sends(self._uploads, self.master, self.plant.q,
-                                                 self._seq)
+            if backend.link_up and not uploads_sent:
+                sends, self._seq = startup_sends(self._uploads, master, plant.q, self._seq)
                 for a in sends:
-                    self._queue(a)
+                    backend.send(a)
                 uploads_sent = True
-            await self._chunk(s)
+            await self._advance(s, self._rest)
         if not uploads_sent:
             raise InputError("start_cycle", "the link did not come up before period 0")
-        self.master.begin(self.start_cycle)
+        backend.begin(self.start_cycle, master.timing.period_cycles)
+        master.begin(self.start_cycle)
         t_window = time.perf_counter()
         for i in range(steps):
-            for action in self.master.poll(self.cycle):
-                self._queue(action)
-            tau = self._torque
-            self.plant.step(tau)
-            self._encoder_from_plant()
+            for action in master.poll(self.cycle):
+                backend.send(action)
+            tau = np.array(backend.torque)
+            plant.step(tau)
+            lines = PlantLines(plant)
             t_rec[i] = (self.cycle - self.start_cycle) / CLOCK_HZ
-            q_rec[i] = self.plant.q
+            q_rec[i] = plant.q
             tau_rec[i] = tau
-            await self._step(s)
+            await self._step(lines)
             if progress is not None and (i + 1) % 100 == 0:
                 progress((i + 1) * s / CLOCK_HZ, steps * s / CLOCK_HZ)
-        self.master.finish(self.cycle)
+        master.finish(self.cycle)
         window = time.perf_counter() - t_window
+        backend.finish()
         digest = hashlib.sha256()
         digest.update(q_rec.tobytes())
         digest.update(tau_rec.tobytes())
-        return LoopResult(t_rec, q_rec, tau_rec, self.master, self.link_errors, self.crc_errors,
-                          self.frames, digest.hexdigest(), window_wall_s=window)
-
+        return LoopResult(t_rec, q_rec, tau_rec, master, backend.link_errors,
+                          backend.crc_errors, self.frames, digest.hexdigest(),
+                          violations=list(backend.violations), window_wall_s=window)

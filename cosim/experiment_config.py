@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 from mrm_cosim import configs
-from mrm_cosim.cosim.closed_loop import Gains
+from mrm_cosim.master.uploads import Gains
 from mrm_cosim.master.cycle import CONTROLLERS, MasterTiming
 from mrm_cosim.models.plant import Perturbation, PlantConfig
 from mrm_cosim.errors import (
@@ -329,7 +329,7 @@ def _gains(table: dict) -> Gains:
 def _gains_fit_the_nodes(robot: str, controllers, gains: Gains, period_cycles: int) -> None:
     """Encode the uploads each controller needs: every gain must fit its fixed-point word
     (the adaptation step ρ·T is the period's)."""
-    from mrm_cosim.cosim.closed_loop import node_uploads
+    from mrm_cosim.master.uploads import node_uploads
     from mrm_cosim.models.robot import load_robot
 
     r = load_robot(robot)

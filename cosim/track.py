@@ -6,20 +6,21 @@ import time
 
 import numpy as np
 
-from mrm_cosim.cosim.backends import CompiledBackend, PysimBackend, Recorder, drive
-from mrm_cosim.cosim.closed_loop import ClosedLoop, Gains, node_uploads, pid_gains
+from mrm_cosim.cosim.backends import CompiledBackend, PysimBackend
+from mrm_cosim.cosim.closed_loop import ClosedLoop
 from mrm_cosim.cosim.experiment_config import MAX_DURATION, check_period_on_plant_grid
 from mrm_cosim.cosim.preview import paper_test_profile
 from mrm_cosim.master.cycle import Master, MasterTiming
 from mrm_cosim.master.kinematics import jacobian
+from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
 from mrm_cosim.models.plant import Plant, PlantConfig
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.errors import InputError, require_positive
 from mrm_cosim.units import CLOCK_HZ
 
-__all__ = ["run_track", "BACKENDS", "link_errors_detail", "link_fault_places", "loop_system",
-           "loop_system_key", "check_robot_fits", "node_encoders", "node_counts_range",
-           "run_faults"]
+__all__ = ["run_track", "BACKENDS", "link_errors_detail", "link_fault_places", "run_loop",
+           "loop_backend", "loop_system", "loop_system_key", "check_robot_fits",
+           "node_encoders", "node_counts_range", "run_faults"]
 
 BACKENDS = ("compiled", "pysim", "model")
 START_CYCLE = 50_000          # period 0 at 1 ms: links up (21 µs) and uploads done well before
@@ -254,7 +255,8 @@ def _trajectory(robot, profile=None):
 def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
              duration_cycles: int, record: bool = False, quiet: bool = True, vcd=None,
              progress=None, faults=()):
-    """Build :class:`hdl.system.System` for ``robot`` on ``backend`` and run the closed loop.
+    """Run the closed loop of ``robot`` on the backend named ``backend``: this picks the
+    gateware side (:func:`loop_backend`); :class:`cosim.closed_loop.ClosedLoop` runs it.
 
     ``vcd``: a :class:`cosim.backends.VcdWindow` to record (pysim, compiled); ``progress``:
     ``progress(t_sim, t_total)`` about every simulated millisecond; ``faults``: line faults
@@ -262,44 +264,36 @@ def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
 
     Returns
     -------
-    (LoopResult, Recorder or None)
-        With ``record``, the recorder holds every per-cycle output the loop sampled.
+    (LoopResult, GatewareSide or None)
+        With ``record``, the backend, which holds every per-cycle output the loop sampled
+        (:meth:`cosim.backends.LineSide.trace`).
     """
+    be = loop_backend(robot, backend, record=record, quiet=quiet, vcd=vcd, faults=faults)
+    loop = ClosedLoop(robot, be, master, plant, start_cycle, uploads)
+    return loop.run(duration_cycles, progress=progress), (be if record else None)
+
+
+def loop_backend(robot, backend: str, record: bool = False, quiet: bool = True, vcd=None,
+                 faults=()):
+    """The gateware side of ``robot``'s loop on the backend named ``backend``
+    (:data:`BACKENDS`): :func:`loop_system` simulated (pysim) or compiled, or the nodes'
+    references (model, which has no signals to record and an ideal link)."""
     if backend == "model":
-        from mrm_cosim.cosim.model import ModelLoop
+        from mrm_cosim.cosim.model import ModelBackend
 
         if faults:
-            raise InputError("--line-fault", "the model backend's link is ideal: inject line "
+            raise InputError("faults", "the model backend's link is ideal: inject line "
                              "faults on compiled or pysim")
-        loop = ModelLoop(robot, master, plant, start_cycle, uploads,
-                         encoder=node_encoders(robot))
-        result = loop.run(duration_cycles, progress=progress)
-        result.violations = loop.violations
-        return result, None
+        if record or vcd is not None:
+            raise InputError("vcd" if vcd is not None else "record",
+                             "the model backend has no signals; use pysim or compiled")
+        return ModelBackend(encoder=node_encoders(robot))
     if backend == "compiled":
-        be = CompiledBackend(lambda: loop_system(robot), loop_system_key(robot),
-                             quiet=quiet, vcd=vcd)
-    elif backend == "pysim":
-        be = PysimBackend(loop_system(robot), vcd=vcd)
-    else:
-        raise InputError("--backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")
-    rec = Recorder(be) if record else None
-    loop = ClosedLoop(robot, rec or be, master, plant, start_cycle, uploads, faults=faults)
-    if backend == "compiled":
-        result = drive(loop.run(duration_cycles, progress=progress))
-        be.finish()
-        return result, rec
-    box = {}
-
-    async def bench(ctx):
-        be.bind(ctx)
-        box["result"] = await loop.run(duration_cycles, progress=progress)
-
-    sim = be.simulator()
-    sim.add_testbench(bench)
-    sim.run()
-    be.finish()
-    return box["result"], rec
+        return CompiledBackend(lambda: loop_system(robot), loop_system_key(robot),
+                               quiet=quiet, vcd=vcd, faults=faults, record=record)
+    if backend == "pysim":
+        return PysimBackend(loop_system(robot), vcd=vcd, faults=faults, record=record)
+    raise InputError("backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")
 
 
 def loop_system(robot):

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from amaranth.hdl import Fragment
 
-from mrm_cosim.cosim.closed_loop import Gains, LineFault, node_uploads
+from mrm_cosim.cosim.closed_loop import LineFault
 from mrm_cosim.cosim.track import link_errors_detail, run_loop, run_track
+from mrm_cosim.master.uploads import Gains, node_uploads
 from mrm_cosim.master.cycle import Master, MasterTiming
 from mrm_cosim.master.quintic import QuinticProfile
 from mrm_cosim.models.plant import Plant
@@ -341,7 +342,8 @@ def test_the_vdc_differences_and_adapts_over_the_masters_period():
     the nodes computed was twice the truth, and the adaptation half as fast; the run ended
     normally with a tip error 3x the 1 ms run's. The words follow the period now."""
     from mrm_cosim.cosim import experiment_config as ec
-    from mrm_cosim.cosim.model import ModelLoop
+    from mrm_cosim.cosim.closed_loop import ClosedLoop
+    from mrm_cosim.cosim.model import ModelBackend
     from mrm_cosim.cosim.track import _trajectory, node_encoders
     from mrm_cosim.hdl.node.fixed import INVT, RHOT
     from mrm_cosim.hdl.node.regs import Config
@@ -354,9 +356,10 @@ def test_the_vdc_differences_and_adapts_over_the_masters_period():
                         MasterTiming(period_cycles=period), uploads=uploads)
         plant = Plant(robot)
         plant.reset(robot.home)
-        loop = ModelLoop(robot, master, plant, 100_000, uploads, encoder=node_encoders(robot))
+        loop = ClosedLoop(robot, ModelBackend(encoder=node_encoders(robot)), master, plant,
+                          100_000, uploads)
         loop.run(500)
-        for node in loop.nodes:
+        for node in loop.backend.nodes:
             assert node.config[Config.PERIOD] == period
             assert INVT.decode(node.vdc.params.inv_T) == 50e6 / period
             assert node.vdc.params.rho_T[0][0] == RHOT[0].encode(0.5 * period / 50e6)

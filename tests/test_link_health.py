@@ -140,7 +140,7 @@ def test_the_model_backend_refuses_line_faults():
 
     with pytest.raises(InputError) as e:
         run_track(backend="model", duration=0.002, faults=[LineFault(1, "up", "bit", 10)])
-    assert e.value.field == "--line-fault"
+    assert e.value.field == "faults"
 
 
 @pytest.fixture(scope="module")

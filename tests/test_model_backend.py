@@ -1,11 +1,12 @@
-"""The ``model`` backend (cosim.model): its encoder interface equals the cycle reference, and
-the closed loop on it equals the compiled gateware bit for bit — the plant's q at every plant
-step, the torque words, and every reply payload the master receives (issue 5)."""
+"""The ``model`` backend (cosim.model, cosim.model_node): its encoder interface equals the cycle
+reference, and the closed loop on it equals the compiled gateware bit for bit — the plant's q at
+every plant step, the torque words, and every reply payload the master receives (issue 5)."""
 
 import numpy as np
 import pytest
 
-from mrm_cosim.cosim.model import EncoderEvents, ModelAssumptionError
+from mrm_cosim.cosim.model import ModelAssumptionError
+from mrm_cosim.cosim.model_node import EncoderEvents
 from mrm_cosim.hdl.node.encoder_ref import EncoderModel, EncoderParams
 from mrm_cosim.models.encoder import quadrature_levels
 
@@ -114,44 +115,32 @@ def test_encoder_presets_equal_the_cycle_reference(seed, params, lazy):
     assert fast.sample(n) == (ref.count, ref.velocity, ref.errors)
 
 
-def test_fast_joint_tick_equals_the_reference():
-    """Random words, extremes included, every mode, many ticks in a row (state carried)."""
-    from dataclasses import fields
+@pytest.mark.parametrize("arity", [1, 2, 3, 4, 5, 7])
+def test_fx_point_equals_fx(arity):
+    """The references' rounding points (hdl.node.vdc_ref.fx_point: the joint controller's and
+    the VDC's hot path, which the model backend runs) against fx on random words and LSBs,
+    extremes included so that every saturation acts."""
+    from mrm_cosim.hdl.node.fixed import Fmt
+    from mrm_cosim.hdl.node.vdc_ref import fx, fx_point
 
-    from mrm_cosim.cosim.model import fast_joint_tick
-    from mrm_cosim.hdl.node.joint_ref import MODES, JointInputs, JointModel, JointParams
-
-    rng = np.random.default_rng(7)
+    rng = np.random.default_rng(arity)
     lo, hi = -(1 << 23), (1 << 23) - 1
-
-    def word(scale=None):
-        r = rng.random()
-        if r < 0.1:
-            return int(rng.choice([lo, hi, 0, -1, 1]))
-        bits = int(rng.integers(1, 24)) if scale is None else scale
-        return int(rng.integers(-(1 << (bits - 1)), 1 << (bits - 1)))
-
-    for trial in range(300):
-        params = JointParams(*[word() for _ in fields(JointParams)])
-        ref = JointModel(params, word(), word(), word(), word())
-        fast = JointModel(params, ref.q_des, ref.v_des, ref.i_lo, ref.i_hi)
-        mode = trial % 3
+    for _ in range(300):
+        fmt = Fmt("X", int(rng.integers(-40, 12)), "")
+        lsbs = [int(x) for x in rng.integers(-50, 12, arity)]
+        point = fx_point(fmt, *lsbs)
         for _ in range(20):
-            x = JointInputs(q=word(26) if rng.random() < 0.2 else word(), qd=word(),
-                            tn=int(rng.integers(0, 1 << 23)), tau_D=word(), qd0=word(),
-                            vd0=word(), ad0=word())
-            tau, _, _ = ref.tick(MODES[mode], x)
-            got = fast_joint_tick(fast, mode, x.q, x.qd, x.tn, x.tau_D, x.qd0, x.vd0, x.ad0)
-            assert got == tau, (trial, mode)
-            assert (fast.q_des, fast.v_des, fast.i_lo, fast.i_hi) == \
-                (ref.q_des, ref.v_des, ref.i_lo, ref.i_hi), (trial, mode)
+            values = [int(rng.choice([lo, hi, 0, -1, 1])) if rng.random() < 0.1 else
+                      int(rng.integers(-(1 << 46), 1 << 46)) for _ in range(arity)]
+            assert point(*values) == fx(list(zip(values, lsbs, strict=True)), fmt)
 
 
 def test_strict_model_refuses_a_grid_it_cannot_match():
     """Period 0 off the nodes' timer grid: the time-code resynchronises them, which the model
     can only place by its approximate latency, so a strict run stops and says why."""
-    from mrm_cosim.cosim.closed_loop import Gains, node_uploads
-    from mrm_cosim.cosim.model import ModelLoop
+    from mrm_cosim.master.uploads import Gains, node_uploads
+    from mrm_cosim.cosim.closed_loop import ClosedLoop
+    from mrm_cosim.cosim.model import ModelBackend
     from mrm_cosim.cosim.track import _trajectory
     from mrm_cosim.master.cycle import Master
     from mrm_cosim.models.plant import Plant
@@ -161,8 +150,8 @@ def test_strict_model_refuses_a_grid_it_cannot_match():
     master = Master(robot, "vdc", _trajectory(robot), robot.counts_per_rev)
     plant = Plant(robot, seed=0)
     plant.reset(robot.home)
-    loop = ModelLoop(robot, master, plant, 20_000, node_uploads(robot, "vdc", Gains()),
-                     strict=True)
+    loop = ClosedLoop(robot, ModelBackend(strict=True), master, plant, 20_000,
+                      node_uploads(robot, "vdc", Gains()))
     with pytest.raises(ModelAssumptionError, match="grid|resynchronised"):
         loop.run(5_000)
 
@@ -172,7 +161,7 @@ class RecordingMaster:
 
     @staticmethod
     def make(robot, controller):
-        from mrm_cosim.cosim.closed_loop import Gains, pid_gains
+        from mrm_cosim.master.uploads import Gains, pid_gains
         from mrm_cosim.master.cycle import Master, MasterTiming
 
         gains = Gains()
@@ -204,7 +193,7 @@ def _wiggle(robot):
 
 
 def _loop(backend, controller, cycles, seed=3):
-    from mrm_cosim.cosim.closed_loop import Gains, node_uploads
+    from mrm_cosim.master.uploads import Gains, node_uploads
     from mrm_cosim.cosim.track import run_loop
     from mrm_cosim.models.plant import Plant
     from mrm_cosim.models.robot import load_robot
@@ -251,8 +240,9 @@ def test_model_reports_a_comm_d_near_the_commit_phase():
     the commit phase: the gateware may commit it this period or the next, so the model says
     it cannot vouch for the result. A Comm D well after the phase is late on both backends,
     counted, committed a period later, and the runs are still identical."""
-    from mrm_cosim.cosim.closed_loop import Gains, node_uploads
-    from mrm_cosim.cosim.model import ModelLoop
+    from mrm_cosim.master.uploads import Gains, node_uploads
+    from mrm_cosim.cosim.closed_loop import ClosedLoop
+    from mrm_cosim.cosim.model import ModelBackend
     from mrm_cosim.cosim.track import _trajectory, run_loop
     from mrm_cosim.master.cycle import Master, MasterTiming
     from mrm_cosim.models.plant import Plant
@@ -268,9 +258,9 @@ def test_model_reports_a_comm_d_near_the_commit_phase():
         return master, plant, node_uploads(robot, "vdc", Gains())
 
     master, plant, uploads = parts(6_800)
-    near = ModelLoop(robot, master, plant, 50_000, uploads)
+    near = ClosedLoop(robot, ModelBackend(), master, plant, 50_000, uploads)
     near.run(120_000)
-    assert any("commit phase" in v for v in near.violations)
+    assert any("commit phase" in v for v in near.backend.violations)
 
     runs = {}
     for backend in ("compiled", "model"):
@@ -287,8 +277,9 @@ def test_model_reports_a_comm_d_near_the_commit_phase():
 def _quintic_loop(controller, cycles, lazy, uploads=None, hook=None, start=50_000):
     """The paper's quintic on mrm3 for ``cycles`` after period 0, model backend only;
     ``hook(loop)`` before the run."""
-    from mrm_cosim.cosim.closed_loop import Gains, node_uploads, pid_gains
-    from mrm_cosim.cosim.model import ModelLoop
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
+    from mrm_cosim.cosim.closed_loop import ClosedLoop
+    from mrm_cosim.cosim.model import ModelBackend
     from mrm_cosim.cosim.track import _trajectory
     from mrm_cosim.master.cycle import Master, MasterTiming
     from mrm_cosim.models.plant import Plant
@@ -308,8 +299,8 @@ def _quintic_loop(controller, cycles, lazy, uploads=None, hook=None, start=50_00
     master.on_packet = record
     plant = Plant(robot, seed=0)
     plant.reset(robot.home)
-    loop = ModelLoop(robot, master, plant, start,
-                     uploads or node_uploads(robot, controller, gains), lazy=lazy)
+    loop = ClosedLoop(robot, ModelBackend(lazy=lazy), master, plant, start,
+                      uploads or node_uploads(robot, controller, gains))
     if hook is not None:
         hook(loop)
     return loop, loop.run(cycles), master
@@ -317,14 +308,14 @@ def _quintic_loop(controller, cycles, lazy, uploads=None, hook=None, start=50_00
 
 def _same_runs(lazy, eager, violations=False):
     (l_loop, l_res, l_m), (e_loop, e_res, e_m) = lazy, eager
-    assert l_loop.violations == e_loop.violations
-    assert bool(l_loop.violations) == violations
+    assert l_res.violations == e_res.violations == l_loop.backend.violations
+    assert bool(l_res.violations) == violations
     np.testing.assert_array_equal(l_res.q, e_res.q)
     np.testing.assert_array_equal(l_res.tau, e_res.tau)
     assert l_res.trace_sha256 == e_res.trace_sha256
     assert l_m.payloads == e_m.payloads and len(l_m.payloads) > 0
     assert l_res.frames == e_res.frames
-    for a, b in zip(l_loop.nodes, e_loop.nodes, strict=True):
+    for a, b in zip(l_loop.backend.nodes, e_loop.backend.nodes, strict=True):
         a._materialize()
         assert (a.joint.q_des, a.joint.v_des, a.joint.i_lo, a.joint.i_hi, a.torque,
                 a.overruns, a.late_d, a.sync_errors) == \
@@ -348,7 +339,7 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
     """PID in the node with an anti-windup bound of a few IHI words: the coarse integral sits
     on its clip for much of the run; the lazy path's integral (updated on every tick, torque
     only where observed) is still the eager one."""
-    from mrm_cosim.cosim.closed_loop import Gains, node_uploads, pid_gains
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
     from mrm_cosim.hdl.link import packet_ref as ref
     from mrm_cosim.hdl.node.joint_ref import JointParams
     from mrm_cosim.hdl.node.regs import Config, config_payloads, joint_upload
@@ -377,7 +368,7 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
 
         def __init__(self, loop):
             self.hits = 0
-            for node in loop.nodes:
+            for node in loop.backend.nodes:
                 joint = node.joint
                 bound = (joint.params.ilo, joint.params.ihi)
                 orig = node._fast_tick
@@ -498,50 +489,14 @@ def test_lazy_ticks_equal_the_eager_path_when_the_watchdog_trips(controller):
     """A watchdog timeout shorter than the period: every node trips between packets, ramps
     its torque down and is re-armed by nothing; the ticks around the trip (the ramp reads the
     torque, PRIME follows) are computed one by one and the runs stay identical."""
-    from mrm_cosim.cosim.closed_loop import Gains, node_uploads
+    from mrm_cosim.master.uploads import Gains, node_uploads
     from mrm_cosim.models.robot import load_robot
 
     uploads = node_uploads(load_robot("mrm3"), controller, Gains(), timeout_cycles=30_000)
     runs = [_quintic_loop(controller, 1_500_000, lazy, uploads) for lazy in (True, False)]
     _same_runs(*runs, violations=True)
-    assert any("tripped" in v for v in runs[0][0].violations)
-    assert all(node.tripped for node in runs[1][0].nodes)
-
-
-def test_fast_vdc_equals_the_reference():
-    """FastVdc (the lazy path's VDC) against hdl.node.vdc_ref.VdcModel: random words,
-    extremes included so that every saturation and clip acts, ten periods in a row (the
-    estimates and the previous required velocities carry)."""
-    from mrm_cosim.cosim.model import FastVdc
-    from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel, VdcParams
-
-    rng = np.random.default_rng(21)
-    lo, hi = -(1 << 23), (1 << 23) - 1
-
-    def word(bits=None):
-        if rng.random() < 0.08:
-            return int(rng.choice([lo, hi, 0, -1, 1]))
-        bits = int(rng.integers(1, 25)) if bits is None else bits
-        return int(rng.integers(-(1 << (bits - 1)), 1 << (bits - 1)))
-
-    def words(n, bits=None):
-        return [word(bits) for _ in range(n)]
-
-    for trial in range(60):
-        small = 12 if trial % 3 else None                  # most trials without saturation
-        lower = [words(13) for _ in range(2)]
-        upper = [[max(a, word()) if rng.random() < 0.9 else word() for a in row]
-                 for row in lower]
-        params = VdcParams(K=[words(6) for _ in range(2)], rho_T=[words(13) for _ in range(2)],
-                           lower=lower, upper=upper, inv_T=word())
-        theta = [words(13, small) for _ in range(2)]
-        ref = VdcModel(params, [row[:] for row in theta])
-        fast = FastVdc(params, [row[:] for row in theta])
-        for _ in range(10):
-            x = VdcInputs(word(small), words(6, small), words(6, small), word(small),
-                          word(), word(), words(3, small))
-            assert fast.step(x) == ref.step(x), trial
-            assert fast.theta == ref.theta and fast.prev_C == ref.prev_C, trial
+    assert any("tripped" in v for v in runs[0][0].backend.violations)
+    assert all(node.tripped for node in runs[1][0].backend.nodes)
 
 
 @pytest.mark.parametrize("controller, start", [("vdc", 2_000), ("pid-fpga", 20_000)])
@@ -553,7 +508,7 @@ def test_lazy_ticks_equal_the_eager_path_off_the_plant_grid(controller, start):
     for (the same on both paths) and the paths stay identical."""
     runs = [_quintic_loop(controller, 1_500_000, lazy, start=start) for lazy in (True, False)]
     _same_runs(*runs, violations=True)
-    phases = {b % 50 for node in runs[0][0].nodes for b in node.boundaries[1:]}
+    phases = {b % 50 for node in runs[0][0].backend.nodes for b in node.boundaries[1:]}
     assert phases - {0}                                 # ticks off the step's grid
 
 
@@ -564,3 +519,41 @@ def test_progress_is_reported_every_simulated_millisecond():
     run_track("mrm3", "vdc", "model", duration=0.003,
               progress=lambda t, total: calls.append((round(t, 6), round(total, 6))))
     assert calls == [(0.001, 0.003), (0.002, 0.003), (0.003, 0.003)]
+
+
+def test_every_backend_is_the_one_gateware_side_and_closed_loop_the_one_loop():
+    """pysim, compiled and model implement cosim.gateware_side.GatewareSide, and no class in
+    cosim/ but ClosedLoop has a ``run`` that steps the plant (the model backend's loop used to
+    be a second copy, ModelLoop)."""
+    import ast
+    import inspect
+    from pathlib import Path
+
+    import mrm_cosim.cosim as cosim_pkg
+    from mrm_cosim.cosim.backends import CompiledBackend, PysimBackend
+    from mrm_cosim.cosim.closed_loop import ClosedLoop
+    from mrm_cosim.cosim.gateware_side import GatewareSide
+    from mrm_cosim.cosim.model import ModelBackend
+    from mrm_cosim.cosim.track import loop_backend
+    from mrm_cosim.models.robot import load_robot
+
+    for cls in (PysimBackend, CompiledBackend, ModelBackend):
+        assert issubclass(cls, GatewareSide), cls
+    robot = load_robot("mrm3")
+    assert isinstance(loop_backend(robot, "model"), GatewareSide)
+
+    stepping = []
+    for path in sorted(Path(cosim_pkg.__file__).parent.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.ClassDef):
+                continue
+            for fn in node.body:
+                if isinstance(fn, ast.FunctionDef | ast.AsyncFunctionDef) and \
+                        fn.name in ("run", "arun") and any(
+                            isinstance(c, ast.Attribute) and c.attr == "step"
+                            and isinstance(c.value, ast.Name | ast.Attribute)
+                            and "plant" in ast.unparse(c.value)
+                            for c in ast.walk(fn)):
+                    stepping.append((path.name, node.name))
+    assert stepping == [("closed_loop.py", "ClosedLoop")]
+    assert "plant.step" in inspect.getsource(ClosedLoop.arun)

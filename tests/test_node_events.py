@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from mrm_cosim.cosim import plots
-from mrm_cosim.cosim.model import EVENT_TOLERANCE
+from mrm_cosim.cosim.model_link import EVENT_TOLERANCE
 from mrm_cosim.cosim.track import _phases_us
 from mrm_cosim.hdl.node.isa import LATENCY, Op
 from mrm_cosim.hdl.node.regs import NodeEvent

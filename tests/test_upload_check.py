@@ -5,7 +5,7 @@ tests/test_node_core.py)."""
 
 import numpy as np
 
-from mrm_cosim.cosim.closed_loop import Gains, node_uploads
+from mrm_cosim.master.uploads import Gains, node_uploads
 from mrm_cosim.hdl.link.packet_ref import BROADCAST, PacketType, crc16
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.hdl.node.regs import Config, config_payloads, parse_comm_a
@@ -142,7 +142,8 @@ def test_a_comm_d_still_waiting_at_the_period_end_is_an_overrun():
 def test_model_backend_run_reports_a_lost_upload():
     """End to end on the model backend: node 3 never gets one PARAM packet; the master, which
     expects the full list, counts every Comm A of node 3 and nothing else."""
-    from mrm_cosim.cosim.model import ModelLoop
+    from mrm_cosim.cosim.closed_loop import ClosedLoop
+    from mrm_cosim.cosim.model import ModelBackend
     from mrm_cosim.cosim.track import _trajectory
     from mrm_cosim.models.plant import Plant, PlantConfig
 
@@ -152,7 +153,7 @@ def test_model_backend_run_reports_a_lost_upload():
     m = Master(ROBOT, "pid-fpga", _trajectory(ROBOT), ROBOT.counts_per_rev, uploads=ups)
     plant = Plant(ROBOT, PlantConfig(), seed=0)
     plant.reset(ROBOT.home)
-    loop = ModelLoop(ROBOT, m, plant, 50_000, ups[:lost] + ups[lost + 1:])
+    loop = ClosedLoop(ROBOT, ModelBackend(), m, plant, 50_000, ups[:lost] + ups[lost + 1:])
     loop.run(3 * 50_000)
     assert m.upload_errors[1] == m.upload_errors[2] == 0
     assert m.upload_errors[3] == len(m.records) == 3

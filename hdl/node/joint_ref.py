@@ -40,7 +40,7 @@ from dataclasses import dataclass, fields
 
 from .fixed import (ACC, ANG, CNT, CT, FORCE, GAIN, IHI, IM, IVLC, IVS, KC, KI, KP, LAM, LAMC,
                     POS, SGN, TIME, TS, VEL, VISC, saturate)
-from .vdc_ref import fx
+from .vdc_ref import fx_point
 from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["MODES", "JointParams", "JointInputs", "JointModel"]
@@ -140,9 +140,35 @@ class JointInputs:
     ad0: int
 
 
+# The rounding points of a tick (each an ``fx``: exact sum, one rounding half up onto the
+# destination format, saturation to 24 bits), destination first, then each summand's LSB.
+# Part A:
+_E = fx_point(POS, POS.lsb, CNT.lsb)                                    # e = q_des − q
+_QDR = fx_point(VEL, VEL.lsb, LAMC.lsb + POS.lsb)                       # q̇_r = v_des + λ e
+_QDDR = fx_point(ACC, ACC.lsb, LAM.lsb + VEL.lsb)                       # q̈_d0 + λ (v_des − q̇)
+_SG = fx_point(SGN, IVS.lsb + VEL.lsb, IVLC.lsb + POS.lsb)              # sgn_s(q̇_r)
+_TAU_VDC = fx_point(FORCE, FORCE.lsb, IM.lsb + ACC.lsb, VISC.lsb + VEL.lsb,
+                    FORCE.lsb + SGN.lsb, GAIN.lsb + VEL.lsb)
+_TAU_PID = fx_point(FORCE, FORCE.lsb, KP.lsb + POS.lsb, KI.lsb + POS.lsb, KI.lsb + IHI.lsb,
+                    GAIN.lsb + VEL.lsb)
+_I_CARRY = fx_point(IHI, POS.lsb, POS.lsb, CNT.lsb)                     # c = round(I_lo + e)
+_I_LO = fx_point(POS, POS.lsb, POS.lsb, CNT.lsb, IHI.lsb)               # I_lo + e − c
+_I_HI = fx_point(IHI, IHI.lsb, IHI.lsb)                                 # I_hi + c
+_TAU_D = fx_point(FORCE, FORCE.lsb)
+# Part B:
+_TS = fx_point(TS, TIME.lsb + CT.lsb)                                   # t = t_next T_c
+_VD = fx_point(VEL, VEL.lsb, ACC.lsb + TS.lsb)                          # q̇_d0 + q̈_d0 t
+_DQ = fx_point(ANG, VEL.lsb + TS.lsb)                                   # (q̇_d0 + q̈_d0 t/2) t
+_QD = fx_point(POS, POS.lsb, ANG.lsb + KC.lsb)                          # q_d0 + K_c Δq
+
+
 @dataclass
 class JointModel:
     """State and tick of the joint controller.
+
+    A tick is :meth:`part_a` then :meth:`part_b` (:meth:`tick` does both). The parts are
+    separate methods because a transaction-level caller (the ``model`` backend) runs Part B
+    alone for a tick whose torque nobody observes, and Part A later.
 
     Attributes
     ----------
@@ -163,36 +189,49 @@ class JointModel:
         """One tick; returns ``(τ, q̇_r, e)`` words (FORCE, VEL, POS)."""
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, not {mode!r}")
+        out = self.part_a(MODES.index(mode), x.q, x.qd, x.tau_D, x.ad0)
+        self.part_b(x.tn, x.qd0, x.vd0, x.ad0)
+        return out
+
+    def part_a(self, mode: int, q: int, qd: int, tau_D: int, ad0: int) -> tuple[int, int, int]:
+        """Part A from the reference ``(q_des, v_des)`` the previous tick prepared: the
+        torque and, in PID mode, the integral's update. ``mode`` indexes :data:`MODES`;
+        ``q`` the count (saturated here), ``qd`` the velocity word, ``tau_D``, ``ad0`` the
+        committed Comm D's torque and ``q̈_d0``. Returns ``(τ, q̇_r, e)`` (FORCE, VEL, POS)."""
         p = self.params
-        q = saturate(x.q)
-        e = fx([(self.q_des, POS.lsb), (-q, CNT.lsb)], POS)
-        qdr = fx([(self.v_des, VEL.lsb), (p.lamc * e, LAMC.lsb + POS.lsb)], VEL)
-        if mode == "vdc":
-            lq = LAM.lsb + VEL.lsb
-            qddr = fx([(x.ad0, ACC.lsb), (p.lam * self.v_des, lq), (-p.lam * x.qd, lq)], ACC)
-            sg = fx([(p.ivs * self.v_des, IVS.lsb + VEL.lsb), (p.ivlc * e, IVLC.lsb + POS.lsb)],
-                    SGN)
-            tau = fx([(x.tau_D, FORCE.lsb), (p.th0 * qddr, IM.lsb + ACC.lsb),
-                      (p.th1 * qdr, VISC.lsb + VEL.lsb), (p.th2 * sg, FORCE.lsb + SGN.lsb),
-                      (p.th3, FORCE.lsb), (p.kj * qdr, GAIN.lsb + VEL.lsb),
-                      (-p.kj * x.qd, GAIN.lsb + VEL.lsb)], FORCE)
-        elif mode == "pid":
-            tau = fx([(x.tau_D, FORCE.lsb), (p.kp * e, KP.lsb + POS.lsb),
-                      (p.ki * self.i_lo, KI.lsb + POS.lsb), (p.ki * self.i_hi, KI.lsb + IHI.lsb),
-                      (p.kd * self.v_des, GAIN.lsb + VEL.lsb), (-p.kd * x.qd, GAIN.lsb + VEL.lsb)],
-                     FORCE)
-            s = [(self.i_lo, POS.lsb), (self.q_des, POS.lsb), (-q, CNT.lsb)]   # I_lo + e
-            c = fx(s, IHI)
-            self.i_lo = fx(s + [(-c, IHI.lsb)], POS)
-            hi = fx([(self.i_hi, IHI.lsb), (c, IHI.lsb)], IHI)
-            self.i_hi = min(max(hi, p.ilo), p.ihi)
-        else:
-            tau = fx([(x.tau_D, FORCE.lsb)], FORCE)
-        # Part B: the reference for the next tick.
-        ts = fx([(x.tn * p.cT, TIME.lsb + CT.lsb)], TS)
-        tsh = fx([(x.tn * p.cTh, TIME.lsb + CT.lsb)], TS)
-        self.v_des = fx([(x.vd0, VEL.lsb), (x.ad0 * ts, ACC.lsb + TS.lsb)], VEL)
-        h = fx([(x.vd0, VEL.lsb), (x.ad0 * tsh, ACC.lsb + TS.lsb)], VEL)
-        dq = fx([(h * ts, VEL.lsb + TS.lsb)], ANG)
-        self.q_des = fx([(x.qd0, POS.lsb), (dq * p.Kc, ANG.lsb + KC.lsb)], POS)
+        q = saturate(q)
+        e = _E(self.q_des, -q)
+        qdr = _QDR(self.v_des, p.lamc * e)
+        if mode == 0:                                                   # VDC
+            qddr = _QDDR(ad0, p.lam * (self.v_des - qd))
+            sg = _SG(p.ivs * self.v_des, p.ivlc * e)
+            tau = _TAU_VDC(tau_D + p.th3, p.th0 * qddr, p.th1 * qdr, p.th2 * sg,
+                           p.kj * (qdr - qd))
+        elif mode == 1:                                                 # PID
+            tau = _TAU_PID(tau_D, p.kp * e, p.ki * self.i_lo, p.ki * self.i_hi,
+                           p.kd * (self.v_des - qd))
+            self.pid_integral(q)
+        else:                                                           # torque
+            tau = _TAU_D(tau_D)
         return tau, qdr, e
+
+    def pid_integral(self, q: int) -> None:
+        """The PID integral's update of Part A alone, ``I ← I + e`` for the count ``q``
+        (saturated here): what a PID tick whose torque nobody observes still has to do."""
+        q = saturate(q)
+        c = _I_CARRY(self.i_lo, self.q_des, -q)
+        self.i_lo = _I_LO(self.i_lo, self.q_des, -q, -c)
+        p = self.params
+        self.i_hi = min(max(_I_HI(self.i_hi, c), p.ilo), p.ihi)
+
+    def part_b(self, tn: int, qd0: int, vd0: int, ad0: int) -> None:
+        """Part B: the reference ``(q_des, v_des)`` for the next tick, ``tn`` cycles after the
+        start of the period the Comm D words ``q_d0, q̇_d0, q̈_d0`` are for (TIME, POS, VEL,
+        ACC)."""
+        p = self.params
+        ts = _TS(tn * p.cT)
+        tsh = _TS(tn * p.cTh)
+        self.v_des = _VD(vd0, ad0 * ts)
+        h = _VD(vd0, ad0 * tsh)
+        dq = _DQ(h * ts)
+        self.q_des = _QD(qd0, dq * p.Kc)

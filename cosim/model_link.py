@@ -1,0 +1,118 @@
+"""The ``model`` backend's link: a timing model of the chain at packet level.
+
+The link's only job in the model is the timeline: when a packet's last byte reaches a node's
+core, and when a reply reaches the master. A packet's last character reaches node k
+``9 + 11 (k − 1)`` cycles plus its frame time (10 line bits per data character, 4 per EOP,
+3 line bits per cycle at 150 Mbit/s) after the master's link is free (a time-code before it
+holds the link for 14 bits); the node's core then takes its payload one byte per cycle, one
+cycle more per word written through the engines' host port (13 for a Comm B, 3 for a Comm D,
+a PARAM's words), after any packet before it; a reply leaves the node's reply FSM when the
+node says (:meth:`NodeModel.reply_cycle <hdl.node.core_ref.NodeModel.reply_cycle>`) and
+reaches the master ``1 + 9 + 11 (k − 1)`` cycles plus its frame time later, or its frame time
+after the upstream link is free; a time-code reaches node k after ``12 k`` cycles
+(docs/link.md "Per-hop latency"). These are approximations, within
+:data:`EVENT_TOLERANCE` cycles of the gateware's (cosim/model.py says why that is enough).
+"""
+
+from __future__ import annotations
+
+from mrm_cosim.hdl.link import packet_ref as ref
+
+__all__ = ["LinkTiming", "LINK_UP_CYCLE", "EVENT_TOLERANCE", "frame_cycles",
+           "delivery_cycles"]
+
+#: Cycle at which the modelled link reaches Run (the gateware: about 21.4 µs at standard timers).
+LINK_UP_CYCLE = 1_100
+#: The modelled node events' largest distance from the gateware's, in cycles: 12 is the
+#: time-code's wait for the character on the line, at most 4 cycles per hop over three hops,
+#: which the packets behind it inherit; 6 measured over 20 ms of mrm3
+#: (tests/test_node_events.py). The boundary, the commit and the VDC's durations are exact.
+EVENT_TOLERANCE = 12
+_FIRST_HOP = 9          # master tx → node 1, cycles before the first character
+_HOP = 11               # per further hop
+_TC_HOP = 12            # time-code, per hop
+_TC_LINE = 5            # a time-code's line time (ESC + data: 14 bits), cycles
+_REPLY = 1              # reply FSM leaves Idle → reply's first character offered
+
+
+def frame_cycles(payload_len: int) -> int:
+    """Line time of a frame (header 4 + payload + CRC 2 data characters, EOP), cycles."""
+    return -(-((4 + payload_len + 2) * 10 + 4) // 3)
+
+
+def delivery_cycles(ptype: int, payload_len: int) -> int:
+    """Cycles from a frame's last character at the node to its last payload byte taken by the
+    core: a byte per cycle, and a cycle per word the core writes through an engine's host
+    port (its ``rx.ready`` is low while the word waits; the engines are idle then)."""
+    words = 0
+    if ptype == ref.PacketType.COMM_B and payload_len == 40:
+        words = 13
+    elif ptype == ref.PacketType.COMM_D:
+        words = min(3, max(0, payload_len // 3 - 1))
+    elif ptype == ref.PacketType.PARAM:
+        words = min(12, max(0, (payload_len - 3) // 3))
+    return payload_len + words
+
+
+class LinkTiming:
+    """The chain of ``n`` nodes as a timeline (module docstring).
+
+    Attributes
+    ----------
+    inbox : list of n lists of (int, int, str, object)
+        Per node, what reaches its core: ``(cycle, order, kind, data)`` with kind
+        ``"timecode"`` (data: the time) or ``"packet"`` (data: ``(type, payload, seq)``);
+        ``order`` puts a time-code before a packet of the same cycle. Not sorted.
+    replies : list of (int, int, int, bytes, int)
+        Replies on their way to the master: ``(cycle at the master, src, type, payload,
+        seq)``. Not sorted.
+    """
+
+    def __init__(self, n: int):
+        self.n = n
+        self.inbox: list[list] = [[] for _ in range(n)]
+        self.replies: list = []
+        self._down_free = 0                     # master → node 1 link free from this cycle
+        self._up_free = 0                       # node 1 → master link free from this cycle
+        self._rx_free = [0] * n                 # node k's core takes bytes from this cycle
+
+    def send(self, action, now: int) -> None:
+        """The master hands ``action`` (:class:`master.cycle.Send`) to its port in cycle
+        ``now``."""
+        if action.kind == "timecode":
+            t = max(now, self._down_free)
+            for k in range(self.n):
+                self.inbox[k].append((t + _TC_HOP * (k + 1), 0, "timecode", action.time))
+            self._down_free = t + _TC_LINE          # the packets behind it wait for it
+            return
+        t = max(now, self._down_free) + frame_cycles(len(action.payload))
+        self._down_free = t
+        dests = range(self.n) if action.dest == ref.BROADCAST else [action.dest - 1]
+        for k in dests:
+            if 0 <= k < self.n:
+                taken = max(t + _FIRST_HOP + _HOP * k, self._rx_free[k]) + \
+                    delivery_cycles(action.ptype, len(action.payload))
+                self._rx_free[k] = taken + 1
+                self.inbox[k].append((taken, 1, "packet",
+                                      (action.ptype, action.payload, action.seq)))
+
+    def reply(self, k: int, ready: int, ptype: int, payload: bytes, seq: int) -> None:
+        """Queue a reply leaving node ``k``'s (0-based) reply FSM in cycle ``ready``; like the
+        gateware's, its header echoes the request's ``seq``."""
+        t = max(ready + _REPLY + _FIRST_HOP + _HOP * k, self._up_free) + \
+            frame_cycles(len(payload))
+        self._up_free = t
+        self.replies.append((t, k + 1, ptype, payload, seq))
+
+    def replies_before(self, end: int) -> list:
+        """The replies complete at the master before cycle ``end``, in arrival order (taken
+        off the list)."""
+        if not self.replies:
+            return []
+        self.replies.sort(key=lambda r: r[0])
+        i = 0
+        while i < len(self.replies) and self.replies[i][0] < end:
+            i += 1
+        out = self.replies[:i]
+        del self.replies[:i]
+        return out

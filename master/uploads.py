@@ -1,0 +1,171 @@
+"""The master's node-configuration policy: what it uploads to the nodes before period 0.
+
+The master configures the nodes (docs/node.md): each node's mode, tick, watchdog, torque
+limits and period timer (CONFIG), its joint controller's and VDC unit's words (PARAM) and its
+encoder's home count (CONFIG PRESET), then arms it. :func:`node_uploads` builds those packets
+from the robot, the controller and the :class:`Gains`; :func:`startup_sends` is what the master
+sends once the link is up. The loop (``cosim.closed_loop``) only carries them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mrm_cosim.errors import InputError
+from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.hdl.node.fixed import FORCE
+from mrm_cosim.hdl.node.joint_ref import JointParams
+from mrm_cosim.hdl.node.regs import MODES, Config, config_payloads, joint_upload, vdc_upload
+from mrm_cosim.master.cycle import Master, Send
+from mrm_cosim.models.actuators import ACTUATORS
+from mrm_cosim.models.encoder import counts_per_rad, joint_counts
+from mrm_cosim.models.robot import Robot
+from mrm_cosim.units import CLOCK_HZ
+
+__all__ = ["Gains", "pid_gains", "node_uploads", "check_node_period", "startup_sends"]
+
+
+@dataclass(frozen=True)
+class Gains:
+    """Controller settings uploaded to the nodes or used by the master (SI units).
+
+    Attributes
+    ----------
+    lam : float, 1/s
+        λ of the required joint velocity (master and node alike).
+    k_j : float, N·m·s/rad
+        VDC joint velocity-error gain.
+    K : float
+        VDC link velocity-error gain (same for the six axes, N·s/m and N·m·s/rad).
+    adapt : float
+        Adaptation gain ρ of every parameter (0: no adaptation), with bounds 0.7×/1.3×.
+    pid_fpga_hz, pid_1khz_hz : float
+        Closed-loop pole frequency of the node's PID and of the master's 1 kHz PID.
+    friction_comp : float
+        VDC joint friction estimates ``θ̂_J`` (viscous, Coulomb) as this fraction of each
+        actuator's nominal (catalogue-level) friction; 0: none. The plant's true friction
+        differs from the nominal one by its perturbation, so 1 is a model, not the truth.
+    """
+
+    lam: float = 50.0
+    k_j: float = 30.0
+    K: float = 0.0
+    adapt: float = 0.0
+    pid_fpga_hz: float = 15.0
+    pid_1khz_hz: float = 5.0
+    friction_comp: float = 0.0
+
+
+def _joint_inertia(robot: Robot) -> np.ndarray:
+    import pinocchio as pin
+
+    model = robot.pinocchio_model()
+    M = pin.crba(model, model.createData(), robot.home)
+    return np.diag(M) + np.array([ACTUATORS[m.type.actuator].output_inertia
+                                  for m in robot.modules])
+
+
+def pid_gains(robot: Robot, hz: float) -> dict:
+    """PID gains placing a triple pole at ``−2π·hz`` for each joint's nominal inertia."""
+    J = _joint_inertia(robot)
+    w = 2 * np.pi * hz
+    return {"kp": 3 * J * w * w, "ki": J * w**3, "kd": 3 * J * w}
+
+
+def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int = 50,
+                 timeout_cycles: int | None = None, period_cycles: int = 50_000,
+                 commit_cycles: int | None = None,
+                 sync_window: int = 2_500) -> list[tuple[int, int, bytes]]:
+    """``(dest, type, payload)`` packets that configure every node before the run (the PID
+    gains are zero unless ``controller`` is ``pid-fpga``).
+
+    Homing: the arm rests at ``robot.home`` until period 0 (the brakes hold it), and a node's
+    incremental encoder counts from 0 at its reset, so each node's count is preset (CONFIG
+    PRESET) to the count of its joint's home angle, ``floor(home · CPR / 2π)``, what the
+    plant's encoder shows there. Without it a robot whose home is not all zeros ran with
+    every joint's angle off by its home angle, in the master and in the node alike.
+
+    ``period_cycles`` (the master's period), ``commit_cycles`` (the phase at which Comm D takes
+    effect) and ``sync_window`` set the nodes' period timer (docs/node.md "Timing"); the
+    timing record goes first, so it arrives within the first period after reset. The default
+    commit phase is a fifth of the period (200 µs of 1 ms: the measured Comm D reaches the last
+    of three nodes at ~82 µs; docs/node.md "Timing" says why the margin). The VDC's
+    backward difference (1/T) and adaptation step (ρ·T) are for this period. The default
+    watchdog timeout is two periods, at least 2 ms (docs/node.md "Watchdog"): the nodes hear
+    from the master once a period, so a timeout that did not follow a longer period would trip
+    every node, and before period 0 they hear nothing for up to 1 ms after their ARM.
+    """
+    if commit_cycles is None:
+        commit_cycles = period_cycles // 5
+    if timeout_cycles is None:
+        # two periods, and never less than the silence between the uploads' ARM and period 0
+        # (up to START_CYCLE, 1 ms): two 0.4 ms periods tripped every node before period 0
+        timeout_cycles = max(2 * period_cycles, 2 * 50_000)
+    mode = {"vdc": MODES["vdc"], "pid-fpga": MODES["pid"], "pid-1khz": MODES["torque"]}
+    check_node_period(period_cycles, tick_cycles, commit_cycles, sync_window)
+    out = [(k + 1, ref.PacketType.CONFIG, p) for k in range(robot.n) for p in config_payloads(
+        {Config.PERIOD: period_cycles, Config.COMMIT: commit_cycles,
+         Config.SYNC_WINDOW: sync_window})]
+    # The PID words only where the node runs its PID: they scale with the torque per count,
+    # and a robot with coarser encoders than mrm3's can need more than the KP word holds,
+    # which must not stop a run that never uses them.
+    pid = (pid_gains(robot, gains.pid_fpga_hz) if controller == "pid-fpga"
+           else dict.fromkeys(("kp", "ki", "kd"), np.zeros(robot.n)))
+    home_counts = joint_counts(robot.home, counts_per_rad(robot.counts_per_rev))
+    for k, mod in enumerate(robot.modules):
+        dest = k + 1
+        peak = FORCE.encode(mod.type.peak_torque)
+        cfg = {Config.MODE: mode[controller], Config.TICK: tick_cycles,
+               Config.TIMEOUT: timeout_cycles, Config.RAMP: FORCE.encode(0.01),
+               Config.TAU_MIN: -peak, Config.TAU_MAX: peak}
+        out += [(dest, ref.PacketType.CONFIG, p) for p in config_payloads(cfg)]
+        theta = robot.nominal_theta[k]
+        lo = np.minimum(0.7 * theta, 1.3 * theta)
+        hi = np.maximum(0.7 * theta, 1.3 * theta)
+        out += [(dest, ref.PacketType.PARAM, p) for p in
+                vdc_upload(theta, np.full((2, 6), gains.K), np.full((2, 13), gains.adapt),
+                           lo, hi, period=period_cycles / CLOCK_HZ)]
+        spec = ACTUATORS[mod.type.actuator]
+        joint = JointParams.from_float(
+            counts_per_rev=mod.type.counts_per_rev, tick_cycles=tick_cycles, lam=gains.lam,
+            k_j=gains.k_j, inertia=spec.output_inertia,
+            viscous=gains.friction_comp * spec.viscous_friction,
+            coulomb=gains.friction_comp * spec.coulomb_friction,
+            k_p=pid["kp"][k], k_i=pid["ki"][k], k_d=pid["kd"][k], i_max=0.05,
+            field=f"joint{dest}")
+        out += [(dest, ref.PacketType.PARAM, p) for p in joint_upload(joint)]
+        out += [(dest, ref.PacketType.CONFIG, p)
+                for p in config_payloads({Config.PRESET: int(home_counts[k])})]
+        out += [(dest, ref.PacketType.CONFIG, p) for p in config_payloads({Config.ARM: 1})]
+    return out
+
+
+def check_node_period(period_cycles: int, tick_cycles: int = 50,
+                      commit_cycles: int | None = None, sync_window: int = 2_500) -> None:
+    """The nodes' period timer's rules (docs/node.md "Timing"), the one place they are
+    checked: ``period_cycles`` a multiple of the control tick below 2^24 (the PERIOD
+    register), the commit phase and the sync window inside the period. ``InputError`` naming
+    the argument that breaks them (``commit_cycles`` None: the default, a fifth of the
+    period)."""
+    if (isinstance(period_cycles, bool) or not isinstance(period_cycles, int)
+            or period_cycles % tick_cycles or not 0 < period_cycles < (1 << 24)):
+        raise InputError("period_cycles", f"must be a multiple of the tick ({tick_cycles}) "
+                         f"below 2^24, not {period_cycles!r}")
+    if commit_cycles is not None and not 0 <= commit_cycles < period_cycles:
+        raise InputError("commit_cycles", f"must lie in [0, {period_cycles}), "
+                         f"not {commit_cycles!r}")
+    if not 0 <= sync_window < period_cycles:
+        raise InputError("sync_window", f"must lie in [0, {period_cycles}), not {sync_window!r}")
+
+
+def startup_sends(uploads, master: Master, q0, seq: int) -> tuple[list[Send], int]:
+    """What the master sends once the link is up, before period 0: every upload ``(dest, type,
+    payload)`` with sequence numbers counting on from ``seq``, then its initial Comm D (at the
+    plant's posture ``q0``). Returns the sends and the last sequence number used."""
+    sends = []
+    for dest, ptype, payload in uploads:
+        seq = (seq + 1) & 0xFF
+        sends.append(Send("packet", dest, int(ptype), payload, seq))
+    return sends + list(master.initial_packets(q0)), seq
