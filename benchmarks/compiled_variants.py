@@ -84,21 +84,8 @@ def _yosys_opt(verilog_text: str, top: str) -> str:
 STIM = Path("/tmp/mrm-compiled-stimulus.pkl")
 
 
-class _Taping:
-    """A backend wrapper that keeps every chunk's inputs and output names."""
-
-    def __init__(self, backend):
-        self.backend = backend
-        self.chunks = []
-
-    async def run(self, n, inputs, outputs):
-        self.chunks.append((n, {k: np.array(np.broadcast_to(v, (n,))) for k, v in
-                                inputs.items()}, list(outputs)))
-        return await self.backend.run(n, inputs, outputs)
-
-
 def record(cycles: int, path: Path) -> None:
-    from mrm_cosim.cosim.backends import CompiledBackend, drive
+    from mrm_cosim.cosim.backends import CompiledBackend
     from mrm_cosim.cosim.closed_loop import ClosedLoop
     from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
     from mrm_cosim.cosim.preview import paper_test_profile
@@ -118,12 +105,21 @@ def record(cycles: int, path: Path) -> None:
                     pid=pid_gains(robot, 5.0))
     plant = Plant(robot, seed=0)
     plant.reset(robot.home)
-    be = _Taping(CompiledBackend(lambda: loop_system(robot), loop_system_key(robot),
-                                 quiet=False))
-    model = be.backend.model
+    class Taping(CompiledBackend):
+        """The compiled backend, keeping every chunk's inputs and output names."""
+
+        chunks = []
+
+        async def run(self, n, inputs, outputs):
+            self.chunks.append((n, {k: np.array(np.broadcast_to(v, (n,))) for k, v in
+                                    inputs.items()}, list(outputs)))
+            return await super().run(n, inputs, outputs)
+
+    be = Taping(lambda: loop_system(robot), loop_system_key(robot), quiet=False)
+    model = be.model
     text, signed = model.verilog, {p.name: p.signed for p in model.ports.values()}
     loop = ClosedLoop(robot, be, master, plant, 50_000, node_uploads(robot, "vdc", Gains()))
-    drive(loop.run(cycles))
+    loop.run(cycles)
     with open(path, "wb") as f:
         # the Verilog goes with the stimulus: the gateware may change before the replay
         pickle.dump({"verilog": text, "signed": signed, "chunks": be.chunks}, f)
