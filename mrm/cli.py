@@ -125,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
     for leaf in leaf_parsers(parser):
         group = leaf.add_argument_group("output")
         group.add_argument("-v", "--verbose", action="count", default=0,
-                           help="more log lines on stderr (-vv: debug)")
+                           help="debug log lines on stderr too (the resolved experiment, …)")
         group.add_argument("-q", "--quiet", action="store_true",
                            help="print nothing but errors")
     return parser
@@ -146,7 +146,7 @@ class _StderrHandler(logging.Handler):
 
 def configure_logging(verbose: int = 0, quiet: bool = False) -> None:
     """The ``mrm_cosim`` logger: INFO (progress) by default, ERROR with ``-q``, DEBUG with
-    ``-vv``; one handler writing bare lines to stderr."""
+    ``-v``; one handler writing bare lines to stderr."""
     logger = logging.getLogger(LOGGER)
     for handler in [h for h in logger.handlers if isinstance(h, _StderrHandler)]:
         logger.removeHandler(handler)
@@ -154,8 +154,7 @@ def configure_logging(verbose: int = 0, quiet: bool = False) -> None:
     handler.setFormatter(logging.Formatter("%(message)s"))
     logger.addHandler(handler)
     logger.propagate = False
-    logger.setLevel(logging.ERROR if quiet else logging.DEBUG if verbose >= 2
-                    else logging.INFO)
+    logger.setLevel(logging.ERROR if quiet else logging.DEBUG if verbose else logging.INFO)
 
 
 # --- signals and standard output ----------------------------------------------------------
@@ -230,6 +229,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     configure_logging(args.verbose, args.quiet)
     name = f"{parser.prog} {args.command}"
+    logging.getLogger(LOGGER).debug("mrm-cosim %s, Python %s, pid %d", __version__,
+                                    sys.version.split()[0], os.getpid())
     stdout = sys.stdout
     sys.stdout = _GuardedStdout(stdout)
     try:

@@ -125,8 +125,8 @@ def test_json_prints_the_summary_on_stdout(tmp_path, monkeypatch, capsys):
     assert json.loads(capsys.readouterr().out)["robot"] == "mrm3"
 
 
-@pytest.mark.parametrize("flags, level", [([], "INFO"), (["-q"], "ERROR"), (["-v"], "INFO"),
-                                          (["-vv"], "DEBUG")])
+@pytest.mark.parametrize("flags, level", [([], "INFO"), (["-q"], "ERROR"), (["-v"], "DEBUG"),
+                                          (["--verbose"], "DEBUG")])
 def test_verbosity_flags_set_the_logging_level(tmp_path, monkeypatch, capsys, flags, level):
     import logging
 
@@ -136,6 +136,7 @@ def test_verbosity_flags_set_the_logging_level(tmp_path, monkeypatch, capsys, fl
     assert logging.getLevelName(logging.getLogger("mrm_cosim").level) == level
     err = capsys.readouterr().err
     assert ("[1/2] pid-fpga" in err) == (level != "ERROR")
+    assert ("experiment: {" in err) == (level == "DEBUG")
 
 
 # --- help pages and repeated flags -------------------------------------------------------

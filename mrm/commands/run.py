@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import logging
 import os
 import sys
 from dataclasses import replace
@@ -23,6 +24,8 @@ from mrm_cosim.errors import InputError
 from mrm_cosim.mrm.flags import RUN_PREVIEW, RUN_TABLE2, RUN_TRACK, named_by_flags
 
 EXIT_NOT_CLEAN = 3
+
+_log = logging.getLogger("mrm_cosim.mrm")
 
 
 def _seed(text: str) -> int:
@@ -201,6 +204,7 @@ def _track(args) -> int:
     check_output_dir(args.out)
     config = track_config(args.config, controller=args.controller, robot=args.robot,
                           backend=args.backend, seed=args.seed, duration=args.duration)
+    _log.debug("experiment: %s", json.dumps(config.to_dict()))
     robot = load_robot(config.robot)
     check_robot_fits(robot, "robot")
     if args.signals is not None and args.vcd is None:
@@ -300,6 +304,7 @@ def _table2(args) -> int:
     check_output_dir(args.out)
     config = load(args.config).with_overrides(backend=args.backend, seed=args.seed,
                                               duration=args.duration, field_prefix="")
+    _log.debug("experiment: %s", json.dumps(config.to_dict()))
     jobs = default_jobs() if args.jobs is None else args.jobs
     if isinstance(jobs, bool) or jobs < 1:
         raise InputError("jobs", f"must be a whole number ≥ 1, not {args.jobs!r}")
