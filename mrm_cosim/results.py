@@ -33,8 +33,8 @@ from pathlib import Path
 from mrm_cosim.errors import InputError
 
 __all__ = ["atomic_output_dir", "atomic_write_text", "check_output_dir", "check_output_file",
-           "check_writable_folder", "make_folder", "remove_empty", "remove_stale", "write_json",
-           "MARKER", "OWNER"]
+           "check_writable_folder", "make_folder", "remove_empty", "remove_stale", "usual_mode",
+           "write_json", "MARKER", "OWNER"]
 
 #: File in every result folder this writer made: what made it (JSON).
 MARKER = ".mrm-results"
@@ -323,6 +323,12 @@ def atomic_output_dir(path, field: str = "out", made_by: str = "mrm"):
         shutil.rmtree(tmp, ignore_errors=True)
         remove_empty(made)
         raise
+
+
+def usual_mode(path) -> None:
+    """Give the file ``path`` the mode a new file gets (0666 less the umask): files made with
+    ``mkstemp`` (a VCD written beside its target, then renamed) are 0600 otherwise."""
+    os.chmod(path, 0o666 & ~_umask())
 
 
 def _umask() -> int:

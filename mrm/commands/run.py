@@ -240,12 +240,13 @@ def _track(args) -> int:
 def _write_track(tmp: Path, args, config, robot, result, summary, profile) -> None:
     from mrm_cosim.cosim.plots import pick_period, plot_timeline, plot_tracking
     from mrm_cosim.cosim.table2 import timeline_json
-    from mrm_cosim.results import write_json
+    from mrm_cosim.results import usual_mode, write_json
 
     if args.vcd is not None:
         vcd = tmp / "waves.vcd"
         if not vcd.exists() or vcd.stat().st_size == 0:
             raise InputError("vcd", "the window is not inside the run (nothing recorded)")
+        usual_mode(vcd)
     q_d = profile.evaluate(result.t)[0]
     write_json(tmp / "summary.json", summary)
     (tmp / "config.toml").write_text(config.to_toml())
