@@ -155,10 +155,10 @@ class VcdWindow:
     def __post_init__(self):
         if not (isinstance(self.start, int) and isinstance(self.stop, int)
                 and 0 <= self.start < self.stop):
-            raise InputError("--vcd", f"the window must satisfy 0 <= start < stop, not "
+            raise InputError("vcd", f"the window must satisfy 0 <= start < stop, not "
                                       f"{self.start}:{self.stop} (cycles)")
         if not self.signals or not any(p.strip() for p in self.signals.split(",")):
-            raise InputError("--signals", "needs at least one pattern")
+            raise InputError("signals", "needs at least one pattern")
 
     @classmethod
     def parse(cls, spec: str, path, signals: str | None = None,
@@ -170,17 +170,17 @@ class VcdWindow:
         """
         parts = str(spec).split(":")
         if len(parts) != 2:
-            raise InputError("--vcd", f"must be T0:T1 (seconds, or with ms/us/ns), not {spec!r}")
+            raise InputError("vcd", f"must be T0:T1 (seconds, or with ms/us/ns), not {spec!r}")
         times = []
         for part in parts:
-            times.append(parse_time(part, "--vcd") + offset)
+            times.append(parse_time(part, "vcd") + offset)
         t0, t1 = times
         if not t1 > t0 >= 0:
-            raise InputError("--vcd", f"needs 0 <= T0 < T1, not {spec!r}")
+            raise InputError("vcd", f"needs 0 <= T0 < T1, not {spec!r}")
         start = int(round(t0 * CLOCK_HZ))
         stop = max(start + 1, int(round(t1 * CLOCK_HZ)))
         if signals is not None and any(not p.strip() for p in str(signals).split(",")):
-            raise InputError("--signals", f"comma-separated non-empty patterns, not {signals!r}")
+            raise InputError("signals", f"comma-separated non-empty patterns, not {signals!r}")
         return cls(start, stop, Path(path), signals or "*")
 
     def matches(self, name: str) -> bool:

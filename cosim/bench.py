@@ -31,7 +31,7 @@ def bench_backend(backend: str, robot="mrm3", cycles: int | None = None) -> dict
     used to be a run minus a run of zero length, which a busy machine could make negative.)
     """
     robot = load_robot(robot)
-    check_robot_fits(robot, "--robot")
+    check_robot_fits(robot, "robot")
     cycles = WINDOWS[backend] if cycles is None else cycles
     profile = paper_test_profile(robot)
 

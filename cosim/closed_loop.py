@@ -86,7 +86,7 @@ class LineFault:
                                  f"{'≥ 1' if name == 'cycles' else '≥ 0'}, not {v!r}")
 
     @classmethod
-    def parse(cls, spec: str, field: str = "--line-fault") -> LineFault:
+    def parse(cls, spec: str, field: str = "faults") -> LineFault:
         """``KIND:DIRECTION:NODE@TIME[+DURATION]``, times from period 0 with optional units:
         ``bit:up:2@2.006ms`` (one cycle), ``cut:down:2@10ms+2us``. ``InputError(field)``."""
         from mrm_cosim.cosim.backends import parse_time

@@ -98,7 +98,7 @@ class ExperimentConfig:
     timing: MasterTiming = field(default_factory=MasterTiming)
 
     def with_overrides(self, *, backend: str | None = None, seed: int | None = None,
-                       duration: float | None = None, field_prefix: str = "--"
+                       duration: float | None = None, field_prefix: str = ""
                        ) -> ExperimentConfig:
         """A copy with command-line overrides applied and validated (errors name the flag)."""
         cfg = self
@@ -144,7 +144,7 @@ def load(path=None) -> ExperimentConfig:
     try:
         text = path.read_text()
     except OSError as exc:
-        raise InputError("--config", f"cannot read {str(path)!r}: {exc.strerror}") from None
+        raise InputError("config", f"cannot read {str(path)!r}: {exc.strerror}") from None
     return loads(text, base_dir=path.resolve().parent)
 
 
@@ -153,7 +153,7 @@ def loads(text: str, base_dir=None) -> ExperimentConfig:
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise InputError("--config", f"not valid TOML: {exc}") from None
+        raise InputError("config", f"not valid TOML: {exc}") from None
     return from_dict(data, base_dir=base_dir)
 
 

@@ -66,9 +66,9 @@ def run_preview(robot="mrm3", duration: float = 1.5, seed: int = 0, period: floa
         PID pole frequency, see :class:`master.feedforward_pid.FeedforwardPID`.
     """
     robot = load_robot(robot)
-    duration = require_positive(duration, "--duration")
+    duration = require_positive(duration, "duration")
     if duration > 60.0:
-        raise InputError("--duration", f"at most 60 s for a preview, not {duration!r}")
+        raise InputError("duration", f"at most 60 s for a preview, not {duration!r}")
     config = PlantConfig() if plant_config is None else plant_config
     plant = Plant(robot, config, seed=seed)
     steps = round(period / plant.dt)
@@ -79,7 +79,7 @@ def run_preview(robot="mrm3", duration: float = 1.5, seed: int = 0, period: floa
     plant.reset(robot.home)
     n_samples = int(round(duration / period))
     if n_samples < 2:       # one sample has no motion yet: rho would be 0/0
-        raise InputError("--duration", f"must cover at least 2 controller samples "
+        raise InputError("duration", f"must cover at least 2 controller samples "
                          f"({2 * period:g} s at the {period:g} s period), not {duration!r}")
     t = np.arange(n_samples) * period
     q_d, qd_d, qdd_d, _ = profile.evaluate(t)

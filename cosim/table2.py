@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import csv
 import inspect
-import sys
+import logging
+import os
+import signal
 import time
 from pathlib import Path
 
@@ -31,6 +33,8 @@ from mrm_cosim.cosim.experiment_config import PAPER_AMPLITUDE, PAPER_DURATION, E
 from mrm_cosim.errors import InputError
 
 __all__ = ["PAPER_TABLE2", "run_table2", "table_markdown", "Progress", "timeline_json"]
+
+_log = logging.getLogger("mrm_cosim.progress")
 
 PAPER_TABLE2 = {
     # controller: (max velocity m/s, max error m, ratio s), MRM paper Table 2, rows 5-7
@@ -43,7 +47,8 @@ _NAMES = {"pid-1khz": "PID with 1000 Hz", "pid-fpga": "PID with embedded FPGA",
 
 
 class Progress:
-    """Progress lines on a stream: which controller, simulated time, speed, ETA.
+    """Progress lines: which controller, simulated time, speed, ETA; logged at INFO on the
+    ``mrm_cosim.progress`` logger, or printed on ``stream`` if one is given.
 
     Call :meth:`begin` / :meth:`end` around each controller's run and pass the instance as
     ``run_track``'s ``progress``: when the harness calls it as ``progress(t_sim, t_total)``
@@ -55,7 +60,7 @@ class Progress:
     def __init__(self, controllers, duration: float, stream=None, every: float = 5.0):
         self.controllers = list(controllers)
         self.duration = duration
-        self.stream = sys.stderr if stream is None else stream
+        self.stream = stream
         self.every = every
         self.parallel = False
         self._wall_per_sim: float | None = None   # measured wall s per simulated s
@@ -66,7 +71,10 @@ class Progress:
         self._lasts: dict = {}
 
     def _print(self, text: str) -> None:
-        print(text, file=self.stream, flush=True)
+        if self.stream is None:
+            _log.info(text)
+        else:
+            print(text, file=self.stream, flush=True)
 
     def begin(self, controller: str) -> None:
         self._index = self.controllers.index(controller)
@@ -159,7 +167,7 @@ def run_table2(config: ExperimentConfig, out, *, progress: Progress | None = Non
     from mrm_cosim.cosim.preview import paper_test_profile
     from mrm_cosim.models.robot import load_robot
     from mrm_cosim import __version__
-    from mrm_cosim.results import atomic_output_dir, atomic_write_text, write_json
+    from mrm_cosim.results import atomic_output_dir, write_json
 
     if runner is None:
         from mrm_cosim.cosim.track import run_track as runner
@@ -168,7 +176,7 @@ def run_table2(config: ExperimentConfig, out, *, progress: Progress | None = Non
     profile = paper_test_profile(robot, config.trajectory.amplitude, config.trajectory.duration)
     t_start = time.perf_counter()
     runs = {}
-    with atomic_output_dir(out) as tmp:
+    with atomic_output_dir(out, made_by="mrm run table2") as tmp:
         def run_one(c, report):
             result, summary = runner(robot, c, config.backend, config.duration, config.seed,
                                      gains=config.gains, timing=config.timing,
@@ -198,8 +206,8 @@ def run_table2(config: ExperimentConfig, out, *, progress: Progress | None = Non
             "wall_s": time.perf_counter() - t_start,
         }
         write_json(tmp / "summary.json", summary)
-        atomic_write_text(tmp / "config.toml", config.to_toml())
-        atomic_write_text(tmp / "table2.md", table_markdown(summary))
+        (tmp / "config.toml").write_text(config.to_toml())
+        (tmp / "table2.md").write_text(table_markdown(summary))
         _comparison_plots(tmp, robot, config, runs, profile)
     return summary
 
@@ -214,15 +222,24 @@ class _Trace:
 def _side_by_side(controllers, jobs: int, run_one, progress) -> dict:
     """``run_one(c, report)`` for every controller, ``jobs`` forked processes at a time;
     returns ``{c: (trace, summary)}`` in the order of ``controllers``. Progress, results and
-    errors come back through one queue; the parent does all the printing."""
+    errors come back through one queue; the parent does all the printing.
+
+    No worker outlives the run: each leads a process group of its own (with whatever it
+    starts, e.g. Verilator), which the parent kills when it leaves, for whatever reason
+    (an error, Ctrl-C, SIGTERM); a parent killed outright takes them along (the kernel
+    sends each worker SIGTERM when its parent dies, :func:`_die_with_parent`).
+    """
     import multiprocessing as mp
     import queue as _queue
     import traceback
 
     ctx = mp.get_context("fork")
     queue = ctx.Queue()
+    parent = os.getpid()
 
     def child(c):
+        _worker_setup(parent)
+
         def report(t_sim, t_total=None):
             queue.put(("progress", c, t_sim, t_total))
 
@@ -245,6 +262,7 @@ def _side_by_side(controllers, jobs: int, run_one, progress) -> dict:
                     progress.begin(c)
                 proc = ctx.Process(target=child, args=(c,), daemon=True)
                 proc.start()
+                _set_group(proc.pid)
                 running[c] = proc
             try:
                 msg = queue.get(timeout=1.0)
@@ -270,9 +288,62 @@ def _side_by_side(controllers, jobs: int, run_one, progress) -> dict:
                 progress.end(c, summary)
     finally:
         for proc in running.values():
-            proc.kill()
+            _kill_group(proc.pid)
             proc.join()
+        queue.close()
+        queue.cancel_join_thread()
     return {c: runs[c] for c in controllers}
+
+
+def _set_group(pid: int) -> None:
+    """Make ``pid`` the leader of its own process group (from the parent as well as in the
+    worker, whichever comes first: no window in which a kill of the group would miss it)."""
+    try:
+        os.setpgid(pid, pid)
+    except OSError:          # the worker did it first, or has already exited
+        pass
+
+
+def _kill_group(pid: int) -> None:
+    """SIGKILL the process group ``pid`` leads (the worker and everything it started)."""
+    try:
+        os.killpg(pid, signal.SIGKILL)
+    except OSError:          # gone already
+        pass
+
+
+def _worker_setup(parent: int) -> None:
+    """In a forked worker: lead a process group of its own; ignore Ctrl-C (the parent, which
+    the terminal's SIGINT reaches, stops the workers); on SIGTERM kill the whole group; die
+    with the parent (:func:`_die_with_parent`)."""
+    _set_group(0)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, lambda signum, frame: os.killpg(0, signal.SIGKILL))
+    _die_with_parent(parent)
+
+
+def _die_with_parent(parent: int) -> None:
+    """Ask the kernel (Linux ``prctl(PR_SET_PDEATHSIG)``) to send this process SIGTERM when
+    its parent dies, SIGKILL included; if the parent is already gone, exit now. Elsewhere, a
+    thread polls the parent's pid every half second."""
+    import ctypes
+    import ctypes.util
+    import threading
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
+        armed = libc.prctl(1, int(signal.SIGTERM), 0, 0, 0) == 0    # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        armed = False
+    if os.getppid() != parent:
+        os.killpg(0, signal.SIGKILL)
+    if not armed:
+        def watch():
+            while os.getppid() == parent:
+                time.sleep(0.5)
+            os.killpg(0, signal.SIGKILL)
+
+        threading.Thread(target=watch, daemon=True).start()
 
 
 def _ordering(runs: dict) -> dict:

@@ -107,18 +107,18 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     (LoopResult, summary dict)
     """
     robot = load_robot(robot)
-    check_robot_fits(robot, "--robot")
+    check_robot_fits(robot, "robot")
     gains = gains or Gains()
     timing = timing or MasterTiming()
     if backend not in BACKENDS:
-        raise InputError("--backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")
-    duration = require_positive(duration, "--duration")
+        raise InputError("backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")
+    duration = require_positive(duration, "duration")
     if duration > MAX_DURATION:
-        raise InputError("--duration", f"must be at most {MAX_DURATION} s, not {duration!r}")
+        raise InputError("duration", f"must be at most {MAX_DURATION} s, not {duration!r}")
     step = (plant_config or PlantConfig()).dt
     check_period_on_plant_grid(timing.period_cycles, plant_config or PlantConfig(), "plant.dt")
     if duration < step:
-        raise InputError("--duration", f"must be at least one plant step ({step * 1e6:g} µs), "
+        raise InputError("duration", f"must be at least one plant step ({step * 1e6:g} µs), "
                          f"not {duration!r}")
     profile = profile or paper_test_profile(robot)
     trajectory = _trajectory(robot, profile)
@@ -131,7 +131,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     duration_cycles = int(round(duration * CLOCK_HZ))
     for f in faults:
         if f.cycle >= duration_cycles:
-            raise InputError("--line-fault", f"a fault at {f.cycle / CLOCK_HZ:g} s from period 0 "
+            raise InputError("faults", f"a fault at {f.cycle / CLOCK_HZ:g} s from period 0 "
                              f"is after the run's end ({duration:g} s): it would never happen")
     t0 = time.perf_counter()
     # period 0 on the nodes' timer grid (a multiple of the period from reset), after start-up
@@ -141,9 +141,9 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         from mrm_cosim.cosim.backends import VcdWindow
 
         if backend == "model":
-            raise InputError("--vcd", "the model backend has no signals; use pysim or compiled")
+            raise InputError("vcd", "the model backend has no signals; use pysim or compiled")
         if vcd_path is None:
-            raise InputError("--vcd", "needs an output file")
+            raise InputError("vcd", "needs an output file")
         window = VcdWindow.parse(vcd, vcd_path, signals=signals, offset=start / CLOCK_HZ)
     result, _ = run_loop(robot, backend, master, plant, start, uploads, duration_cycles,
                          quiet=progress is None, vcd=window, progress=progress, faults=faults)

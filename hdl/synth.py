@@ -163,13 +163,13 @@ def cli_report(top: str, family: str, params: dict[str, int], as_json: bool,
     from mrm_cosim.errors import InputError
 
     if top not in TOPS:
-        raise InputError("--top", f"unknown top {top!r}; known: {', '.join(sorted(TOPS))}")
+        raise InputError("top", f"unknown top {top!r}; known: {', '.join(sorted(TOPS))}")
     if family not in FAMILIES:
-        raise InputError("--family", f"must be one of {', '.join(FAMILIES)}, not {family!r}")
+        raise InputError("family", f"must be one of {', '.join(FAMILIES)}, not {family!r}")
     known = TOPS[top].parameters()
     for name in params:
         if name not in known:
-            raise InputError(f"--param {name}",
+            raise InputError(f"params.{name}",
                              f"top {top!r} has no such parameter; known: {', '.join(known)}")
     try:
         report = synth_top(top, family, params, pnr=pnr)

@@ -77,8 +77,8 @@ def param_error(exc: ValueError, top: str):
     from mrm_cosim.errors import InputError
 
     if isinstance(exc, InputError) and exc.field in TOPS[top].parameters():
-        return InputError(f"--param {exc.field}", exc.message)
-    return InputError("--param", str(exc))
+        return InputError(f"params.{exc.field}", exc.message)
+    return InputError("params", str(exc))
 
 
 def component_verilog(component: wiring.Component, name: str) -> str:

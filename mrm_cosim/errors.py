@@ -1,6 +1,9 @@
 """Input errors shared by every layer: a bad value is reported with the field that holds it.
 
-The CLI turns an :class:`InputError` into a one-line message on stderr and exit code 2.
+The field is what the library knows: an API argument (``duration``, ``backend``), a key of a
+configuration or robot file (``gains.lam``), never a command-line flag. The CLI maps the
+arguments to its flags (:mod:`mrm_cosim.mrm.flags`) and turns the error into a one-line
+message on stderr and exit code 2.
 """
 
 from __future__ import annotations
@@ -19,7 +22,8 @@ class InputError(ValueError):
     Parameters
     ----------
     field : str
-        Dotted name of the offending field (``"limits.translation.jerk"``, ``"--tf"``).
+        Dotted name of the offending field or argument (``"limits.translation.jerk"``,
+        ``"duration"``, ``"params.slots"``).
     message : str
         What is wrong with it, in words a user understands.
     """

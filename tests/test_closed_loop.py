@@ -154,7 +154,7 @@ def test_run_track_refuses_a_duration_it_cannot_run(tmp_path, capsys, duration, 
 
     with pytest.raises(InputError, match=words) as e:
         run_track("mrm3", "vdc", "model", duration=duration)
-    assert e.value.field == "--duration"
+    assert e.value.field == "duration"
     out = tmp_path / "res"
     assert main(["run", "track", "--backend", "model", "--duration", str(duration), "--quiet",
                  "--out", str(out)]) == 2
@@ -170,7 +170,7 @@ def test_run_track_refuses_a_robot_longer_than_the_system(tmp_path, capsys):
     path.write_text('name = "long"\n' + '[[modules]]\ntype = "I"\ntwist_deg = 90.0\n' * 17)
     with pytest.raises(InputError, match="17 modules.*at most 16") as e:
         run_track(str(path), "vdc", "model", duration=0.01)
-    assert e.value.field == "--robot"
+    assert e.value.field == "robot"
     out = tmp_path / "res"
     assert main(["run", "track", "--robot", str(path), "--backend", "model", "--duration",
                  "0.01", "--out", str(out)]) == 2
@@ -229,7 +229,7 @@ def test_a_module_encoder_the_node_cannot_hold_is_refused_naming_the_robot():
     robot before anything runs, with the range that fits."""
     with pytest.raises(InputError, match=r"400,000 encoder counts.*613,595 to 823,549") as e:
         run_track(robot_from_dict(_encoder_robot(1000)), "vdc", "model", duration=0.01)
-    assert e.value.field == "--robot"
+    assert e.value.field == "robot"
 
 
 def test_pid_words_only_limit_the_runs_that_use_the_nodes_pid():

@@ -110,7 +110,7 @@ def test_unknown_keys_are_rejected_by_name(text, field):
     # the nodes' sync window (2,500 cycles) must lie inside the period
     ("[timing]\nperiod_cycles = 2500\nkinematics_cycles = 1\nforce_cycles = 1",
      "timing.period_cycles"),
-    ("[gains\nlam = 1", "--config"),
+    ("[gains\nlam = 1", "config"),
     ('[experiment]\nname = "run\\u001b[2J"', "experiment.name"),   # would clear the terminal
     ('[experiment]\nname = "two\\nlines"', "experiment.name"),
 ])
@@ -149,8 +149,8 @@ def test_relative_robot_path_is_taken_from_the_config_folder(tmp_path):
 def test_overrides_are_validated_under_the_flag_name():
     cfg = ec.loads("")
     assert cfg.with_overrides(seed=7, duration=0.5).seed == 7
-    for kw, field in [({"seed": -2}, "--seed"), ({"duration": -1.0}, "--duration"),
-                      ({"backend": "nope"}, "--backend")]:
+    for kw, field in [({"seed": -2}, "seed"), ({"duration": -1.0}, "duration"),
+                      ({"backend": "nope"}, "backend")]:
         with pytest.raises(InputError) as exc:
             cfg.with_overrides(**kw)
         assert exc.value.field == field
@@ -159,7 +159,7 @@ def test_overrides_are_validated_under_the_flag_name():
 def test_missing_file_is_an_input_error(tmp_path):
     with pytest.raises(InputError) as exc:
         ec.load(tmp_path / "none.toml")
-    assert exc.value.field == "--config"
+    assert exc.value.field == "config"
 
 
 def test_cli_names_the_field_exits_2_and_writes_nothing(tmp_path, capsys):

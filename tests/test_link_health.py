@@ -224,8 +224,9 @@ def test_cli_track_with_a_line_fault_says_where_it_was_counted(tmp_path, capsys)
     out = tmp_path / "o"
     code = cli.main(["run", "track", "--backend", "compiled", "--duration", "0.003",
                      "--line-fault", "cut:down:3@1.1ms+2us", "--out", str(out)])
-    stdout = capsys.readouterr().out
-    assert code == 0
+    captured = capsys.readouterr()
+    stdout = captured.out
+    assert code == 3 and "NOT A CLEAN RUN: 2 link errors" in captured.err   # exit 3: not clean
     assert "link faults counted at: node 2 downstream codec 1, node 3 upstream codec 1" in stdout
     summary = json.loads((out / "summary.json").read_text())
     assert summary["link_errors"] == 2 and summary["overruns"] == 0

@@ -10,7 +10,7 @@ from mrm_cosim.cosim.preview import paper_test_profile, run_preview
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.mrm.cli import main
 from mrm_cosim.errors import InputError
-from mrm_cosim.results import atomic_output_dir
+from mrm_cosim.results import MARKER, atomic_output_dir
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +43,7 @@ def test_paper_profile_pattern_for_six_modules():
 def test_preview_rejects_bad_duration():
     with pytest.raises(InputError) as info:
         run_preview("mrm3", duration=float("nan"))
-    assert info.value.field == "--duration"
+    assert info.value.field == "duration"
 
 
 @pytest.mark.parametrize("duration", ["0.0001", "0.001"])
@@ -92,7 +92,7 @@ def test_atomic_output_dir_keeps_old_results_on_failure(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["res"]
     with atomic_output_dir(out) as tmp:
         (tmp / "b.txt").write_text("new")
-    assert sorted(p.name for p in out.iterdir()) == ["b.txt"]
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "b.txt"]
 
 
 def test_a_result_folder_is_made_as_any_folder_is(tmp_path):
@@ -132,7 +132,7 @@ def test_atomic_output_dir_refuses_to_replace_a_file(tmp_path):
     target.write_text("precious")
     with pytest.raises(InputError) as info, atomic_output_dir(target) as tmp:
         (tmp / "a.txt").write_text("result")
-    assert info.value.field == "--out"
+    assert info.value.field == "out"
     assert target.read_text() == "precious"
     assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
 

@@ -15,6 +15,7 @@ from mrm_cosim.cosim.track import BACKENDS, run_track
 from mrm_cosim.master.cycle import MasterTiming, PeriodRecord
 from mrm_cosim import __version__
 from mrm_cosim.errors import InputError
+from mrm_cosim.results import MARKER, atomic_output_dir
 
 FIELDS = {"controller", "backend", "rho_s", "max_tip_error_m", "max_tip_speed_m_s",
           "max_joint_error_rad", "overruns", "link_errors", "phases_us", "trace_sha256"}
@@ -135,12 +136,12 @@ def test_a_failed_run_leaves_no_folder_and_keeps_the_old_one(tmp_path, config):
     with pytest.raises(RuntimeError):
         table2.run_table2(config, out, runner=FakeRunner(fail_on="pid-fpga"))
     assert list(tmp_path.iterdir()) == []
-    out.mkdir()
-    (out / "keep.txt").write_text("old result")
+    with atomic_output_dir(out) as tmp:         # an earlier result folder
+        (tmp / "keep.txt").write_text("old result")
     with pytest.raises(RuntimeError):
         table2.run_table2(config, out, runner=FakeRunner(fail_on="vdc"))
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
-    assert [p.name for p in out.iterdir()] == ["keep.txt"]
+    assert sorted(p.name for p in out.iterdir()) == [MARKER, "keep.txt"]
 
 
 def test_a_file_as_the_folder_is_refused_before_anything_runs(tmp_path, config):
@@ -150,7 +151,7 @@ def test_a_file_as_the_folder_is_refused_before_anything_runs(tmp_path, config):
     runner = FakeRunner()
     with pytest.raises(InputError) as exc:
         table2.run_table2(config, target, runner=runner)
-    assert exc.value.field == "--out" and runner.calls == []
+    assert exc.value.field == "out" and runner.calls == []
     assert target.read_text() == "precious"
     assert [p.name for p in tmp_path.iterdir()] == ["out"]
 

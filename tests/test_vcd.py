@@ -181,13 +181,13 @@ def test_window_offset_moves_both_ends(tmp_path):
 def test_bad_window_names_the_field(spec, tmp_path):
     with pytest.raises(InputError) as err:
         VcdWindow.parse(spec, tmp_path / "x.vcd")
-    assert err.value.field == "--vcd"
+    assert err.value.field == "vcd"
 
 
 def test_empty_signal_pattern_names_the_field(tmp_path):
     with pytest.raises(InputError) as err:
         VcdWindow(0, 10, tmp_path / "x.vcd", " , ")
-    assert err.value.field == "--signals"
+    assert err.value.field == "signals"
 
 
 def test_pysim_vcd_needs_the_backends_simulator(tmp_path):

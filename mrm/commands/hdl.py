@@ -11,36 +11,48 @@ from __future__ import annotations
 from pathlib import Path
 
 from mrm_cosim.errors import InputError
-from mrm_cosim.results import atomic_write_text, check_writable_folder, make_folder, remove_empty
+from mrm_cosim.mrm.flags import HDL, named_by_flags
+from mrm_cosim.results import (
+    atomic_write_text, check_output_file, check_writable_folder, make_folder, remove_empty,
+)
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("hdl", help="export gateware tops as Verilog")
+    p = subparsers.add_parser("hdl", help="export gateware tops as Verilog",
+                              epilog="example:\n  mrm hdl verilog --top spw_codec --out build")
     sub = p.add_subparsers(dest="hdl_command", required=True)
-    p_verilog = sub.add_parser("verilog", help="write DIR/<top>.v for a gateware top")
+    p_verilog = sub.add_parser("verilog", help="write DIR/<top>.v for a gateware top",
+                               epilog="example:\n  mrm hdl verilog --top node --out build "
+                               "--param counts_per_rev=2000")
     p_verilog.add_argument("--top", required=True, help="top name (see `mrm hdl tops`)")
     p_verilog.add_argument("--out", required=True, type=Path, help="output folder")
     p_verilog.add_argument("--param", action="append", default=[], metavar="NAME=INT",
                            help="top parameter, e.g. slots=1 (repeatable)")
     p_verilog.set_defaults(func=_verilog)
-    p_tops = sub.add_parser("tops", help="list the tops and their parameters")
+    p_tops = sub.add_parser("tops", help="list the tops and their parameters",
+                            epilog="example:\n  mrm hdl tops")
     p_tops.set_defaults(func=_tops)
-    p_synth = sub.add_parser("synth", help="resource report of a top (Debian yosys)")
+    p_synth = sub.add_parser("synth", help="resource report of a top (Debian yosys)",
+                             epilog="example:\n  mrm hdl synth --top node --family ecp5 --json")
     p_synth.add_argument("--top", required=True, help="top name (see `mrm hdl tops`)")
     p_synth.add_argument("--family", default="xc2v", help="xc2v (Virtex-II) or ecp5")
-    p_synth.add_argument("--param", action="append", default=[], metavar="NAME=INT")
+    p_synth.add_argument("--param", action="append", default=[], metavar="NAME=INT",
+                         help="top parameter, e.g. slots=1 (repeatable)")
     p_synth.add_argument("--json", action="store_true", help="print the report as JSON")
     p_synth.set_defaults(func=_synth)
 
 
 def parse_params(items: list[str]) -> dict[str, int]:
-    """``["slots=1", "run_div=2"]`` -> ``{"slots": 1, "run_div": 2}``; InputError if malformed."""
+    """``["slots=1", "run_div=2"]`` -> ``{"slots": 1, "run_div": 2}``; InputError if malformed
+    or if a name is given twice (``--param slots=1 --param slots=2`` used to keep the last)."""
     params = {}
     for item in items:
         name, sep, value = item.partition("=")
         name = name.strip()
         if not sep or not name:
             raise InputError("--param", f"must look like NAME=INT, not {item!r}")
+        if name in params:
+            raise InputError(f"--param {name}", "given more than once")
         try:
             params[name] = int(value, 0)
         except ValueError:
@@ -63,15 +75,20 @@ def write_verilog(top: str, out: Path, params: dict[str, int]) -> Path:
     if out.exists() and not out.is_dir():
         raise InputError("--out", f"{str(out)!r} exists and is not a folder")
     check_writable_folder(out, "--out")     # before the build: /proc/x, under a file
+    path = out / f"{top}.v"
+    if out.is_dir():
+        check_output_file(path, "--out")    # DIR/<top>.v a link, a FIFO, a folder: refused
     try:
         component = build_top(top, **params)
     except ValueError as exc:
         raise param_error(exc, top) from None
     text = component_verilog(component, top)
     made = make_folder(out, "--out")
-    path = out / f"{top}.v"
     try:
         atomic_write_text(path, text)
+    except InputError as exc:
+        remove_empty(made)
+        raise InputError("--out", exc.message) from None
     except OSError as exc:
         remove_empty(made)
         raise InputError("--out", f"cannot write {str(path)!r} ({exc.strerror or exc})") from None
@@ -81,6 +98,7 @@ def write_verilog(top: str, out: Path, params: dict[str, int]) -> Path:
     return path
 
 
+@named_by_flags(HDL)
 def _verilog(args) -> int:
     path = write_verilog(args.top, args.out, parse_params(args.param))
     print(path)
@@ -96,6 +114,7 @@ def _tops(args) -> int:
     return 0
 
 
+@named_by_flags(HDL)
 def _synth(args) -> int:
     from mrm_cosim.hdl.synth import cli_report
 

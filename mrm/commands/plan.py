@@ -8,23 +8,25 @@ trigonometric jerk-continuous profile (default) or Ruckig's time-optimal one.
 from __future__ import annotations
 
 import json
-import os
 import sys
 import tomllib
 
 import numpy as np
 
 from mrm_cosim.errors import InputError, require_finite, require_positive
-from mrm_cosim.results import atomic_write_text
+from mrm_cosim.results import atomic_write_text, check_output_file
 
 LIMIT_KEYS = ("velocity", "acceleration", "jerk")
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("plan", help="plan a trajectory (quintic, Cartesian line)")
+    p = subparsers.add_parser("plan", help="plan a trajectory (quintic, Cartesian line)",
+                              epilog="example:\n  mrm plan quintic --q0 0 --qf 0.1571 --tf 1")
     sub = p.add_subparsers(dest="plan_command", required=True)
 
-    q = sub.add_parser("quintic", help="rest-to-rest quintic point-to-point, exact peaks")
+    q = sub.add_parser("quintic", help="rest-to-rest quintic point-to-point, exact peaks",
+                       epilog="example:\n  mrm plan quintic --q0 0 0 --qf 0.1571 0.3142 --tf 1 "
+                       "--samples q.csv --dt 0.001")
     q.add_argument("--q0", nargs="+", required=True, metavar="RAD",
                    help="start position(s), rad (one per joint)")
     q.add_argument("--qf", nargs="+", required=True, metavar="RAD",
@@ -32,17 +34,19 @@ def register(subparsers) -> None:
     q.add_argument("--tf", required=True, metavar="S", help="duration, s")
     q.add_argument("--json", action="store_true", help="machine-readable output")
     q.add_argument("--samples", metavar="OUT.csv", help="write q, q', q'', q''' at every --dt")
-    q.add_argument("--dt", default="0.001", metavar="S", help="sample period, s (0.001)")
+    q.add_argument("--dt", default="0.001", metavar="S", help="sample period, s")
     q.set_defaults(func=_quintic)
 
-    ln = sub.add_parser("line", help="straight-line Cartesian move with quaternion orientation")
+    ln = sub.add_parser("line", help="straight-line Cartesian move with quaternion orientation",
+                        epilog="example:\n  mrm plan line examples/line.toml --json --samples "
+                        "line.csv")
     ln.add_argument("file", metavar="FILE.toml", help="start/end poses and limits")
     ln.add_argument("--profile", choices=("trig", "ruckig"), default="trig",
-                    help="trigonometric jerk-continuous (default) or Ruckig time-optimal")
+                    help="trigonometric jerk-continuous or Ruckig time-optimal")
     ln.add_argument("--json", action="store_true", help="machine-readable output")
     ln.add_argument("--samples", metavar="OUT.csv",
                     help="write pose, velocity, acceleration, jerk at every --dt")
-    ln.add_argument("--dt", default="0.001", metavar="S", help="sample period, s (0.001)")
+    ln.add_argument("--dt", default="0.001", metavar="S", help="sample period, s")
     ln.set_defaults(func=_line)
 
 
@@ -55,17 +59,10 @@ def write_csv_atomic(path: str, header: list[str] | tuple[str, ...], table: np.n
     The rows go to a temporary file beside ``path`` that replaces it only once complete.
     Numbers are written in Python's shortest round-trip form, so they read back bit for bit.
     """
-    directory = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(directory):
-        raise InputError("--samples", f"directory {directory!r} does not exist")
-    if os.path.isdir(path):
-        raise InputError("--samples", f"{path!r} is a folder; name the CSV file to write")
     rows = (np.asarray(table, dtype=float) + 0.0).tolist()   # + 0.0: no "-0"
-    try:
-        atomic_write_text(path, "".join([",".join(header) + "\n"]
-                                        + [",".join(map(repr, row)) + "\n" for row in rows]))
-    except OSError as exc:      # /proc/x.csv, a read-only folder, a full disk
-        raise InputError("--samples", f"cannot write {path!r} ({exc.strerror or exc})") from None
+    atomic_write_text(path, "".join([",".join(header) + "\n"]
+                                    + [",".join(map(repr, row)) + "\n" for row in rows]),
+                      "--samples")
 
 
 def _print_json(figures: dict) -> None:
@@ -126,6 +123,8 @@ def _sample_times(duration: float, dt: float):
 def _quintic(args) -> int:
     from mrm_cosim.master.quintic import QuinticProfile
 
+    if args.samples:
+        check_output_file(args.samples, "--samples")     # before anything is computed
     q0 = _numbers(args.q0, "--q0")
     qf = _numbers(args.qf, "--qf")
     tf = require_positive(_parse_float(args.tf, "--tf"), "--tf")
@@ -208,6 +207,8 @@ def load_line_file(path: str):
 def _line(args) -> int:
     from mrm_cosim.master.trig_planner import plan_line
 
+    if args.samples:
+        check_output_file(args.samples, "--samples")     # before anything is computed
     dt = require_positive(_parse_float(args.dt, "--dt"), "--dt") if args.samples else None
     start, end, limits = load_line_file(args.file)
     plan = plan_line(start, end, limits)

@@ -8,16 +8,21 @@ import sys
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("robot", help="show a robot assembly or export its URDF")
+    p = subparsers.add_parser("robot", help="show a robot assembly or export its URDF",
+                              epilog="example:\n  mrm robot show mrm3 --json")
     sub = p.add_subparsers(dest="robot_command", required=True)
-    p_show = sub.add_parser("show", help="describe an assembly: modules, geometry, parameters")
+    p_show = sub.add_parser("show", help="describe an assembly: modules, geometry, parameters",
+                            epilog="example:\n  mrm robot show mrm6\n  mrm robot show "
+                            "my_arm.toml --json")
     p_show.add_argument("robot", help="built-in name (mrm3, mrm6) or path to an assembly .toml")
     p_show.add_argument("--json", action="store_true", help="machine-readable output")
     p_show.set_defaults(func=_show)
-    p_urdf = sub.add_parser("urdf", help="print the assembly's URDF on stdout")
+    p_urdf = sub.add_parser("urdf", help="print the assembly's URDF on stdout",
+                            epilog="example:\n  mrm robot urdf mrm3 > mrm3.urdf")
     p_urdf.add_argument("robot", help="built-in name (mrm3, mrm6) or path to an assembly .toml")
     p_urdf.set_defaults(func=_urdf)
-    p_list = sub.add_parser("list", help="list the built-in assemblies")
+    p_list = sub.add_parser("list", help="list the built-in assemblies",
+                            epilog="example:\n  mrm robot list")
     p_list.set_defaults(func=_list)
 
 

@@ -1,21 +1,36 @@
-"""``mrm run``: closed-loop experiments: ``track`` (gateware in the loop) and ``preview``."""
+"""``mrm run``: closed-loop experiments: ``table2``, ``track`` (gateware in the loop) and
+``preview`` (the plant alone).
+
+``table2`` and ``track`` take their experiment from a configuration file (default
+``configs/table2.toml``): robot, backend, seed, duration, trajectory, plant, gains, timing;
+their flags override the first four. So ``mrm run track --controller vdc`` is the ``vdc`` row
+of ``mrm run table2``, bit for bit. Each writes its resolved configuration (``config.toml``)
+into its result folder. A run that is not clean ends with exit code 3 and says why.
+"""
 
 from __future__ import annotations
 
+import argparse
 import csv
 import json
+import logging
 import os
+import sys
+from dataclasses import replace
 from pathlib import Path
 
 from mrm_cosim import __version__
 from mrm_cosim.errors import InputError
+from mrm_cosim.mrm.flags import RUN_PREVIEW, RUN_TABLE2, RUN_TRACK, named_by_flags
+
+EXIT_NOT_CLEAN = 3
+
+_log = logging.getLogger("mrm_cosim.mrm")
 
 
 def _seed(text: str) -> int:
     """``--seed``: a non-negative integer, refused before anything runs (argparse names the
     flag and exits with code 2)."""
-    import argparse
-
     try:
         value = int(text)
     except ValueError:
@@ -25,26 +40,42 @@ def _seed(text: str) -> int:
     return value
 
 
+_CONFIG_HELP = "experiment TOML: robot, backend, seed, duration, trajectory, plant, gains, " \
+               "timing (default: the package's configs/table2.toml)"
+
+
 def register(subparsers) -> None:
-    p = subparsers.add_parser("run", help="run a closed-loop experiment")
+    p = subparsers.add_parser("run", help="run a closed-loop experiment",
+                              epilog="example:\n  mrm run table2 --duration 0.05 --out "
+                              "results/t2")
     sub = p.add_subparsers(dest="run_command", required=True)
     pp = sub.add_parser("preview", help="the paper's quintic test on the plant with a float "
-                        "feedforward + PID controller at 1 kHz (no link, no gateware yet)")
+                        "feedforward + PID controller at 1 kHz (no link, no gateware yet)",
+                        epilog="example:\n  mrm run preview --robot mrm6 --duration 0.5 "
+                        "--out results/preview")
     pp.add_argument("--robot", default="mrm3", help="built-in name or assembly .toml")
     pp.add_argument("--duration", type=float, default=1.5, help="simulated seconds")
     pp.add_argument("--seed", type=_seed, default=0, help="plant perturbation seed")
     pp.add_argument("--uncertainty", type=float, default=None,
                     help="relative perturbation of the plant's parameters (default: the plant's)")
     pp.add_argument("--out", default="results/preview", help="result folder (replaced)")
-    pp.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    pp.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     pp.set_defaults(func=_preview)
     pt = sub.add_parser("track", help="the paper's quintic test in closed loop with the gateware "
-                        "(master, link, nodes, plant)")
-    pt.add_argument("--controller", default="vdc", choices=["vdc", "pid-fpga", "pid-1khz"])
-    pt.add_argument("--backend", default="compiled", choices=["compiled", "pysim", "model"])
-    pt.add_argument("--robot", default="mrm3", help="built-in name or assembly .toml")
-    pt.add_argument("--duration", type=float, default=1.5, help="simulated seconds")
-    pt.add_argument("--seed", type=_seed, default=0, help="plant perturbation seed")
+                        "(master, link, nodes, plant)",
+                        epilog="example:\n  mrm run track --controller vdc --backend model "
+                        "--duration 0.05 --out results/track\n  mrm run track --backend "
+                        "compiled --duration 0.003 --vcd 1ms:1.1ms --signals 'torque*'")
+    pt.add_argument("--controller", default="vdc", choices=["vdc", "pid-fpga", "pid-1khz"],
+                    help="the controller to run")
+    pt.add_argument("--config", default=None, metavar="FILE", help=_CONFIG_HELP)
+    pt.add_argument("--backend", default=None, choices=["compiled", "pysim", "model"],
+                    help="override the config's backend")
+    pt.add_argument("--robot", default=None,
+                    help="override the config's robot: built-in name or assembly .toml")
+    pt.add_argument("--duration", type=float, default=None,
+                    help="override the config's simulated seconds")
+    pt.add_argument("--seed", type=_seed, default=None, help="override the plant seed")
     pt.add_argument("--out", default="results/track", help="result folder (replaced)")
     pt.add_argument("--vcd", default=None, metavar="T0:T1",
                     help="write OUT/waves.vcd of this window only (times from period 0, e.g. "
@@ -58,14 +89,15 @@ def register(subparsers) -> None:
                     "at T from period 0 for LEN (default one cycle); KIND cut, bit or stuck-d; "
                     "e.g. bit:up:2@2.006ms, cut:down:3@10ms+2us (repeatable; pysim and "
                     "compiled). summary.json says where each fault was counted")
-    pt.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    pt.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     pt.set_defaults(func=_track)
     p2 = sub.add_parser("table2", help="the paper's Table 2: pid-1khz, pid-fpga and vdc on the "
-                        "quintic test, same plant and seed; table, plots, timelines")
-    p2.add_argument("--config", default=None,
-                    help="experiment TOML (default: configs/table2.toml)")
+                        "quintic test, same plant and seed; table, plots, timelines",
+                        epilog="example:\n  mrm run table2 --backend model --duration 0.05 "
+                        "--out results/t2\n  mrm run table2 --config my.toml --seed 3 --jobs 1")
+    p2.add_argument("--config", default=None, metavar="FILE", help=_CONFIG_HELP)
     p2.add_argument("--backend", default=None,
-                    help="override the config's backend (any name run_track accepts)")
+                    help="override the config's backend: compiled, pysim or model")
     p2.add_argument("--out", default="results/table2", help="result folder (replaced)")
     p2.add_argument("--seed", type=_seed, default=None, help="override the plant seed")
     p2.add_argument("--duration", type=float, default=None,
@@ -73,10 +105,23 @@ def register(subparsers) -> None:
     p2.add_argument("--jobs", type=int, default=None,
                     help="controllers run side by side (default: as many as there are CPU "
                     "cores, at most one per controller); the results do not depend on it")
-    p2.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p2.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p2.set_defaults(func=_table2)
 
 
+def _print_json(summary: dict) -> None:
+    print(json.dumps(summary, indent=2))
+
+
+def _not_clean(command: str, reasons: list[str]) -> int:
+    """Say why a run is not clean (stderr, even with -q) and give its exit code."""
+    for reason in reasons:
+        sys.stderr.write(f"mrm run {command}: NOT A CLEAN RUN: {reason}\n")
+    return EXIT_NOT_CLEAN if reasons else 0
+
+
+# --- preview -------------------------------------------------------------------------------
+@named_by_flags(RUN_PREVIEW)
 def _preview(args) -> int:
     from mrm_cosim.cosim.plots import plot_tracking
     from mrm_cosim.cosim.preview import run_preview
@@ -87,8 +132,8 @@ def _preview(args) -> int:
     check_output_dir(args.out)
     robot = load_robot(args.robot)
     config = PlantConfig() if args.uncertainty is None else _plant_config(args.uncertainty)
-    result = run_preview(robot, duration=args.duration, seed=args.seed, plant_config=config)
-    with atomic_output_dir(args.out) as tmp:
+    with atomic_output_dir(args.out, made_by="mrm run preview") as tmp:
+        result = run_preview(robot, duration=args.duration, seed=args.seed, plant_config=config)
         summary = dict(result.summary, version=__version__)
         write_json(tmp / "summary.json", summary)
         write_json(tmp / "config.json", {
@@ -108,106 +153,134 @@ def _preview(args) -> int:
                            + [int(c) for c in result.counts[i]])
         plot_tracking(tmp / "tracking.png", result.t, result.q_d, result.q, result.tau,
                       f"{robot.name}: quintic test, float feedforward + PID at 1 kHz (preview)")
-    if not args.quiet:
+    if args.json:
+        _print_json(summary)
+    elif not args.quiet:
         s = result.summary
         print(f"preview on {robot.name} (plant only, no gateware): "
               f"max tip speed {s['max_tip_speed_m_s']:.4f} m/s, "
               f"max tip error {1e3 * s['max_tip_error_m']:.4f} mm, rho {s['rho_s']:.6f} s, "
               f"max joint error {s['max_joint_error_rad']:.3e} rad")
-        print(f"results in {Path(args.out)}/ (summary.json, trace.csv, tracking.png)")
+        print(f"results in {Path(args.out)}/ (summary.json, config.json, trace.csv, "
+              "tracking.png)")
     return 0
 
 
-def _track(args) -> int:
-    from mrm_cosim.cosim.table2 import Progress
-    from mrm_cosim.cosim.track import check_robot_fits, run_track
+# --- track ---------------------------------------------------------------------------------
+def track_config(config_path=None, *, controller: str = "vdc", robot=None,
+                 backend: str | None = None, seed: int | None = None,
+                 duration: float | None = None):
+    """The resolved experiment of one ``mrm run track``: the configuration file's (default
+    ``configs/table2.toml``) with the given overrides, running ``controller`` alone.
+    Errors name the argument (``backend``, ``robot``, …) or the file's field."""
+    from mrm_cosim.cosim.experiment_config import load
+
+    config = load(config_path).with_overrides(backend=backend, seed=seed, duration=duration,
+                                              field_prefix="")
+    if robot is not None:
+        config = replace(config, robot=_robot_spec(robot))
+    return replace(config, controllers=(controller,))
+
+
+def _robot_spec(robot: str) -> str:
+    """A robot given on the command line as the configuration holds it: a built-in name, or
+    an assembly file's absolute path (checked here: it must load and fit the gateware)."""
+    from mrm_cosim.cosim.track import check_robot_fits
     from mrm_cosim.models.robot import load_robot
-    from mrm_cosim.errors import require_positive
-    from mrm_cosim.results import check_output_dir
+
+    check_robot_fits(load_robot(robot), "robot")
+    return str(Path(robot).resolve()) if str(robot).endswith(".toml") else robot
+
+
+@named_by_flags(RUN_TRACK)
+def _track(args) -> int:
+    from mrm_cosim.cosim.closed_loop import LineFault
+    from mrm_cosim.cosim.preview import paper_test_profile
+    from mrm_cosim.cosim.table2 import Progress
+    from mrm_cosim.cosim.track import check_robot_fits, run_faults, run_track
+    from mrm_cosim.models.robot import load_robot
+    from mrm_cosim.results import atomic_output_dir, check_output_dir
 
     check_output_dir(args.out)
-    robot = load_robot(args.robot)
-    check_robot_fits(robot, "--robot")
-    duration = require_positive(args.duration, "--duration")
+    config = track_config(args.config, controller=args.controller, robot=args.robot,
+                          backend=args.backend, seed=args.seed, duration=args.duration)
+    _log.debug("experiment: %s", json.dumps(config.to_dict()))
+    robot = load_robot(config.robot)
+    check_robot_fits(robot, "robot")
     if args.signals is not None and args.vcd is None:
-        raise InputError("--signals", "selects the signals of a --vcd window; give --vcd too")
-    from mrm_cosim.cosim.closed_loop import LineFault
-
+        raise InputError("signals", "selects the signals of a --vcd window; give --vcd too")
     faults = [LineFault.parse(spec) for spec in args.line_fault]
-    if faults and args.backend == "model":
-        raise InputError("--line-fault", "the model backend's link is ideal: inject line "
+    if faults and config.backend == "model":
+        raise InputError("faults", "the model backend's link is ideal: inject line "
                          "faults on compiled or pysim")
     for f in faults:
         if f.node > robot.n:
-            raise InputError("--line-fault", f"the robot has {robot.n} nodes, not {f.node}")
-    progress = None if args.quiet else Progress([args.controller], duration)
-    if progress is not None:
-        progress.begin(args.controller)
-    vcd_tmp = None
-    if args.vcd is not None:
-        import tempfile
-
-        fd, name = tempfile.mkstemp(prefix=".waves.", suffix=".vcd")
-        os.close(fd)
-        vcd_tmp = Path(name)
-    try:
-        result, summary = run_track(robot, args.controller, args.backend, duration, args.seed,
-                                    progress=progress, vcd=args.vcd, signals=args.signals,
-                                    vcd_path=vcd_tmp, faults=faults)
+            raise InputError("faults", f"the robot has {robot.n} nodes, not {f.node}")
+    tr = config.trajectory
+    profile = paper_test_profile(robot, tr.amplitude, tr.duration)
+    progress = None if args.quiet else Progress([args.controller], config.duration)
+    with atomic_output_dir(args.out, made_by="mrm run track") as tmp:
+        if progress is not None:
+            progress.begin(args.controller)
+        vcd_path = tmp / "waves.vcd" if args.vcd is not None else None
+        result, summary = run_track(robot, args.controller, config.backend, config.duration,
+                                    config.seed, gains=config.gains, timing=config.timing,
+                                    plant_config=config.plant, progress=progress,
+                                    profile=profile, vcd=args.vcd, signals=args.signals,
+                                    vcd_path=vcd_path, faults=faults)
         summary["version"] = __version__
-        _write_track(args, robot, result, summary, duration, vcd_tmp)
-    finally:
-        if vcd_tmp is not None:
-            vcd_tmp.unlink(missing_ok=True)
-    return 0
+        _write_track(tmp, args, config, robot, result, summary, profile)
+    if args.json:
+        _print_json(summary)
+    elif not args.quiet:
+        _print_track(args, config, summary)
+    return _not_clean("track", run_faults(summary))
 
 
-def _write_track(args, robot, result, summary, duration, vcd_tmp) -> None:
-    import shutil
-
+def _write_track(tmp: Path, args, config, robot, result, summary, profile) -> None:
     from mrm_cosim.cosim.plots import pick_period, plot_timeline, plot_tracking
-    from mrm_cosim.cosim.preview import paper_test_profile
     from mrm_cosim.cosim.table2 import timeline_json
-    from mrm_cosim.results import atomic_output_dir, write_json
+    from mrm_cosim.results import usual_mode, write_json
 
-    q_d = paper_test_profile(robot).evaluate(result.t)[0]
-    with atomic_output_dir(args.out) as tmp:
-        write_json(tmp / "summary.json", summary)
-        write_json(tmp / "config.json", {
-            "command": "mrm run track", "controller": args.controller,
-            "backend": args.backend, "robot": robot.describe(), "seed": args.seed,
-            "duration_s": duration, "vcd": args.vcd, "signals": args.signals,
-            "line_faults": list(args.line_fault),
-            "version": __version__})
-        if vcd_tmp is not None:
-            if vcd_tmp.stat().st_size == 0:
-                raise InputError("--vcd", "the window is not inside the run (nothing recorded)")
-            shutil.copyfile(vcd_tmp, tmp / "waves.vcd")
-        write_json(tmp / "timeline.json", timeline_json(result.master.records))
-        records = result.master.records
-        if any(r.complete for r in records):
-            record = pick_period(records, when=0.5)
-            plot_timeline(tmp / "timeline.png", record, robot.n,
-                          result.master.timing.period_cycles,
-                          f"{args.controller}: period {record.index} exchange")
-        plot_tracking(tmp / "tracking.png", result.t, q_d, result.q, result.tau,
-                      f"{robot.name}: quintic test, {args.controller} on {args.backend}")
-    if not args.quiet:
-        print(f"{args.controller} on {args.backend}: max tip error "
-              f"{1e3 * summary['max_tip_error_m']:.4f} mm, rho {summary['rho_s']:.6f} s, "
-              f"overruns {summary['overruns']}, link errors {summary['link_errors']}, "
-              f"upload errors {summary.get('upload_errors', 0)}, "
-              f"late replies {summary.get('late_replies', 0)}, "
-              f"A/B/C/D done at " + _phases_text(summary["phases_us"])
-              + f"; RTF {summary['rtf']:.0f}")
-        from mrm_cosim.cosim.track import link_fault_places, run_faults
+    if args.vcd is not None:
+        vcd = tmp / "waves.vcd"
+        if not vcd.exists() or vcd.stat().st_size == 0:
+            raise InputError("vcd", "the window is not inside the run (nothing recorded)")
+        usual_mode(vcd)
+    q_d = profile.evaluate(result.t)[0]
+    write_json(tmp / "summary.json", summary)
+    (tmp / "config.toml").write_text(config.to_toml())
+    write_json(tmp / "config.json", {
+        "command": "mrm run track", "controller": args.controller,
+        "backend": config.backend, "robot": robot.describe(), "seed": config.seed,
+        "duration_s": config.duration, "vcd": args.vcd, "signals": args.signals,
+        "line_faults": list(args.line_fault), "experiment": config.to_dict(),
+        "version": __version__})
+    write_json(tmp / "timeline.json", timeline_json(result.master.records))
+    records = result.master.records
+    if any(r.complete for r in records):
+        record = pick_period(records, when=0.5)
+        plot_timeline(tmp / "timeline.png", record, robot.n,
+                      result.master.timing.period_cycles,
+                      f"{args.controller}: period {record.index} exchange")
+    plot_tracking(tmp / "tracking.png", result.t, q_d, result.q, result.tau,
+                  f"{robot.name}: quintic test, {args.controller} on {config.backend}")
 
-        faults = run_faults(summary)
-        if faults:
-            print("NOT A CLEAN RUN: " + "; ".join(faults))
-        if summary["link_errors"]:
-            print("link faults counted at: " + link_fault_places(summary["link_error_detail"]))
-        print(f"results in {args.out}/" + (" (waves.vcd: the --vcd window)" if vcd_tmp else ""))
+
+def _print_track(args, config, summary) -> None:
+    from mrm_cosim.cosim.track import link_fault_places
+
+    print(f"{args.controller} on {config.backend}: max tip error "
+          f"{1e3 * summary['max_tip_error_m']:.4f} mm, rho {summary['rho_s']:.6f} s, "
+          f"overruns {summary['overruns']}, link errors {summary['link_errors']}, "
+          f"upload errors {summary.get('upload_errors', 0)}, "
+          f"late replies {summary.get('late_replies', 0)}, "
+          f"A/B/C/D done at " + _phases_text(summary["phases_us"])
+          + f"; RTF {summary['rtf']:.0f}")
+    if summary["link_errors"]:
+        print("link faults counted at: " + link_fault_places(summary["link_error_detail"]))
+    print(f"results in {args.out}/ (summary.json, config.toml, timeline.json, tracking.png"
+          + (", waves.vcd: the --vcd window)" if args.vcd else ")"))
 
 
 def _phases_text(phases: dict) -> str:
@@ -221,24 +294,31 @@ def _phases_text(phases: dict) -> str:
     return ", ".join(f"{k} {fmt(v)}" for k, v in phases.items()) + " µs"
 
 
+# --- table2 --------------------------------------------------------------------------------
+@named_by_flags(RUN_TABLE2)
 def _table2(args) -> int:
     from mrm_cosim.cosim.experiment_config import load
     from mrm_cosim.cosim.table2 import Progress, run_table2
+    from mrm_cosim.cosim.track import run_faults
     from mrm_cosim.results import check_output_dir
 
     check_output_dir(args.out)
     config = load(args.config).with_overrides(backend=args.backend, seed=args.seed,
-                                              duration=args.duration)
+                                              duration=args.duration, field_prefix="")
+    _log.debug("experiment: %s", json.dumps(config.to_dict()))
     jobs = default_jobs() if args.jobs is None else args.jobs
     if isinstance(jobs, bool) or jobs < 1:
-        raise InputError("--jobs", f"must be a whole number ≥ 1, not {args.jobs!r}")
+        raise InputError("jobs", f"must be a whole number ≥ 1, not {args.jobs!r}")
     progress = None if args.quiet else Progress(config.controllers, config.duration)
     summary = run_table2(config, args.out, progress=progress, jobs=jobs)
-    if not args.quiet:
+    if args.json:
+        _print_json(summary)
+    elif not args.quiet:
         print((Path(args.out) / "table2.md").read_text(), end="")
         print(f"results in {args.out}/ (summary.json, table2.md, config.toml, "
               "fig4_tracking.png, fig5_errors.png, torques.png, <controller>/timeline.png)")
-    return 0 if summary["controllers"] else 1
+    reasons = [f"{c}: {r}" for c, s in summary["controllers"].items() for r in run_faults(s)]
+    return _not_clean("table2", reasons)
 
 
 def default_jobs() -> int:
@@ -255,9 +335,9 @@ def _plant_config(uncertainty: float):
     try:
         return PlantConfig(perturbation=uncertainty)
     except InputError as exc:
-        raise InputError("--uncertainty", exc.message) from None
+        raise InputError("uncertainty", exc.message) from None
     except ValueError as exc:
-        raise InputError("--uncertainty", str(exc)) from None
+        raise InputError("uncertainty", str(exc)) from None
 
 
 def _config_dict(config) -> dict:
@@ -265,5 +345,3 @@ def _config_dict(config) -> dict:
 
     return json.loads(json.dumps(asdict(config) if is_dataclass(config) else vars(config),
                                  default=str))
-
-
