@@ -76,8 +76,14 @@ class QuadratureEncoder(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        p = self._p
+        edge = self._decoder(m)
+        self._velocity(m, *self._sample_decision(m, edge))
+        return m
 
+    def _decoder(self, m):
+        """Synchronizer, glitch filter, ×4 decoder: ``count`` and ``errors``; returns the
+        strobe of a legal transition (an edge)."""
+        p = self._p
         # --- synchronizer, filter, decoder ----------------------------------------------------
         s1 = Signal(2)
         s2 = Signal(2)
@@ -126,7 +132,12 @@ class QuadratureEncoder(wiring.Component):
             m.d.sync += self.count.eq(self.count + 1)
         with m.Elif(d == 3):
             m.d.sync += self.count.eq(self.count - 1)
+        return edge
 
+    def _sample_decision(self, m, edge):
+        """Edge ages, the reference, and stages SA and SB; returns SB's registers
+        ``(ok, case, numerator, denominator)``."""
+        p = self._p
         # --- ages and the sample decision -----------------------------------------------------
         age_edge = Signal(AGE_BITS)
         age_ref  = Signal(AGE_BITS)
@@ -195,6 +206,12 @@ class QuadratureEncoder(wiring.Component):
 
         with m.If(self.preset):
             m.d.sync += c_ref.eq(self.preset_count)
+        return s0_ok, s0_case, s0_num, s0_den
+
+    def _velocity(self, m, s0_ok, s0_case, s0_num, s0_den):
+        """Stages S1 .. S8: the reciprocal of the denominator, the scaled product, rounding,
+        saturation and the update of ``velocity`` per case."""
+        p = self._p
 
         def stage(name, value_or_shape, src):
             sig = Signal(value_or_shape, name=name)
@@ -290,4 +307,3 @@ class QuadratureEncoder(wiring.Component):
                         m.d.sync += v.eq(s7_v)
                     with m.Elif((v < 0) & (-v > s7_v)):
                         m.d.sync += v.eq(-s7_v)
-        return m

@@ -41,6 +41,11 @@ _NOP, _MAC, _MIN, _MAX, _MARK, _END = (int(op) for op in (Op.NOP, Op.MAC, Op.MIN
                                                           Op.MARK, Op.END))
 
 
+def _ctl_layout():
+    """An instruction travelling down the pipeline, and whether it is one."""
+    return data.StructLayout({"valid": 1, "ins": InstrLayout})
+
+
 class MacEngine(wiring.Component):
     """The engine running one compiled program.
 
@@ -111,7 +116,14 @@ class MacEngine(wiring.Component):
         rd_b = regfile.read_port()
         rd_h = regfile.read_port()
         wr   = regfile.write_port()
+        ins, f_valid = self._fetch(m, rom_rd)
+        c1o, opa, opb = self._operands(m, ins, f_valid, rd_a, rd_b, rd_h, abits)
+        c5, wb_data = self._datapath(m, c1o, opa, opb)
+        self._write_back(m, c5, wb_data, wr, abits)
+        return m
 
+    def _fetch(self, m, rom_rd):
+        """Program counter and ROM read; returns the instruction and whether it is valid."""
         # --- fetch ---------------------------------------------------------------------------
         pc       = Signal(range(self._rom_depth))
         fetching = Signal()
@@ -134,12 +146,12 @@ class MacEngine(wiring.Component):
             m.d.sync += fetching.eq(0)
         with m.Elif(fetching):
             m.d.sync += pc.eq(pc + 1)
+        return ins, f_valid
 
+    def _operands(self, m, ins, f_valid, rd_a, rd_b, rd_h, abits):
+        """Stages R and O (and the host read port); returns O's instruction and operands."""
         # --- R: operand read -----------------------------------------------------------------
-        def ctl_layout():
-            return data.StructLayout({"valid": 1, "ins": InstrLayout})
-
-        c1 = Signal(ctl_layout())
+        c1 = Signal(_ctl_layout())
         io_a = Signal(signed(WORD))
         io_b = Signal(signed(WORD))
         sel_a_io = Signal()
@@ -163,13 +175,16 @@ class MacEngine(wiring.Component):
         # --- O: operands registered (off the block RAM's slow output) ---------------------------
         opa = Signal(signed(WORD))
         opb = Signal(signed(WORD))
-        c1o = Signal(ctl_layout())
+        c1o = Signal(_ctl_layout())
         m.d.sync += [
             c1o.eq(c1),
             opa.eq(Mux(sel_a_io, io_a, rd_a.data)),
             opb.eq(Mux(sel_b_io, io_b, rd_b.data)),
         ]
+        return c1o, opa, opb
 
+    def _datapath(self, m, c1o, opa, opb):
+        """Stages M, P, A and W1; returns W1's instruction and the word to write."""
         # --- M: partial products -------------------------------------------------------------
         pp_ll = Signal(34)
         pp_lh = Signal(signed(25))
@@ -177,7 +192,7 @@ class MacEngine(wiring.Component):
         pp_hh = Signal(signed(14))
         opa2  = Signal(signed(WORD))
         opb2  = Signal(signed(WORD))
-        c2 = Signal(ctl_layout())
+        c2 = Signal(_ctl_layout())
         a_lo, a_hi = opa[:17], opa[17:].as_signed()
         b_lo, b_hi = opb[:17], opb[17:].as_signed()
         m.d.sync += [
@@ -195,7 +210,7 @@ class MacEngine(wiring.Component):
         # --- P: product, alignment -----------------------------------------------------------
         prod = Signal(signed(2 * WORD))
         term = Signal(signed(ACC_WIDTH))
-        c3 = Signal(ctl_layout())
+        c3 = Signal(_ctl_layout())
         is_mac2 = c2.ins.op == _MAC
         m.d.comb += prod.eq(Mux(is_mac2,
                                 (pp_hh << 34) + ((pp_lh + pp_hl) << 17) + pp_ll,
@@ -212,7 +227,7 @@ class MacEngine(wiring.Component):
         acc  = Signal(signed(ACC_WIDTH))
         half = Signal(ACC_WIDTH)
         base = Signal(signed(ACC_WIDTH))
-        c4 = Signal(ctl_layout())
+        c4 = Signal(_ctl_layout())
         with m.Switch(c3.ins.oshift):
             for v in self._oshifts:
                 with m.Case(v):
@@ -228,7 +243,7 @@ class MacEngine(wiring.Component):
         wb_data = Signal(signed(WORD))
         window  = Signal(WORD)
         fits    = Signal()
-        c5 = Signal(ctl_layout())
+        c5 = Signal(_ctl_layout())
         with m.Switch(c4.ins.oshift):
             for v in self._oshifts:
                 with m.Case(v):
@@ -244,7 +259,11 @@ class MacEngine(wiring.Component):
             m.d.sync += wb_data.eq(WORD_MIN)
         with m.Else():
             m.d.sync += wb_data.eq(WORD_MAX)
+        return c5, wb_data
 
+    def _write_back(self, m, c5, wb_data, wr, abits):
+        """Stage W2: the register file (or the host write while idle), the outputs, MARK and
+        END, ``busy`` falling."""
         # --- W2: write back ------------------------------------------------------------------
         writes = c5.valid & c5.ins.last & ((c5.ins.op == _MAC) | (c5.ins.op == _MIN) |
                                             (c5.ins.op == _MAX))
@@ -270,5 +289,3 @@ class MacEngine(wiring.Component):
         for k in range(self._n_out):
             with m.If(writes & to_io & (c5.ins.dst[:4] == k)):
                 m.d.sync += self.outputs[k].eq(wb_data)
-
-        return m

@@ -1,0 +1,140 @@
+"""CONFIG registers of the node core, and when ARM takes effect.
+
+A CONFIG record (:class:`~hdl.node.regs.Config` id, int32 value; docs/node.md "Packets")
+writes one register at its last byte; a value out of a register's range is ignored (MODE
+≥ 3, TICK 0 or ≥ 2^16, PERIOD < 2 or ≥ 2^24, SYNC_WINDOW and COMMIT ≥ 2^24). PRESET and PRIME
+are strobes to the encoder and the VDC sequencer. Every register starts at
+:data:`~hdl.node.regs.CONFIG_DEFAULTS`.
+
+ARM = 0 disarms at once (safety first). ARM ≠ 0 takes effect at the next period boundary, so
+the state at that boundary does not depend on when the CONFIG arrived, and it clears the joint
+program's PID integral there: its fine part (``clear_lo``) in the cycle before the boundary,
+its coarse part (``clear_hi``) in the boundary's cycle. The joint engine is idle in both when
+TICK ≥ the program's cycles + 2 and PERIOD is a multiple of TICK (docs/node.md "Timing").
+"""
+
+from amaranth import *
+from amaranth.lib import stream, wiring
+from amaranth.lib.wiring import In, Out
+
+from .decoder import ConfigRecord
+from .fixed import WORD
+from .regs import CONFIG_DEFAULTS, MODES, Config
+
+__all__ = ["NodeConfig"]
+
+
+class NodeConfig(wiring.Component):
+    """The CONFIG registers and the ARM sequence (see the module docstring).
+
+    Attributes
+    ----------
+    config : In(stream.Signature(ConfigRecord, always_ready=True))
+        CONFIG records (from :class:`~hdl.node.decoder.PacketDecoder`).
+    pre_boundary, boundary : In(1)
+        The period timer's last phase and its boundary (:class:`~hdl.node.timer.PeriodTimer`).
+    joint_busy : In(1)
+        The joint engine runs (the fine integral clear waits for it).
+    mode : Out(2)
+        Joint program: :data:`~hdl.node.regs.MODES`.
+    tick : Out(16)
+        Cycles per control tick.
+    timeout, ramp, tau_min, tau_max : Out(32), Out(24), Out(signed(24)), Out(signed(24))
+        The watchdog's settings (:class:`~hdl.node.watchdog.Watchdog`).
+    period, window, commit : Out(24)
+        The period timer's length, its sync window and Comm D's commit phase.
+    preset, preset_count : Out(1), Out(signed(32))
+        Strobe: load the encoder count.
+    prime : Out(1)
+        Strobe: CONFIG PRIME (the next VDC run restarts its derivative history).
+    arm, disarm : Out(1)
+        Strobes to the watchdog: ARM taking effect (at a boundary); ARM = 0 (at once).
+    clear_lo, clear_hi : Out(1)
+        Strobes: write zero into the joint program's ``ilo_s`` / ``ihi_s`` (the PID integral).
+    """
+
+    config:       In(stream.Signature(ConfigRecord, always_ready=True))
+    pre_boundary: In(1)
+    boundary:     In(1)
+    joint_busy:   In(1)
+    mode:         Out(2, init=CONFIG_DEFAULTS[Config.MODE])
+    tick:         Out(16, init=CONFIG_DEFAULTS[Config.TICK])
+    timeout:      Out(32, init=CONFIG_DEFAULTS[Config.TIMEOUT])
+    ramp:         Out(WORD, init=CONFIG_DEFAULTS[Config.RAMP])
+    tau_min:      Out(signed(WORD), init=CONFIG_DEFAULTS[Config.TAU_MIN])
+    tau_max:      Out(signed(WORD), init=CONFIG_DEFAULTS[Config.TAU_MAX])
+    period:       Out(24, init=CONFIG_DEFAULTS[Config.PERIOD])
+    window:       Out(24, init=CONFIG_DEFAULTS[Config.SYNC_WINDOW])
+    commit:       Out(24, init=CONFIG_DEFAULTS[Config.COMMIT])
+    preset:       Out(1)
+    preset_count: Out(signed(32))
+    prime:        Out(1)
+    arm:          Out(1)
+    disarm:       Out(1)
+    clear_lo:     Out(1)
+    clear_hi:     Out(1)
+
+    def elaborate(self, platform):
+        m = Module()
+        arm_pending = Signal()          # CONFIG ARM=1 received
+        arming      = Signal()          # armed at the coming boundary (integral cleared)
+        value = self.config.p.value
+
+        with m.If(self.config.valid):
+            with m.Switch(self.config.p.id):
+                with m.Case(Config.MODE):
+                    with m.If(value < len(MODES)):
+                        m.d.sync += self.mode.eq(value)
+                with m.Case(Config.TICK):
+                    with m.If((value != 0) & (value < (1 << 16))):
+                        m.d.sync += self.tick.eq(value)
+                with m.Case(Config.TIMEOUT):
+                    m.d.sync += self.timeout.eq(value)
+                with m.Case(Config.RAMP):
+                    m.d.sync += self.ramp.eq(value)
+                with m.Case(Config.TAU_MIN):
+                    m.d.sync += self.tau_min.eq(value)
+                with m.Case(Config.TAU_MAX):
+                    m.d.sync += self.tau_max.eq(value)
+                with m.Case(Config.PERIOD):
+                    with m.If((value >= 2) & (value < (1 << 24))):
+                        m.d.sync += self.period.eq(value)
+                with m.Case(Config.SYNC_WINDOW):
+                    with m.If(value < (1 << 24)):
+                        m.d.sync += self.window.eq(value)
+                with m.Case(Config.COMMIT):
+                    with m.If(value < (1 << 24)):
+                        m.d.sync += self.commit.eq(value)
+                with m.Case(Config.ARM):
+                    with m.If(value != 0):
+                        m.d.sync += arm_pending.eq(1)
+                    with m.Else():
+                        m.d.comb += self.disarm.eq(1)
+                with m.Case(Config.PRESET):
+                    m.d.comb += [
+                        self.preset.eq(1),
+                        self.preset_count.eq(value),
+                    ]
+                with m.Case(Config.PRIME):
+                    m.d.comb += self.prime.eq(1)
+
+        # ARM at the next boundary, the integral cleared in its cycle and the one before;
+        # disarming wins over both.
+        m.d.comb += [
+            self.clear_lo.eq(self.pre_boundary & arm_pending & ~self.joint_busy),
+            self.clear_hi.eq(self.boundary & arming),
+            self.arm.eq(self.clear_hi & ~self.disarm),
+        ]
+        with m.If(self.disarm):
+            m.d.sync += [
+                arm_pending.eq(0),
+                arming.eq(0),
+            ]
+        with m.Elif(self.clear_lo):
+            m.d.sync += [
+                arm_pending.eq(0),
+                arming.eq(1),
+            ]
+        with m.Elif(self.clear_hi):
+            m.d.sync += arming.eq(0)
+        return m

@@ -1,0 +1,150 @@
+"""Control ticks: what the joint engine is given, and when.
+
+Every TICK cycles from the period boundary (and at the boundary itself) is a control tick:
+the encoder takes a velocity sample and the joint program (:mod:`.joint`, the CONFIG MODE's
+entry) runs on inputs latched in that cycle — the encoder count (saturated to a word), the
+velocity, the Comm D references in effect and ``t_next``, the time their reference trajectory
+is evaluated at (``ref_time + TICK``, saturating). A tick that finds the joint engine busy is
+skipped and counted (``overruns`` in Comm A).
+
+Between runs the joint engine's host port takes, in priority order, the PID integral clears
+of an ARM (:class:`~hdl.node.config.NodeConfig`) and the PARAM words for the joint bank.
+"""
+
+from amaranth import *
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.wiring import In, Out
+
+from .commit import TIME_MAX
+from .decoder import CommDWords, HostWrite
+from .fixed import WORD
+from .isa import ADDR_BITS, Microcode
+from .joint import INPUTS as JOINT_INPUTS
+from .regs import MODES
+
+__all__ = ["ControlTicks", "TickInputs"]
+
+#: The joint program's input ports by name (:data:`~hdl.node.joint.INPUTS`), as latched at a
+#: tick.
+TickInputs = data.StructLayout({n: signed(WORD) for n in JOINT_INPUTS})
+
+
+class ControlTicks(wiring.Component):
+    """The tick counter, the joint engine's inputs and host port (see the module docstring).
+
+    Parameters
+    ----------
+    joint : Microcode
+        The joint program (entries per mode, the integral's registers).
+
+    Attributes
+    ----------
+    boundary : In(1)
+        The period boundary (the ticks restart).
+    cycles : In(16)
+        CONFIG TICK: cycles per tick.
+    mode : In(2)
+        CONFIG MODE: which entry of the joint program runs.
+    count : In(signed(32))
+    velocity : In(signed(24))
+        The encoder's live count and velocity.
+    refs : In(CommDWords)
+        The Comm D references in effect; ``ref_time`` the cycles since the boundary they are
+        for (:class:`~hdl.node.commit.ReferenceCommit`).
+    ref_time : In(24)
+    busy : In(1)
+        The joint engine runs.
+    clear_lo, clear_hi : In(1)
+        Strobes: write zero into ``ilo_s`` / ``ihi_s``.
+    words : In(stream.Signature(HostWrite))
+        PARAM words for the joint bank (the bank field is not looked at).
+    tick : Out(1)
+        Strobe: a control tick (the encoder's velocity sample, the watchdog's tick).
+    overruns : Out(16)
+        Ticks skipped because the engine was busy, saturating.
+    start : Out(1)
+    entry : Out(ROM address)
+        The joint engine's start strobe and entry.
+    inputs : Out(TickInputs)
+        The joint engine's inputs, latched at the tick that starts it.
+    host_addr, host_wdata, host_we : Out(9), Out(signed(24)), Out(1)
+        The joint engine's host write port.
+    """
+
+    def __init__(self, joint: Microcode):
+        if not isinstance(joint, Microcode):
+            raise TypeError(f"joint must be a Microcode, not {joint!r}")
+        self._mc = joint
+        super().__init__({
+            "boundary":   In(1),
+            "cycles":     In(16),
+            "mode":       In(2),
+            "count":      In(signed(32)),
+            "velocity":   In(signed(WORD)),
+            "refs":       In(CommDWords),
+            "ref_time":   In(24),
+            "busy":       In(1),
+            "clear_lo":   In(1),
+            "clear_hi":   In(1),
+            "words":      In(stream.Signature(HostWrite)),
+            "tick":       Out(1),
+            "overruns":   Out(16),
+            "start":      Out(1),
+            "entry":      Out(range(len(joint.instrs))),
+            "inputs":     Out(TickInputs),
+            "host_addr":  Out(ADDR_BITS),
+            "host_wdata": Out(signed(WORD)),
+            "host_we":    Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        jmc = self._mc
+        tick_cnt = Signal(16)
+        tick     = self.tick
+        tn       = Signal(25)
+        count24  = Signal(signed(WORD))
+        j_in     = self.inputs
+        entries  = Array(C(jmc.entries[mode], range(len(jmc.instrs))) for mode in MODES)
+        m.d.comb += [
+            tick.eq(self.boundary | (tick_cnt == 0)),
+            tn.eq(self.ref_time + self.cycles),
+            count24.eq(Mux(self.count > (1 << 23) - 1, (1 << 23) - 1,
+                           Mux(self.count < -(1 << 23), -(1 << 23), self.count))),
+        ]
+        m.d.sync += tick_cnt.eq(Mux(tick, self.cycles - 1, tick_cnt - 1))
+        with m.If(tick):
+            with m.If(self.busy):
+                with m.If(self.overruns != 0xFFFF):
+                    m.d.sync += self.overruns.eq(self.overruns + 1)
+            with m.Else():
+                m.d.sync += [
+                    j_in.q.eq(count24),
+                    j_in.qd.eq(self.velocity),
+                    j_in.tn.eq(Mux(tn > TIME_MAX, TIME_MAX, tn)),
+                    j_in.tauD.eq(self.refs.tau),
+                    j_in.qd0.eq(self.refs.qd0),
+                    j_in.vd0.eq(self.refs.vd0),
+                    j_in.ad0.eq(self.refs.ad0),
+                ]
+                m.d.comb += [
+                    self.start.eq(1),
+                    self.entry.eq(entries[self.mode]),
+                ]
+
+        # Host port: the ARM's integral clears first, then a PARAM word while idle.
+        clear = self.clear_lo | self.clear_hi
+        m.d.comb += self.words.ready.eq(~clear & ~self.busy)
+        with m.If(clear):
+            m.d.comb += [
+                self.host_addr.eq(Mux(self.clear_lo, jmc.addr("ilo_s"), jmc.addr("ihi_s"))),
+                self.host_wdata.eq(0),
+                self.host_we.eq(1),
+            ]
+        with m.Elif(self.words.valid & self.words.ready):
+            m.d.comb += [
+                self.host_addr.eq(self.words.p.addr),
+                self.host_wdata.eq(self.words.p.data),
+                self.host_we.eq(1),
+            ]
+        return m
