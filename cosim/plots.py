@@ -15,7 +15,7 @@ from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["plot_tracking", "plot_joint_tracking", "plot_error_comparison", "plot_torques",
            "plot_parameters", "plot_timeline", "timeline_bars", "timeline_markers",
-           "pick_period", "Bar", "Marker"]
+           "pick_period", "Bar", "Marker", "plot_tool_errors", "plot_tool_path"]
 
 _COLORS = {"pid-1khz": "tab:red", "pid-fpga": "tab:orange", "vdc": "tab:blue"}
 
@@ -159,6 +159,69 @@ def plot_torques(path, t, torques: dict, title: str, peak=None):
         ax.legend(loc="upper right", fontsize=7)
     axes[0].set_title(title)
     axes[-1].set_xlabel("time (s)")
+    _save(fig, path)
+    return fig
+
+
+def plot_tool_errors(path, t, errors: dict, title: str):
+    """Cartesian errors of the tool over time, one line per run (a profile or controller).
+
+    Parameters
+    ----------
+    t : ndarray, shape (n_samples,), s
+    errors : dict of str -> master.cartesian.ToolErrors
+        On the grid ``t``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Axis 0: position error (mm); axis 1: orientation error (mrad); axis 2: the se(3)
+        error ‖log(T_d⁻¹ T_a)‖.
+    """
+    fig, axes = _figure(3, 2.4)
+    for name, e in errors.items():
+        axes[0].plot(t, e.position_mm, lw=0.9, label=name)
+        axes[1].plot(t, e.orientation_mrad, lw=0.9, label=name)
+        axes[2].plot(t, e.se3, lw=0.9, label=name)
+    axes[0].set_ylabel("position error (mm)")
+    axes[1].set_ylabel("orientation error\n(mrad)")
+    axes[2].set_ylabel("‖log(T_d⁻¹ T_a)‖")
+    axes[2].set_xlabel("time (s)")
+    for ax in axes:
+        ax.grid(True, lw=0.3)
+        ax.legend(loc="upper right", fontsize=7)
+    axes[0].set_title(title)
+    _save(fig, path)
+    return fig
+
+
+def plot_tool_path(path, desired, actual: dict, title: str):
+    """The tool's path in 3-D: desired (dashed) and each run's actual path.
+
+    Parameters
+    ----------
+    desired : ndarray, shape (k, 3), m
+    actual : dict of str -> ndarray, shape (k, 3), m
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One 3-D axis; lines labelled ``desired`` and by ``actual``'s keys, in mm.
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.5, 5.5), constrained_layout=True)
+    ax = fig.add_subplot(projection="3d")
+    d = 1e3 * np.asarray(desired, dtype=float)
+    ax.plot(d[:, 0], d[:, 1], d[:, 2], "k--", lw=1.2, label="desired")
+    for name, a in actual.items():
+        a = 1e3 * np.asarray(a, dtype=float)
+        ax.plot(a[:, 0], a[:, 1], a[:, 2], lw=0.9, label=name)
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_zlabel("z (mm)")
+    ax.legend(loc="upper left", fontsize=7)
+    ax.set_title(title)
     _save(fig, path)
     return fig
 

@@ -16,6 +16,7 @@ import functools
 from mrm_cosim.errors import InputError
 
 __all__ = ["flag_name", "named_by_flags", "OUT", "RUN_PREVIEW", "RUN_TRACK", "RUN_TABLE2",
+           "RUN_LINE",
            "HDL", "PLAN_SAMPLES", "BENCH"]
 
 #: API argument -> flag, per command.
@@ -27,6 +28,7 @@ RUN_TRACK = {**OUT, "robot": "--robot", "duration": "--duration", "seed": "--see
              "vcd": "--vcd", "signals": "--signals", "config": "--config"}
 RUN_TABLE2 = {**OUT, "backend": "--backend", "duration": "--duration", "seed": "--seed",
               "config": "--config", "jobs": "--jobs"}
+RUN_LINE = {**RUN_TRACK, "profile": "--profile", "file": "FILE"}
 HDL = {**OUT, "top": "--top", "family": "--family", "params": "--param"}
 PLAN_SAMPLES = {"out": "--samples"}
 BENCH = {"robot": "--robot", "backend": "--backend"}

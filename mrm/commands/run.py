@@ -21,7 +21,7 @@ from pathlib import Path
 
 from mrm_cosim import __version__
 from mrm_cosim.errors import InputError
-from mrm_cosim.mrm.flags import RUN_PREVIEW, RUN_TABLE2, RUN_TRACK, named_by_flags
+from mrm_cosim.mrm.flags import RUN_LINE, RUN_PREVIEW, RUN_TABLE2, RUN_TRACK, named_by_flags
 
 EXIT_NOT_CLEAN = 3
 
@@ -91,6 +91,33 @@ def register(subparsers) -> None:
                     "compiled). summary.json says where each fault was counted")
     pt.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     pt.set_defaults(func=_track)
+    pl = sub.add_parser("line", help="a planned Cartesian line (trigonometric or Ruckig) "
+                        "through IK into the closed loop on a six-joint arm; tool errors, "
+                        "joint trajectories, torques, the tool's path in 3-D",
+                        epilog="example:\n  mrm run line examples/line_mrm6.toml --robot mrm6 "
+                        "--controller vdc --out results/line\n  mrm run line "
+                        "examples/line_mrm6.toml --profile both --duration 0.5")
+    pl.add_argument("file", metavar="FILE", help="the line: start and end poses and limits "
+                    "(as for mrm plan line)")
+    pl.add_argument("--robot", default="mrm6",
+                    help="six-joint robot: built-in name or assembly .toml")
+    pl.add_argument("--controller", default="vdc", choices=["vdc", "pid-fpga", "pid-1khz"],
+                    help="the controller to run")
+    pl.add_argument("--profile", default="trig", choices=["trig", "ruckig", "both"],
+                    help="the trigonometric jerk-continuous profile, Ruckig's time-optimal "
+                    "one, or both side by side (line.md)")
+    pl.add_argument("--config", default=None, metavar="FILE",
+                    help="experiment TOML for gains, timing, plant, seed and backend (default: "
+                    "the package's configs/table2.toml; its robot, trajectory and duration are "
+                    "not used)")
+    pl.add_argument("--backend", default=None, choices=["compiled", "pysim", "model"],
+                    help="override the config's backend")
+    pl.add_argument("--duration", type=float, default=None,
+                    help="simulated seconds (default: the move plus a 0.2 s hold)")
+    pl.add_argument("--seed", type=_seed, default=None, help="override the plant seed")
+    pl.add_argument("--out", default="results/line", help="result folder (replaced)")
+    pl.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    pl.set_defaults(func=_line)
     p2 = sub.add_parser("table2", help="the paper's Table 2: pid-1khz, pid-fpga and vdc on the "
                         "quintic test, same plant and seed; table, plots, timelines",
                         epilog="example:\n  mrm run table2 --backend model --duration 0.05 "
@@ -292,6 +319,77 @@ def _phases_text(phases: dict) -> str:
         return "–" if v is None else f"{v:.2f}"
 
     return ", ".join(f"{k} {fmt(v)}" for k, v in phases.items()) + " µs"
+
+
+# --- line ----------------------------------------------------------------------------------
+@named_by_flags(RUN_LINE)
+def _line(args) -> int:
+    from mrm_cosim.cosim.experiment_config import load
+    from mrm_cosim.cosim.line import PROFILES, line_reference, run_line
+    from mrm_cosim.cosim.table2 import Progress
+    from mrm_cosim.cosim.track import check_robot_fits, run_faults
+    from mrm_cosim.master.trig_planner import plan_line
+    from mrm_cosim.models.robot import load_robot
+    from mrm_cosim.mrm.commands.plan import load_line_file
+    from mrm_cosim.results import atomic_output_dir, check_output_dir
+
+    check_output_dir(args.out)
+    config = load(args.config).with_overrides(backend=args.backend, seed=args.seed,
+                                              field_prefix="")
+    robot = load_robot(args.robot)
+    check_robot_fits(robot, "robot")
+    start, end, limits = load_line_file(args.file)
+    plan = plan_line(start, end, limits)
+    profiles = PROFILES if args.profile == "both" else (args.profile,)
+    # every reference is computed and checked (workspace, singularity, limits) before any run
+    references = {name: line_reference(robot, plan, name) for name in profiles}
+    progress = None if args.quiet else Progress(list(profiles), args.duration or max(
+        r.duration for r in references.values()) + 0.2)
+    runs = {}
+    with atomic_output_dir(args.out, made_by="mrm run line") as tmp:
+        for name in profiles:
+            if progress is not None:
+                progress.begin(name)
+            runs[name] = run_line(robot, plan, profile=name, controller=args.controller,
+                                  backend=config.backend, seed=config.seed, gains=config.gains,
+                                  timing=config.timing, plant_config=config.plant,
+                                  duration=args.duration, progress=progress,
+                                  reference=references[name])
+        summary = {"command": "mrm run line", "file": str(Path(args.file).resolve()),
+                   "robot": robot.name, "controller": args.controller,
+                   "backend": config.backend, "seed": config.seed, "version": __version__,
+                   "plan": plan.summary(),
+                   "runs": {name: run.summary for name, run in runs.items()}}
+        _write_line(tmp, args, config, robot, runs, summary)
+    if args.json:
+        _print_json(summary)
+    elif not args.quiet:
+        print((Path(args.out) / "line.md").read_text(), end="")
+        print(f"results in {args.out}/ (summary.json, line.md, config.toml, tool_errors.png, "
+              "tool_path.png, tracking_<profile>.png)")
+    reasons = [f"{name}: {r}" for name, run in runs.items() for r in run_faults(run.summary)]
+    return _not_clean("line", reasons)
+
+
+def _write_line(tmp: Path, args, config, robot, runs, summary) -> None:
+    from mrm_cosim.cosim.line import line_table
+    from mrm_cosim.cosim.plots import plot_tool_errors, plot_tool_path, plot_tracking
+    from mrm_cosim.results import write_json
+
+    write_json(tmp / "summary.json", summary)
+    (tmp / "config.toml").write_text(config.to_toml())
+    (tmp / "line.md").write_text(
+        f"# {robot.name}: Cartesian line ({Path(args.file).name}), {args.controller} on "
+        f"{config.backend}, seed {config.seed}\n\n" + line_table(runs))
+    first = next(iter(runs.values()))
+    t = first.result.t
+    title = f"{robot.name}: line, {args.controller} on {config.backend}"
+    plot_tool_errors(tmp / "tool_errors.png", t, {n: r.errors for n, r in runs.items()}, title)
+    plot_tool_path(tmp / "tool_path.png", first.errors.tool_desired,
+                   {n: r.errors.tool_actual for n, r in runs.items()}, title)
+    for name, run in runs.items():
+        plot_tracking(tmp / f"tracking_{name}.png", run.result.t, run.q_desired, run.result.q,
+                      run.result.tau, f"{title}, {name} profile")
 
 
 # --- table2 --------------------------------------------------------------------------------
