@@ -16,7 +16,7 @@ import time
 import numpy as np
 from amaranth.sim import Simulator
 
-from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.protocol import packet as ref
 from mrm_cosim.hdl.link.chain import Chain, get_packet, master_send, put_packet
 from mrm_cosim.hdl.link.chars import CONTROL_BITS, DATA_BITS, NULL_BITS, TIME_BITS
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.protocol import packet as ref
 from mrm_cosim.hdl.link.chain import char_int, char_value, line_fault_layout
 from mrm_cosim.hdl.node.fixed import FORCE
 from mrm_cosim.hdl.node.joint_ref import JointParams

@@ -62,7 +62,7 @@ import time
 
 import numpy as np
 
-from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.protocol import packet as ref
 from mrm_cosim.hdl.node.core_ref import _NEVER, _TIME_MAX, NodeModel
 from mrm_cosim.hdl.node.encoder_ref import (
     AGE_MAX, DC_MAX, VEL_LATENCY, EncoderParams, encoders_per_node, velocity_word,

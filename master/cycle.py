@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mrm_cosim.hdl.link.packet_ref import BROADCAST, PacketType
+from mrm_cosim.protocol.packet import BROADCAST, PacketType
 from mrm_cosim.hdl.node.fixed import FORCE, VEL
 from mrm_cosim.hdl.node.regs import (
     LINK_HEALTH, Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c, upload_check,
@@ -177,7 +177,7 @@ class Master:
         """Check every Comm A against the uploads ``[(dest, type, payload), ...]`` sent to the
         nodes since their reset, in order (CONFIG and PARAM count; broadcasts go to every
         node). Replaces any earlier expectation; clears :attr:`upload_errors`."""
-        from mrm_cosim.hdl.link.packet_ref import BROADCAST as _ALL
+        from mrm_cosim.protocol.packet import BROADCAST as _ALL
 
         kinds = (PacketType.CONFIG, PacketType.PARAM)
         self.expected_uploads = {

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from amaranth.sim import Simulator
 
-from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.protocol import packet as ref
 from mrm_cosim.hdl.link.chain import (
     Chain, master_receive, master_send, node_receive, node_send, read_stats,
 )

@@ -349,7 +349,7 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
     on its clip for much of the run; the lazy path's integral (updated on every tick, torque
     only where observed) is still the eager one."""
     from mrm_cosim.cosim.closed_loop import Gains, node_uploads, pid_gains
-    from mrm_cosim.hdl.link import packet_ref as ref
+    from mrm_cosim.protocol import packet as ref
     from mrm_cosim.hdl.node.joint_ref import JointParams
     from mrm_cosim.hdl.node.regs import Config, config_payloads, joint_upload
     from mrm_cosim.models.actuators import ACTUATORS

@@ -9,7 +9,7 @@ import pytest
 from amaranth.sim import Simulator
 
 from mrm_cosim.hdl.link.chain import get_packet, put_packet
-from mrm_cosim.hdl.link.packet_ref import Header, PacketType, crc16
+from mrm_cosim.protocol.packet import Header, PacketType, crc16
 from mrm_cosim.hdl.node.core import NodeCore
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.hdl.node.encoder_ref import EncoderParams

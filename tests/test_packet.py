@@ -8,7 +8,7 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.sim import Simulator
 
-from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.protocol import packet as ref
 from mrm_cosim.hdl.link.chain import get_chars, get_packet, put_chars, put_packet, read_stats
 from mrm_cosim.hdl.link.packet import Depacketizer, Packetizer
 from .sim_helpers import run_simulation

@@ -3,7 +3,7 @@
 import numpy as np
 from amaranth.sim import Simulator
 
-from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.protocol import packet as ref
 from mrm_cosim.hdl.link.chain import char_int, char_value, get_chars, put_chars
 from mrm_cosim.hdl.link.router import Router
 from .sim_helpers import run_simulation

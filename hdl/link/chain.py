@@ -4,7 +4,7 @@
 :class:`~hdl.link.node.LinkNode` s back to back (master ─ node 1 ─ node 2 ─ … ─ node N, node
 ``k`` at address ``k``; the last node's downstream port is left unconnected). The async helpers
 below drive and check its streams from Amaranth testbenches (``sim.add_testbench``); characters
-and packets are in the integer form of :mod:`hdl.link.packet_ref`.
+and packets are in the integer form of :mod:`mrm_cosim.protocol.packet`.
 
 With ``line_faults=True`` every line of the chain passes through a fault injector the testbench
 controls (cut, stuck, flipped line samples; see :func:`line_fault_layout`). It exists for
@@ -17,12 +17,12 @@ from amaranth import *
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from . import packet_ref as ref
+from mrm_cosim.protocol import packet as ref
 from .chars import Char, CharKind
 from .codec import Codec
 from .node import LinkNode
 from .packet import Beat, Header
-from .packet_ref import DEFAULT_MAX_PAYLOAD
+from mrm_cosim.protocol.packet import DEFAULT_MAX_PAYLOAD
 from .params import rejecting
 
 __all__ = ["Chain", "line_fault_layout", "faulty_line", "char_value", "char_int", "beat_value",
@@ -176,7 +176,7 @@ class Chain(wiring.Component):
     Attributes
     ----------
     master_tx : In(stream.Signature(Char))
-        Characters the master sends (frames from :func:`~hdl.link.packet_ref.encode`).
+        Characters the master sends (frames from :func:`~mrm_cosim.protocol.packet.encode`).
     master_rx : Out(stream.Signature(Char))
         Characters the master receives.
     tick_in, time_in : In(1), In(8)

@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 from .chars import ERROR_CLASSES, FCT_CREDIT, MAX_CREDIT, CharKind, LinkState
 from .ds import GROUP_BITS
-from .packet_ref import COUNTER_MAX
+from mrm_cosim.protocol.packet import COUNTER_MAX
 from .params import codec_params
 from .rx import NULL_PATTERN
 

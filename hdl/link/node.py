@@ -33,7 +33,7 @@ from amaranth.lib.wiring import In, Out
 from .chars import ErrorCounts
 from .codec import Codec
 from .packet import Beat, Depacketizer, Packetizer, RxStats
-from .packet_ref import DEFAULT_MAX_PAYLOAD
+from mrm_cosim.protocol.packet import DEFAULT_MAX_PAYLOAD
 from .params import rejecting
 from .router import Router
 

@@ -26,8 +26,9 @@ from amaranth.utils import ceil_log2
 from .chars import Char, CharKind
 from .crc import CRC16
 from .params import rejecting
-from .packet_ref import (BROADCAST, COUNTER_MAX, CRC_BYTES, DATA_PAYLOAD, DEFAULT_MAX_PAYLOAD,
-                         HEADER_BYTES, MASTER_ADDRESS, MIN_PAYLOAD)
+from mrm_cosim.protocol.packet import (BROADCAST, COUNTER_MAX, CRC_BYTES, DATA_PAYLOAD,
+                                       DEFAULT_MAX_PAYLOAD, HEADER_BYTES, MASTER_ADDRESS,
+                                       MIN_PAYLOAD)
 
 
 __all__ = ["MASTER_ADDRESS", "BROADCAST", "HEADER_BYTES", "CRC_BYTES", "MIN_PAYLOAD",

@@ -33,7 +33,7 @@ from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from .chars import Char, CharKind
-from .packet_ref import BROADCAST, COUNTER_MAX
+from mrm_cosim.protocol.packet import BROADCAST, COUNTER_MAX
 
 
 __all__ = ["Router"]

@@ -192,7 +192,7 @@ def upload_check(payloads) -> tuple[int, int]:
         CRC-16/CCITT-FALSE (:mod:`hdl.link.crc`, initial 0xFFFF) over the concatenated
         payloads, and the number of packets modulo 2^16.
     """
-    from mrm_cosim.hdl.link.packet_ref import crc16
+    from mrm_cosim.protocol.packet import crc16
 
     crc, n = CRC16_INIT, 0
     for p in payloads:
