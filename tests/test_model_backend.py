@@ -349,7 +349,7 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
     on its clip for much of the run; the lazy path's integral (updated on every tick, torque
     only where observed) is still the eager one."""
     from mrm_cosim.cosim.closed_loop import Gains, node_uploads, pid_gains
-    from mrm_cosim.protocol import packet as ref
+    from mrm_cosim.protocol import packet as proto
     from mrm_cosim.hdl.node.joint_ref import JointParams
     from mrm_cosim.hdl.node.regs import Config, config_payloads, joint_upload
     from mrm_cosim.models.actuators import ACTUATORS
@@ -361,7 +361,7 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
     arm = config_payloads({Config.ARM: 1})
     uploads = []
     for dest, ptype, payload in node_uploads(robot, "pid-fpga", gains):
-        if ptype == ref.PacketType.CONFIG and [payload] == arm:     # before the ARM: a tight
+        if ptype == proto.PacketType.CONFIG and [payload] == arm:     # before the ARM: a tight
             k = dest - 1                                            # integral bound
             mod = robot.modules[k]
             joint = JointParams.from_float(
@@ -369,7 +369,7 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
                 inertia=ACTUATORS[mod.type.actuator].output_inertia, k_p=pid["kp"][k],
                 k_i=pid["ki"][k], k_d=pid["kd"][k], i_max=2e-8, field=f"joint{dest}")
             assert 0 < joint.ihi <= 4
-            uploads += [(dest, ref.PacketType.PARAM, p) for p in joint_upload(joint)]
+            uploads += [(dest, proto.PacketType.PARAM, p) for p in joint_upload(joint)]
         uploads.append((dest, ptype, payload))
 
     class Watch:

@@ -9,7 +9,8 @@ import pytest
 from amaranth.sim import Simulator
 
 from mrm_cosim.hdl.link.chain import get_packet, put_packet
-from mrm_cosim.protocol.packet import Header, PacketType, crc16
+from mrm_cosim.protocol.crc import crc16
+from mrm_cosim.protocol.packet import Header, PacketType
 from mrm_cosim.hdl.node.core import NodeCore
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.hdl.node.encoder_ref import EncoderParams

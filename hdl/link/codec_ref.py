@@ -14,9 +14,10 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from mrm_cosim.protocol.packet import COUNTER_MAX
+
 from .chars import ERROR_CLASSES, FCT_CREDIT, MAX_CREDIT, CharKind, LinkState
 from .ds import GROUP_BITS
-from mrm_cosim.protocol.packet import COUNTER_MAX
 from .params import codec_params
 from .rx import NULL_PATTERN
 

@@ -30,10 +30,11 @@ from amaranth import *
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.packet import DEFAULT_MAX_PAYLOAD
+
 from .chars import ErrorCounts
 from .codec import Codec
 from .packet import Beat, Depacketizer, Packetizer, RxStats
-from mrm_cosim.protocol.packet import DEFAULT_MAX_PAYLOAD
 from .params import rejecting
 from .router import Router
 

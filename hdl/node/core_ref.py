@@ -39,8 +39,8 @@ from dataclasses import dataclass, field
 from functools import cache
 
 from mrm_cosim.hdl.link.chars import ERROR_CLASSES, saturating_sum_ref
-from mrm_cosim.hdl.link.crc import CRC16_INIT
-from mrm_cosim.protocol.packet import PacketType, crc16
+from mrm_cosim.protocol.crc import CRC16_INIT, crc16
+from mrm_cosim.protocol.packet import PacketType
 
 from .encoder_ref import EncoderParams
 from .fixed import saturate

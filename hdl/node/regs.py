@@ -40,7 +40,7 @@ import math
 
 import numpy as np
 
-from mrm_cosim.hdl.link.crc import CRC16_INIT
+from mrm_cosim.protocol.crc import CRC16_INIT, crc16
 from mrm_cosim.errors import InputError
 
 from .fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, WORD, saturate, theta_group
@@ -192,8 +192,6 @@ def upload_check(payloads) -> tuple[int, int]:
         CRC-16/CCITT-FALSE (:mod:`hdl.link.crc`, initial 0xFFFF) over the concatenated
         payloads, and the number of packets modulo 2^16.
     """
-    from mrm_cosim.protocol.packet import crc16
-
     crc, n = CRC16_INIT, 0
     for p in payloads:
         crc = crc16(bytes(p), crc)
