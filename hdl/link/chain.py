@@ -20,11 +20,11 @@ from amaranth.lib.wiring import In, Out
 from mrm_cosim.protocol import packet as proto
 from mrm_cosim.protocol.packet import DEFAULT_MAX_PAYLOAD
 
+from ..helpers import rejecting
 from .chars import Char, CharKind
 from .codec import Codec
 from .node import LinkNode
 from .packet import Beat, Header
-from .params import rejecting
 
 __all__ = ["Chain", "line_fault_layout", "faulty_line", "char_value", "char_int", "beat_value",
            "beat_fields", "put_chars", "get_chars", "put_packet", "get_packet", "master_send",

@@ -21,7 +21,6 @@ __all__ = [
     "CharKind", "Char", "ControlCode", "DataChar", "ControlChar", "LinkState", "ErrorCounts",
     "ERROR_CLASSES", "saturating_sum", "saturating_sum_ref",
     "NULL_BITS", "TIME_BITS", "DATA_BITS", "CONTROL_BITS",
-    "MAX_CREDIT", "FCT_CREDIT",
 ]
 
 
@@ -110,7 +109,3 @@ DATA_BITS    = 10
 CONTROL_BITS = 4
 NULL_BITS    = 8
 TIME_BITS    = 14
-
-#: Flow control: one FCT grants 8 N-chars; at most 56 may be outstanding (§8.5 / flow control).
-FCT_CREDIT = 8
-MAX_CREDIT = 56

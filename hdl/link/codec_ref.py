@@ -16,9 +16,10 @@ from typing import NamedTuple
 
 from mrm_cosim.protocol.packet import COUNTER_MAX
 
-from .chars import ERROR_CLASSES, FCT_CREDIT, MAX_CREDIT, CharKind, LinkState
+from mrm_cosim.protocol.link import FCT_CREDIT, MAX_CREDIT, codec_params
+
+from .chars import ERROR_CLASSES, CharKind, LinkState
 from .ds import GROUP_BITS
-from .params import codec_params
 from .rx import NULL_PATTERN
 
 __all__ = ["CodecRef", "CodecOutputs", "char_value", "char_fields"]

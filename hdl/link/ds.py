@@ -18,7 +18,9 @@ from amaranth import *
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from .params import check_div, check_slots, rejecting
+from mrm_cosim.protocol.link import check_div, check_slots
+
+from ..helpers import rejecting
 
 __all__ = ["TxBits", "DSTransmitter", "DSReceiver", "GROUP_BITS"]
 

@@ -32,10 +32,10 @@ from amaranth.lib.wiring import In, Out
 
 from mrm_cosim.protocol.packet import DEFAULT_MAX_PAYLOAD
 
+from ..helpers import rejecting
 from .chars import ErrorCounts
 from .codec import Codec
 from .packet import Beat, Depacketizer, Packetizer, RxStats
-from .params import rejecting
 from .router import Router
 
 

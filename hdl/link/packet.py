@@ -29,10 +29,9 @@ from mrm_cosim.protocol import packet as proto
 from mrm_cosim.protocol.packet import (COUNTER_MAX, CRC_BYTES, DEFAULT_MAX_PAYLOAD, HEADER_BYTES,
                                        MIN_PAYLOAD)
 
-from ..shapes import shaped_enum
+from ..helpers import rejecting, shaped_enum
 from .chars import Char, CharKind
 from .crc import CRC16
-from .params import rejecting
 
 __all__ = ["PacketType", "Header", "Beat", "RxStats", "Packetizer", "Depacketizer"]
 

@@ -18,8 +18,10 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.link import check_cycles, check_slots
+
+from ..helpers import rejecting
 from .chars import Char, CharKind, ControlCode
-from .params import check_cycles, check_slots, rejecting
 
 __all__ = ["CharReceiver", "NULL_PATTERN"]
 

@@ -16,7 +16,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
 from mrm_cosim.hdl.link.node import LinkNode, line_signature
-from mrm_cosim.hdl.link.params import rejecting
+from mrm_cosim.hdl.helpers import rejecting
 
 from .core import NodeCore
 from .encoder_ref import EncoderParams

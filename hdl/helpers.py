@@ -1,17 +1,21 @@
-"""Amaranth shapes of the protocol room's enumerations.
+"""Helpers for building the gateware: shapes of the protocol's enums, parameter checks.
 
-The protocol room (:mod:`mrm_cosim.protocol`) defines each encoded field once, as a plain
-:class:`enum.IntEnum` that the master and the references use. The gateware needs the same
-values as an :class:`amaranth.lib.enum.Enum` with an explicit width, so that a field of a
-:class:`~amaranth.lib.data.Struct` has its wire width and ``m.Case(Kind.X)`` matches by name.
-:func:`shaped_enum` makes one from the other, so names and values are written only once.
+* :func:`shaped_enum` — the protocol room (:mod:`mrm_cosim.protocol`) defines each encoded
+  field once, as a plain :class:`enum.IntEnum` that the master and the references use. The
+  gateware needs the same values as an :class:`amaranth.lib.enum.Enum` with an explicit width,
+  so that a field of a :class:`~amaranth.lib.data.Struct` has its wire width and
+  ``m.Case(Kind.X)`` matches by name; this makes one from the other, so names and values are
+  written only once.
+* :func:`rejecting` — check a component's parameters without Amaranth reporting the refused
+  component as created but never used.
 """
 
+import contextlib
 import enum as py_enum
 
 from amaranth.lib import enum
 
-__all__ = ["shaped_enum"]
+__all__ = ["shaped_enum", "rejecting"]
 
 
 def shaped_enum(values: type[py_enum.IntEnum], shape: int, module: str) -> type[enum.Enum]:
@@ -40,3 +44,14 @@ def shaped_enum(values: type[py_enum.IntEnum], shape: int, module: str) -> type[
     for member in values:
         namespace[member.name] = member.value
     return enum.EnumMeta(values.__name__, (enum.Enum,), namespace, shape=shape)
+
+
+@contextlib.contextmanager
+def rejecting(elaboratable):
+    """Validate inside this block: if it raises, ``elaboratable`` (just created, now useless)
+    is not reported by Amaranth as created but never used."""
+    try:
+        yield
+    except BaseException:
+        elaboratable._MustUse__silence = True
+        raise

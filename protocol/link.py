@@ -1,11 +1,18 @@
-"""Parameter checks shared by the link gateware and its Python reference."""
+"""The link: flow-control credits and the codec's parameters.
 
-import contextlib
+# Ref: ECSS-E-ST-50-12C §8.5 (flow control), §6.6 (signalling rate), §8.5.2 (link timing).
 
-from .chars import FCT_CREDIT
+Shared by the link's gateware (:mod:`mrm_cosim.hdl.link`) and its cycle-level reference
+(:class:`~mrm_cosim.hdl.link.codec_ref.CodecRef`), which must accept and refuse exactly the
+same parameters.
+"""
 
-__all__ = ["MAX_SLOTS", "check_slots", "check_div", "check_cycles", "codec_params",
-           "rejecting"]
+__all__ = ["FCT_CREDIT", "MAX_CREDIT", "MAX_SLOTS", "check_slots", "check_div", "check_cycles",
+           "codec_params"]
+
+#: Flow control: one FCT grants 8 N-chars; at most 56 may be outstanding (§8.5 / flow control).
+FCT_CREDIT = 8
+MAX_CREDIT = 56
 
 #: Widest SERDES supported: with at most 4 slots a cycle holds at most one character boundary,
 #: which the character receiver and the transmitter's refill rule rely on.
@@ -52,14 +59,3 @@ def codec_params(*, slots=3, start_div=None, run_div=1, reset_cycles=320, wait_c
     return dict(slots=slots, start_div=start_div, run_div=run_div, reset_cycles=reset_cycles,
                 wait_cycles=wait_cycles, disconnect_cycles=disconnect_cycles,
                 rx_fifo_depth=rx_fifo_depth)
-
-
-@contextlib.contextmanager
-def rejecting(elaboratable):
-    """Validate inside this block: if it raises, ``elaboratable`` (just created, now useless)
-    is not reported by Amaranth as created but never used."""
-    try:
-        yield
-    except BaseException:
-        elaboratable._MustUse__silence = True
-        raise
