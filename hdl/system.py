@@ -16,8 +16,10 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.link import ERROR_CLASSES
+
 from .link.chain import faulty_line, line_fault_layout
-from .link.chars import ERROR_CLASSES, Char, ErrorCounts, LinkState, saturating_sum
+from .link.chars import Char, ErrorCounts, LinkState, saturating_sum
 from .master_port import MasterPort
 from .node.encoder_ref import encoders_per_node
 from .node.fixed import WORD

@@ -1,14 +1,80 @@
-"""The link: flow-control credits and the codec's parameters.
+"""The link: SpaceWire characters, link states, error classes, credits, codec parameters.
 
-# Ref: ECSS-E-ST-50-12C §8.5 (flow control), §6.6 (signalling rate), §8.5.2 (link timing).
+# Ref: ECSS-E-ST-50-12C §7.2 (data characters), §7.3 (control characters, NULL, time-codes),
+#      §7.4 (parity), §8.5 (link state machine, flow control), §6.6 (signalling rate).
 
-Shared by the link's gateware (:mod:`mrm_cosim.hdl.link`) and its cycle-level reference
-(:class:`~mrm_cosim.hdl.link.codec_ref.CodecRef`), which must accept and refuse exactly the
-same parameters.
+The values the link's gateware (:mod:`mrm_cosim.hdl.link`, whose :mod:`~mrm_cosim.hdl.link.chars`
+gives them Amaranth shapes) and its cycle-level reference
+(:class:`~mrm_cosim.hdl.link.codec_ref.CodecRef`) share, so that both encode the same characters
+and accept and refuse exactly the same parameters.
+
+Bits are numbered in transmission order: bit 0 of every on-wire layout is the first bit on the
+line. A data character is ``P 0 D0..D7`` (10 bits, data LSB first); a control character is
+``P 1 C0 C1`` (4 bits). The standard writes the four control characters as ``P100`` (FCT),
+``P101`` (EOP), ``P110`` (EEP) and ``P111`` (ESC), left to right in transmission order, so with
+``C0`` as the least significant bit of :class:`ControlCode` their values are FCT = 0b00,
+EOP = 0b10, EEP = 0b01, ESC = 0b11.
+
+The parity bit ``P`` of a character covers the data or control bits of the *previous*
+character and the ``P`` and flag bits of the current one; their sum is odd (§7.4).
 """
 
-__all__ = ["FCT_CREDIT", "MAX_CREDIT", "MAX_SLOTS", "check_slots", "check_div", "check_cycles",
+import enum
+
+__all__ = ["CharKind", "ControlCode", "LinkState", "ERROR_CLASSES",
+           "DATA_BITS", "CONTROL_BITS", "NULL_BITS", "TIME_BITS", "GROUP_BITS", "NULL_PATTERN",
+           "FCT_CREDIT", "MAX_CREDIT", "MAX_SLOTS", "check_slots", "check_div", "check_cycles",
            "codec_params"]
+
+
+class CharKind(enum.IntEnum):
+    """Kind of an N-char on host streams (2 bits)."""
+
+    DATA = 0  # data character, 8 bits of data
+    EOP  = 1  # normal end of packet
+    EEP  = 2  # error end of packet
+
+
+class ControlCode(enum.IntEnum):
+    """The two control bits of a control character, ``C0`` in bit 0 (sent first)."""
+
+    FCT = 0b00  # P100: flow control token
+    EOP = 0b10  # P101: normal end of packet (EOP_1)
+    EEP = 0b01  # P110: error end of packet (EOP_2)
+    ESC = 0b11  # P111: escape (ESC+FCT = NULL, ESC+data = time-code)
+
+
+class LinkState(enum.IntEnum):
+    """State of the link state machine (§8.5), in the order a link passes through them."""
+
+    ERROR_RESET = 0
+    ERROR_WAIT  = 1
+    READY       = 2
+    STARTED     = 3
+    CONNECTING  = 4
+    RUN         = 5
+
+
+#: Classes of the saturating 16-bit error counters, errors that took the link to Error-Reset,
+#: in the order of the gateware's ``ErrorCounts`` fields:
+#: ``disconnect`` — no transition for the disconnect timeout (§8.5.3, 850 ns nominal);
+#: ``parity`` — parity check failed (§7.4); ``escape`` — ESC followed by ESC, EOP or EEP;
+#: ``credit`` — FCT beyond 56 outstanding, or an N-char beyond the credit given;
+#: ``sequence`` — FCT, N-char or time-code in a state where the standard forbids it.
+ERROR_CLASSES = ("disconnect", "parity", "escape", "credit", "sequence")
+
+#: Line bits of a data character, a control character, a NULL and a time-code.
+DATA_BITS    = 10
+CONTROL_BITS = 4
+NULL_BITS    = 8
+TIME_BITS    = 14
+
+#: Longest group of line bits the transmitter takes at once: a time-code (ESC + data).
+GROUP_BITS = TIME_BITS
+
+#: The last seven bits of the first NULL, oldest in bit 6: ``1 1 1`` (ESC after its parity)
+#: then ``0 1 0 0`` (FCT with parity 0). The receiver looks for it before it frames characters.
+NULL_PATTERN = 0b1110100
 
 #: Flow control: one FCT grants 8 N-chars; at most 56 may be outstanding (§8.5 / flow control).
 FCT_CREDIT = 8

@@ -18,14 +18,11 @@ from amaranth import *
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from mrm_cosim.protocol.link import check_div, check_slots
+from mrm_cosim.protocol.link import GROUP_BITS, check_div, check_slots
 
 from ..helpers import rejecting
 
-__all__ = ["TxBits", "DSTransmitter", "DSReceiver", "GROUP_BITS"]
-
-#: Longest group of line bits the transmitter accepts at once (a time-code: ESC + data).
-GROUP_BITS = 14
+__all__ = ["TxBits", "DSTransmitter", "DSReceiver"]
 
 
 class TxBits(data.Struct):

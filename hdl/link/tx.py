@@ -16,11 +16,11 @@ from amaranth import *
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from mrm_cosim.protocol.link import check_div, check_slots
+from mrm_cosim.protocol.link import (CONTROL_BITS, DATA_BITS, NULL_BITS, TIME_BITS, check_div,
+                                     check_slots)
 
 from ..helpers import rejecting
-from .chars import (CONTROL_BITS, DATA_BITS, NULL_BITS, TIME_BITS, Char, CharKind, ControlChar,
-                    ControlCode, DataChar)
+from .chars import Char, CharKind, ControlChar, ControlCode, DataChar
 from .ds import DSTransmitter
 
 __all__ = ["CharTransmitter"]

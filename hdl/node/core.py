@@ -49,9 +49,10 @@ from amaranth import *
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from mrm_cosim.hdl.link.chars import ERROR_CLASSES, ErrorCounts, saturating_sum
+from mrm_cosim.hdl.link.chars import ErrorCounts, saturating_sum
 from mrm_cosim.hdl.link.crc import crc16_next
 from mrm_cosim.protocol.crc import CRC16_INIT
+from mrm_cosim.protocol.link import ERROR_CLASSES
 from mrm_cosim.hdl.link.packet import Beat, PacketType, RxStats
 
 from .encoder import QuadratureEncoder

@@ -38,8 +38,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cache
 
-from mrm_cosim.hdl.link.chars import ERROR_CLASSES, saturating_sum_ref
+from mrm_cosim.hdl.link.codec_ref import saturating_sum_ref
 from mrm_cosim.protocol.crc import CRC16_INIT, crc16
+from mrm_cosim.protocol.link import ERROR_CLASSES
 from mrm_cosim.protocol.packet import PacketType
 
 from .encoder_ref import EncoderParams
