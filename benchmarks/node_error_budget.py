@@ -21,7 +21,7 @@ import math
 import numpy as np
 import pinocchio as pin
 
-from mrm_cosim.hdl.node.fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, theta_group
+from mrm_cosim.protocol.fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, theta_group
 from mrm_cosim.hdl.node.joint_ref import JointInputs, JointModel, JointParams
 from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel, VdcParams
 from mrm_cosim.master.quintic import QuinticProfile

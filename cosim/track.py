@@ -53,7 +53,7 @@ def node_counts_range() -> tuple[int, int]:
     import math
 
     from mrm_cosim.hdl.node.encoder_ref import EncoderParams
-    from mrm_cosim.hdl.node.fixed import KC
+    from mrm_cosim.protocol.fixed import KC
 
     lo, hi = EncoderParams().counts_per_rev_range()
 

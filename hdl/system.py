@@ -22,7 +22,7 @@ from .link.chain import faulty_line, line_fault_layout
 from .link.chars import Char, ErrorCounts, LinkState, saturating_sum
 from .master_port import MasterPort
 from .node.encoder_ref import encoders_per_node
-from .node.fixed import WORD
+from mrm_cosim.protocol.fixed import WORD
 from .node.top import SlaveNode
 
 __all__ = ["System", "check_n_nodes", "MAX_NODES"]

@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from mrm_cosim.protocol.packet import BROADCAST, PacketType
-from mrm_cosim.hdl.node.fixed import FORCE, VEL
+from mrm_cosim.protocol.fixed import FORCE, VEL
 from mrm_cosim.hdl.node.regs import (
     LINK_HEALTH, Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c, upload_check,
 )

@@ -343,7 +343,7 @@ def test_the_vdc_differences_and_adapts_over_the_masters_period():
     from mrm_cosim.cosim import experiment_config as ec
     from mrm_cosim.cosim.model import ModelLoop
     from mrm_cosim.cosim.track import _trajectory, node_encoders
-    from mrm_cosim.hdl.node.fixed import INVT, RHOT
+    from mrm_cosim.protocol.fixed import INVT, RHOT
     from mrm_cosim.hdl.node.regs import Config
     from mrm_cosim.models.robot import load_robot
 

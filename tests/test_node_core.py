@@ -14,7 +14,7 @@ from mrm_cosim.protocol.packet import Header, PacketType
 from mrm_cosim.hdl.node.core import NodeCore
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.hdl.node.encoder_ref import EncoderParams
-from mrm_cosim.hdl.node.fixed import FORCE
+from mrm_cosim.protocol.fixed import FORCE
 from mrm_cosim.hdl.node.joint_ref import JointParams
 from mrm_cosim.hdl.node.regs import (
     Config, NodeEvent, Status, config_payloads, joint_upload, pack_comm_b, pack_comm_d,
@@ -258,7 +258,7 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
 
 
 def test_payload_helpers_round_trip_and_refuse_bad_uploads():
-    from mrm_cosim.hdl.node.fixed import VEL
+    from mrm_cosim.protocol.fixed import VEL
     from mrm_cosim.hdl.node.regs import Bank, param_payloads, unpack_words
     from mrm_cosim.errors import InputError
 

@@ -11,7 +11,7 @@ from mrm_cosim.hdl.node.encoder import QuadratureEncoder
 from mrm_cosim.hdl.node.encoder_ref import (
     AGE_MAX, VEL_LATENCY, EncoderModel, EncoderParams, reciprocal, velocity_word,
 )
-from mrm_cosim.hdl.node.fixed import VEL
+from mrm_cosim.protocol.fixed import VEL
 from mrm_cosim.models.encoder import counts_per_rad, quadrature_levels
 
 from .sim_helpers import run_simulation

@@ -8,8 +8,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mrm_cosim.hdl.node.engine_ref import EngineModel
-from mrm_cosim.hdl.node.isa import IO_BASE
-from mrm_cosim.hdl.node.fixed import (
+from mrm_cosim.protocol.isa import IO_BASE
+from mrm_cosim.protocol.fixed import (
     ACC, FORCE, GAIN, RHOT, THETA, VEL, WORD_MAX, WORD_MIN, theta_group,
 )
 from mrm_cosim.hdl.node.vdc import (

@@ -57,8 +57,8 @@ from mrm_cosim.hdl.link.packet import Beat, PacketType, RxStats
 
 from .encoder import QuadratureEncoder
 from .encoder_ref import EncoderParams
-from .fixed import WORD
-from .isa import IO_BASE
+from mrm_cosim.protocol.fixed import WORD
+from mrm_cosim.protocol.isa import IO_BASE
 from .joint import INPUTS as JOINT_INPUTS
 from .joint import JointUnit
 from .regs import COMM_B_WORDS, CONFIG_DEFAULTS, MODES, PAYLOAD, RX_DROPS, Bank, Config

@@ -14,8 +14,8 @@ Internal events follow the node's period timer (free-running from reset, phase 0
   Comm A reply carries (count, velocity, torque, status, encoder errors, counters), CORDIC of
   the count; an ARM received before the previous cycle takes effect here (PID integral cleared);
 * control ticks every ``TICK`` cycles from each boundary; a tick's command lands
-  ``cycles(mode)`` cycles later (:meth:`~hdl.node.isa.Microcode.cycles`), then the limits and
-  the watchdog apply;
+  ``cycles(mode)`` cycles later (:meth:`~mrm_cosim.protocol.isa.Microcode.cycles`), then the
+  limits and the watchdog apply;
 * commit point (phase ``COMMIT``): an armed node's last full Comm D becomes the joint
   engine's input (disarmed: at its last byte).
 
@@ -27,8 +27,9 @@ Observation port. With :attr:`NodeModel.events` a list, the model appends ``(cyc
 NodeEvent)`` for every strobe of the gateware's ``events`` port (:class:`~hdl.node.regs.NodeEvent`),
 not necessarily in cycle order: boundaries, resyncs, time-codes, packets taken and commits when
 they happen; the VDC's start one cycle after the Comm B (the engine is idle then: a Comm B
-follows the boundary's CORDIC), its MARK and END :meth:`~hdl.node.isa.Microcode.mark_cycles`
-and :meth:`~hdl.node.isa.Microcode.cycles` after that; a reply leaving the cycle after its
+follows the boundary's CORDIC), its MARK and END
+:meth:`~mrm_cosim.protocol.isa.Microcode.mark_cycles` and
+:meth:`~mrm_cosim.protocol.isa.Microcode.cycles` after that; a reply leaving the cycle after its
 request (Comm C: after the request and the MARK), which assumes the reply FSM is idle, i.e. the
 previous reply has left (in the A/B/C/D cycle they are tens of µs apart).
 """
@@ -44,7 +45,7 @@ from mrm_cosim.protocol.link import ERROR_CLASSES
 from mrm_cosim.protocol.packet import PacketType
 
 from .encoder_ref import EncoderParams
-from .fixed import saturate
+from mrm_cosim.protocol.fixed import saturate
 from .joint import joint_microcode
 from .joint_ref import MODES as JOINT_MODES
 from .joint_ref import JointInputs, JointModel, JointParams

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 from mrm_cosim.errors import InputError
 from mrm_cosim.units import CLOCK_HZ
 
-from .fixed import VEL, round_shift, saturate
+from mrm_cosim.protocol.fixed import VEL, round_shift, saturate
 
 __all__ = ["AGE_BITS", "AGE_MAX", "DC_MAX", "VEL_LATENCY", "RECIP_TABLE", "EncoderParams",
            "encoders_per_node",

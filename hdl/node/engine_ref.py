@@ -10,8 +10,8 @@
 
 from __future__ import annotations
 
-from .fixed import WORD, round_shift, saturate, wrap
-from .isa import IO_BASE, IO_PORTS, Microcode, Op
+from mrm_cosim.protocol.fixed import WORD, round_shift, saturate, wrap
+from mrm_cosim.protocol.isa import IO_BASE, IO_PORTS, Microcode, Op
 
 __all__ = ["EngineModel", "run_statements", "mem_depth"]
 
@@ -39,7 +39,7 @@ class EngineModel:
     mem : list of int
         Register file (:func:`mem_depth` words; addresses are taken modulo its size).
     outputs : list of int
-        Output registers, :data:`~hdl.node.isa.IO_PORTS` words.
+        Output registers, :data:`~mrm_cosim.protocol.isa.IO_PORTS` words.
     """
 
     def __init__(self, microcode: Microcode, mem=None):

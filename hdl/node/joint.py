@@ -15,8 +15,8 @@ from __future__ import annotations
 from functools import lru_cache
 
 from .engine import MacEngine
-from .fixed import ACC, ANG, CNT, FORCE, IHI, POS, SGN, TIME, TS, VEL
-from .isa import Microcode, Program, T
+from mrm_cosim.protocol.fixed import ACC, ANG, CNT, FORCE, IHI, POS, SGN, TIME, TS, VEL
+from mrm_cosim.protocol.isa import Microcode, Program, T
 from .joint_ref import MODES, JointInputs, JointModel, JointParams
 
 __all__ = ["build_joint_program", "joint_microcode", "JointUnit", "joint_input_words",

@@ -38,10 +38,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from .fixed import (ACC, ANG, CNT, CT, FORCE, GAIN, IHI, IM, IVLC, IVS, KC, KI, KP, LAM, LAMC,
-                    POS, SGN, TIME, TS, VEL, VISC, saturate)
-from .vdc_ref import fx
+from mrm_cosim.protocol.fixed import (ACC, ANG, CNT, CT, FORCE, GAIN, IHI, IM, IVLC, IVS, KC, KI,
+                                      KP, LAM, LAMC, POS, SGN, TIME, TS, VEL, VISC, saturate)
 from mrm_cosim.units import CLOCK_HZ
+
+from .vdc_ref import fx
 
 __all__ = ["MODES", "JointParams", "JointInputs", "JointModel"]
 

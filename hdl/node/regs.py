@@ -40,10 +40,11 @@ import math
 
 import numpy as np
 
-from mrm_cosim.protocol.crc import CRC16_INIT, crc16
 from mrm_cosim.errors import InputError
+from mrm_cosim.protocol.crc import CRC16_INIT, crc16
+from mrm_cosim.protocol.fixed import (ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, WORD, saturate,
+                                      theta_group)
 
-from .fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, WORD, saturate, theta_group
 from .joint_ref import JointParams
 from .vdc_ref import VdcModel, VdcParams
 

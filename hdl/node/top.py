@@ -20,7 +20,7 @@ from mrm_cosim.hdl.helpers import rejecting
 
 from .core import NodeCore
 from .encoder_ref import EncoderParams
-from .fixed import WORD
+from mrm_cosim.protocol.fixed import WORD
 
 __all__ = ["SlaveNode", "slave_node_top", "node_core_top"]
 

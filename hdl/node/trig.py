@@ -12,7 +12,7 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from .fixed import WORD
+from mrm_cosim.protocol.fixed import WORD
 from .trig_ref import ATAN, GUARD, ITERATIONS, WIDTH, X0, ZGUARD, bam_constant
 
 __all__ = ["SinCos", "LATENCY"]

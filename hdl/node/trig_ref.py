@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 
-from .fixed import TRIG, round_shift, wrap
+from mrm_cosim.protocol.fixed import TRIG, round_shift, wrap
 
 __all__ = ["ITERATIONS", "GUARD", "ZGUARD", "WIDTH", "ATAN", "X0", "bam_constant",
            "binary_angle", "cordic", "sin_cos"]

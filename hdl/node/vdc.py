@@ -19,9 +19,11 @@ from __future__ import annotations
 
 from functools import lru_cache
 
+from mrm_cosim.protocol.fixed import (ACC, FORCE, GAIN, INVT, RHOT, SIG, THETA, TRIG, VEL,
+                                      theta_group)
+from mrm_cosim.protocol.isa import Microcode, Program, T
+
 from .engine import MacEngine
-from .fixed import ACC, FORCE, GAIN, INVT, RHOT, SIG, THETA, TRIG, VEL, theta_group
-from .isa import Microcode, Program, T
 from .vdc_ref import VdcInputs, VdcModel, link_terms
 
 __all__ = ["build_vdc_program", "vdc_microcode", "VdcUnit", "vdc_input_words",

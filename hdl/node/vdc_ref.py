@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .fixed import ACC, FORCE, GAIN, INVT, RHOT, SIG, THETA, TRIG, VEL, round_shift, \
-    saturate, theta_group
+from mrm_cosim.protocol.fixed import (ACC, FORCE, GAIN, INVT, RHOT, SIG, THETA, TRIG, VEL,
+                                      round_shift, saturate, theta_group)
 
 __all__ = ["Y_TABLE", "fx", "VdcParams", "VdcInputs", "VdcModel", "link_terms"]
 

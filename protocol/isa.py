@@ -1,7 +1,8 @@
 """Instruction set, program builder and scheduler of the node's multiply-accumulate engine.
 
-The engine (:mod:`.engine`) issues one instruction per cycle from a ROM. A program is written as
-*statements* over named registers, each with a fixed-point format (:mod:`.fixed`)::
+The engine (:mod:`mrm_cosim.hdl.node.engine`) issues one instruction per cycle from a ROM. A
+program is written as *statements* over named registers, each with a fixed-point format
+(:mod:`.fixed`)::
 
     dst = sat24( round( Σ ± a_k · b_k ) )        (MAC; "a_k" alone means a_k · 1)
     dst = min(a, b) / max(a, b)                   (MIN / MAX, same format)
@@ -20,7 +21,7 @@ shift stays small.
 The scheduler orders statements (respecting read-after-write with the pipeline's
 :data:`LATENCY`, and keeping write-after-read and write-after-write pairs in program order) and
 fills the gaps with NOPs, so the pipelined engine computes exactly what executing the
-statements one after the other computes (:mod:`.engine_ref` checks both).
+statements one after the other computes (:mod:`mrm_cosim.hdl.node.engine_ref` checks both).
 
 Addresses are :data:`ADDR_BITS` wide: the register file below :data:`IO_BASE`, the engine's
 input ports (read) and output registers (write) at ``IO_BASE + k``.
