@@ -73,7 +73,7 @@ class System(wiring.Component):
         :class:`~hdl.link.chain.Chain`'s; all zero: good wires. A co-simulation testbench
         capability (``cosim``), not part of the robot's gateware.
     events1 … eventsN : Out(16)
-        The nodes' observation ports (:class:`~hdl.node.regs.NodeEvent` strobes).
+        The nodes' observation ports (:class:`~mrm_cosim.protocol.regs.NodeEvent` strobes).
     """
 
     def __init__(self, n_nodes: int, *, codec: dict | None = None, encoder=None,

@@ -176,7 +176,7 @@ def test_cli_names_the_field_exits_2_and_writes_nothing(tmp_path, capsys):
 
 def test_friction_comp_uploads_the_nominal_friction_as_vdc_joint_estimates():
     from mrm_cosim.cosim.closed_loop import Gains, JointParams, node_uploads
-    from mrm_cosim.hdl.node.regs import joint_upload
+    from mrm_cosim.protocol.regs import joint_upload
     from mrm_cosim.models.actuators import ACTUATORS
     from mrm_cosim.models.robot import load_robot
 

@@ -22,7 +22,7 @@ from mrm_cosim.protocol.link import ERROR_CLASSES
 from mrm_cosim.protocol.packet import Header, PacketType
 from mrm_cosim.hdl.node.core import NodeCore
 from mrm_cosim.hdl.node.core_ref import NodeModel
-from mrm_cosim.hdl.node.regs import LINK_HEALTH, RX_DROPS, parse_comm_a
+from mrm_cosim.protocol.regs import LINK_HEALTH, RX_DROPS, parse_comm_a
 from mrm_cosim.errors import InputError
 
 from .sim_helpers import packet_ends, run_simulation

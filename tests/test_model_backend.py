@@ -351,7 +351,7 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
     from mrm_cosim.cosim.closed_loop import Gains, node_uploads, pid_gains
     from mrm_cosim.protocol import packet as proto
     from mrm_cosim.hdl.node.joint_ref import JointParams
-    from mrm_cosim.hdl.node.regs import Config, config_payloads, joint_upload
+    from mrm_cosim.protocol.regs import Config, config_payloads, joint_upload
     from mrm_cosim.models.actuators import ACTUATORS
     from mrm_cosim.models.robot import load_robot
 

@@ -14,7 +14,7 @@ from mrm_cosim.hdl.link.chars import Char
 from mrm_cosim.hdl.link.codec import Codec
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.hdl.node.encoder_ref import EncoderParams
-from mrm_cosim.hdl.node.regs import (
+from mrm_cosim.protocol.regs import (
     Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c, vdc_upload,
 )
 from mrm_cosim.hdl.node.top import SlaveNode

@@ -12,7 +12,7 @@ from mrm_cosim.protocol.isa import IO_BASE
 from mrm_cosim.protocol.fixed import (
     ACC, FORCE, GAIN, RHOT, THETA, VEL, WORD_MAX, WORD_MIN, theta_group,
 )
-from mrm_cosim.hdl.node.vdc import (
+from mrm_cosim.protocol.vdc_program import (
     VdcUnit, vdc_input_words, vdc_microcode, vdc_param_words, vdc_state_words,
 )
 from mrm_cosim.hdl.node.vdc_ref import Y_TABLE, VdcInputs, VdcModel, VdcParams

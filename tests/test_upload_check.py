@@ -9,7 +9,7 @@ from mrm_cosim.cosim.closed_loop import Gains, node_uploads
 from mrm_cosim.protocol.crc import crc16
 from mrm_cosim.protocol.packet import BROADCAST, PacketType
 from mrm_cosim.hdl.node.core_ref import NodeModel
-from mrm_cosim.hdl.node.regs import Config, config_payloads, parse_comm_a
+from mrm_cosim.protocol.regs import Config, config_payloads, parse_comm_a
 from mrm_cosim.master.cycle import Master, MasterTiming
 from mrm_cosim.models.robot import load_robot
 

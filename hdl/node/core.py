@@ -59,12 +59,13 @@ from .encoder import QuadratureEncoder
 from .encoder_ref import EncoderParams
 from mrm_cosim.protocol.fixed import WORD
 from mrm_cosim.protocol.isa import IO_BASE
-from .joint import INPUTS as JOINT_INPUTS
-from .joint import JointUnit
-from .regs import COMM_B_WORDS, CONFIG_DEFAULTS, MODES, PAYLOAD, RX_DROPS, Bank, Config
-from .regs import NodeEvent as Ev
+from mrm_cosim.protocol.joint_program import INPUTS as JOINT_INPUTS
+from mrm_cosim.protocol.joint_program import JointUnit
+from mrm_cosim.protocol.regs import (COMM_B_WORDS, CONFIG_DEFAULTS, MODES, PAYLOAD, RX_DROPS,
+                                     Bank, Config)
+from mrm_cosim.protocol.regs import NodeEvent as Ev
 from .trig import SinCos
-from .vdc import VdcUnit
+from mrm_cosim.protocol.vdc_program import VdcUnit
 from .watchdog import Watchdog
 
 __all__ = ["NodeCore"]
@@ -95,7 +96,7 @@ class NodeCore(wiring.Component):
     torque : Out(signed(24))
         Torque command (FORCE word: N·m · 2^13).
     status : Out(16)
-        :class:`~hdl.node.regs.Status` bits.
+        :class:`~mrm_cosim.protocol.regs.Status` bits.
     count : Out(signed(32))
         Live encoder count.
     velocity : Out(signed(24))
@@ -107,7 +108,7 @@ class NodeCore(wiring.Component):
     dropped : In(16)
         The router's discarded packets.
     events : Out(16)
-        Observation port: one-cycle :class:`~hdl.node.regs.NodeEvent` strobes (boundary,
+        Observation port: one-cycle :class:`~mrm_cosim.protocol.regs.NodeEvent` strobes (boundary,
         packets taken, VDC start / MARK / end, replies leaving, Comm D commit). Test points
         only: combinational copies of existing signals, nothing in the node reads them.
     """

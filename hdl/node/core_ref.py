@@ -23,11 +23,11 @@ External events: :meth:`timecode` at the strobe's cycle, :meth:`packet` at the c
 byte is taken. Within one cycle, internal events come first (they see the registers as they were
 before the cycle, as the packet does).
 
-Observation port. With :attr:`NodeModel.events` a list, the model appends ``(cycle,
-NodeEvent)`` for every strobe of the gateware's ``events`` port (:class:`~hdl.node.regs.NodeEvent`),
-not necessarily in cycle order: boundaries, resyncs, time-codes, packets taken and commits when
-they happen; the VDC's start one cycle after the Comm B (the engine is idle then: a Comm B
-follows the boundary's CORDIC), its MARK and END
+Observation port. With :attr:`NodeModel.events` a list, the model appends ``(cycle, NodeEvent)``
+for every strobe of the gateware's ``events`` port
+(:class:`~mrm_cosim.protocol.regs.NodeEvent`), not necessarily in cycle order: boundaries,
+resyncs, time-codes, packets taken and commits when they happen; the VDC's start one cycle after
+the Comm B (the engine is idle then: a Comm B follows the boundary's CORDIC), its MARK and END
 :meth:`~mrm_cosim.protocol.isa.Microcode.mark_cycles` and
 :meth:`~mrm_cosim.protocol.isa.Microcode.cycles` after that; a reply leaving the cycle after its
 request (Comm C: after the request and the MARK), which assumes the reply FSM is idle, i.e. the
@@ -46,14 +46,14 @@ from mrm_cosim.protocol.packet import PacketType
 
 from .encoder_ref import EncoderParams
 from mrm_cosim.protocol.fixed import saturate
-from .joint import joint_microcode
+from mrm_cosim.protocol.joint_program import joint_microcode
 from .joint_ref import MODES as JOINT_MODES
 from .joint_ref import JointInputs, JointModel, JointParams
-from .regs import (COMM_B_WORDS, COMM_D_WORDS, CONFIG_DEFAULTS, PAYLOAD, RX_DROPS, Bank, Config,
-                   Status, pack_words, unpack_words)
-from .regs import NodeEvent as Ev
+from mrm_cosim.protocol.regs import (COMM_B_WORDS, COMM_D_WORDS, CONFIG_DEFAULTS, PAYLOAD,
+                                     RX_DROPS, Bank, Config, Status, pack_words, unpack_words)
+from mrm_cosim.protocol.regs import NodeEvent as Ev
 from .trig_ref import sin_cos
-from .vdc import vdc_microcode
+from mrm_cosim.protocol.vdc_program import vdc_microcode
 from .vdc_ref import VdcInputs, VdcModel, VdcParams
 
 __all__ = ["NodeModel"]

@@ -45,11 +45,11 @@ class SlaveNode(wiring.Component):
     torque : Out(signed(24))
         Torque command, FORCE word (N·m · 2^13).
     status : Out(16)
-        :class:`~hdl.node.regs.Status` bits.
+        :class:`~mrm_cosim.protocol.regs.Status` bits.
     count : Out(signed(32))
         Live encoder count.
     events : Out(16)
-        The core's observation port (:class:`~hdl.node.regs.NodeEvent` strobes).
+        The core's observation port (:class:`~mrm_cosim.protocol.regs.NodeEvent` strobes).
     """
 
     def __init__(self, *, codec: dict | None = None, encoder: EncoderParams | None = None):

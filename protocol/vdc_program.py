@@ -23,8 +23,8 @@ from mrm_cosim.protocol.fixed import (ACC, FORCE, GAIN, INVT, RHOT, SIG, THETA, 
                                       theta_group)
 from mrm_cosim.protocol.isa import Microcode, Program, T
 
-from .engine import MacEngine
-from .vdc_ref import VdcInputs, VdcModel, link_terms
+from mrm_cosim.hdl.node.engine import MacEngine
+from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel, link_terms
 
 __all__ = ["build_vdc_program", "vdc_microcode", "VdcUnit", "vdc_input_words",
            "vdc_param_words", "vdc_state_words", "LINKS"]

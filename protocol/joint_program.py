@@ -14,10 +14,10 @@ from __future__ import annotations
 
 from functools import lru_cache
 
-from .engine import MacEngine
+from mrm_cosim.hdl.node.engine import MacEngine
 from mrm_cosim.protocol.fixed import ACC, ANG, CNT, FORCE, IHI, POS, SGN, TIME, TS, VEL
 from mrm_cosim.protocol.isa import Microcode, Program, T
-from .joint_ref import MODES, JointInputs, JointModel, JointParams
+from mrm_cosim.hdl.node.joint_ref import MODES, JointInputs, JointModel, JointParams
 
 __all__ = ["build_joint_program", "joint_microcode", "JointUnit", "joint_input_words",
            "joint_param_words", "joint_state_words", "INPUTS"]

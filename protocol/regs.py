@@ -45,8 +45,8 @@ from mrm_cosim.protocol.crc import CRC16_INIT, crc16
 from mrm_cosim.protocol.fixed import (ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, WORD, saturate,
                                       theta_group)
 
-from .joint_ref import JointParams
-from .vdc_ref import VdcModel, VdcParams
+from mrm_cosim.hdl.node.joint_ref import JointParams
+from mrm_cosim.hdl.node.vdc_ref import VdcModel, VdcParams
 
 __all__ = ["PAYLOAD", "COMM_B_WORDS", "COMM_D_WORDS", "Config", "Bank", "Status", "MODES",
            "pack_words", "unpack_words", "pack_comm_b", "pack_comm_d", "parse_comm_a",
@@ -250,7 +250,7 @@ def vdc_upload(theta, K, rho, lower, upper, period: float = 1e-3) -> list[bytes]
         Adaptation gains (zero: no adaptation).
     period : float, s
     """
-    from .vdc import vdc_microcode, vdc_param_words
+    from .vdc_program import vdc_microcode, vdc_param_words
 
     theta = np.asarray(theta, dtype=float).reshape(2, 13)
     lower = np.asarray(lower, dtype=float).reshape(2, 13)
@@ -280,7 +280,7 @@ def vdc_upload(theta, K, rho, lower, upper, period: float = 1e-3) -> list[bytes]
 
 def joint_upload(params: JointParams) -> list[bytes]:
     """PARAM payloads for the joint engine."""
-    from .joint import joint_microcode
+    from .joint_program import joint_microcode
 
     mc = joint_microcode()
     return param_payloads(Bank.JOINT, {mc.addr(n): v for n, v in params.words().items()})
