@@ -22,8 +22,10 @@ import numpy as np
 import pinocchio as pin
 
 from mrm_cosim.protocol.fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, theta_group
-from mrm_cosim.hdl.node.joint_ref import JointInputs, JointModel, JointParams
-from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel, VdcParams
+from mrm_cosim.hdl.node.joint_ref import JointInputs, JointModel
+from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel
+from mrm_cosim.protocol.joint_program import JointParams
+from mrm_cosim.protocol.vdc_program import VdcParams, theta_words
 from mrm_cosim.master.quintic import QuinticProfile
 from mrm_cosim.master.vdc_float import (
     ModuleGains, ModuleVDC, link_a_acceleration, link_a_velocity, required_net_force, rz,
@@ -76,7 +78,7 @@ def make_model(theta, rho_scale):
     rho = rho_scale * np.array([50.0] + [2.0] * 3 + [0.05] * 9)[None, :].repeat(2, 0)
     lo = np.minimum(theta * 0.7, theta * 1.3) - 1e-4
     hi = np.maximum(theta * 0.7, theta * 1.3) + 1e-4
-    return VdcModel(VdcParams.from_float(K, rho, lo, hi, 1e-3), VdcModel.theta_words(theta))
+    return VdcModel(VdcParams.from_float(K, rho, lo, hi, 1e-3), theta_words(theta))
 
 
 def float_twin(model):

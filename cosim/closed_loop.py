@@ -28,7 +28,7 @@ import numpy as np
 from mrm_cosim.protocol import packet as ref
 from mrm_cosim.hdl.link.chain import char_int, char_value, line_fault_layout
 from mrm_cosim.protocol.fixed import FORCE
-from mrm_cosim.hdl.node.joint_ref import JointParams
+from mrm_cosim.protocol.joint_program import JointParams
 from mrm_cosim.protocol.regs import (
     MODES, Config, NodeEvent, config_payloads, joint_upload, vdc_upload,
 )

@@ -71,10 +71,11 @@ from mrm_cosim.protocol.fixed import (
     ACC, FORCE, GAIN, INVT, RHOT, SIG, THETA, TRIG, VEL, WORD_MAX, WORD_MIN, theta_group,
 )
 from mrm_cosim.protocol.joint_program import joint_microcode
-from mrm_cosim.hdl.node.joint_ref import MODES as JOINT_MODES
+from mrm_cosim.protocol.joint_program import MODES as JOINT_MODES
 from mrm_cosim.hdl.node.joint_ref import JointModel
 from mrm_cosim.protocol.regs import Config
-from mrm_cosim.hdl.node.vdc_ref import Y_TABLE, VdcModel, link_terms
+from mrm_cosim.protocol.vdc_program import Y_TABLE, link_terms
+from mrm_cosim.hdl.node.vdc_ref import VdcModel
 from mrm_cosim.master.cycle import Master, Send
 from mrm_cosim.models.plant import Plant
 from mrm_cosim.models.robot import Robot

@@ -36,7 +36,7 @@ from .fixed import WORD_MAX, WORD_MIN, Fmt
 
 __all__ = ["LATENCY", "ADDR_BITS", "IO_BASE", "IO_PORTS", "PSHIFT_MAX", "OSHIFT_MAX",
            "MAX_TERMS", "UNIT_SHIFTS", "ACC_WIDTH", "Op", "Instr", "INSTR_FIELDS", "INSTR_BITS",
-           "encode", "decode", "Term", "T", "Reg", "Program", "Microcode"]
+           "encode", "decode", "mem_depth", "Term", "T", "Reg", "Program", "Microcode"]
 
 LATENCY = 7        # issue of a statement's last term → first issue that may read its result
 ADDR_BITS = 9
@@ -103,6 +103,12 @@ def decode(word: int) -> Instr:
     for flag in ("neg", "first", "last", "wrap"):
         values[flag] = bool(values[flag])
     return Instr(**values)
+
+
+def mem_depth(depth: int) -> int:
+    """Register-file size the gateware builds for ``depth`` words: the next power of two
+    (addresses are taken modulo it)."""
+    return 1 << max(0, (depth - 1).bit_length())
 
 
 @dataclass(frozen=True)

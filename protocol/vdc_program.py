@@ -1,7 +1,10 @@
-"""The VDC unit: Link a / Link b required net forces and adaptation as an engine program.
+"""The VDC unit's program and uploads: Link a / Link b required net forces and adaptation.
 
-Same computation as :class:`~hdl.node.vdc_ref.VdcModel`, statement for statement (see that
-module for the equations and rounding points). Entry points:
+What the node's VDC unit computes, as an engine program (:mod:`.isa`) that the gateware runs
+(:class:`~mrm_cosim.hdl.node.vdc.VdcUnit`) and whose register map the master's uploads address
+(:func:`~.regs.vdc_upload`). Same computation as the bit-exact reference
+:class:`~mrm_cosim.hdl.node.vdc_ref.VdcModel`, statement for statement (see that module for the
+equations and rounding points). Entry points:
 
 * ``"first"`` — prime the derivative history with this period's ``V_rC`` and ``q̇_r`` (so
   ``dV_rC/dt`` and ``q̈_r`` are zero), then fall through into ``"main"``;
@@ -12,24 +15,122 @@ module for the equations and rounding points). Entry points:
 Register names (host side): Comm B ``qdr, VC0..5, VrC0..5``; snapshot ``qd, cq, sq``; gravity
 ``gC0..2``; results ``FA0..5, FB0..5`` (output registers 0..11, read for Comm C); estimates
 ``thA0..12, thB0..12``; uploads ``KA0..5, KB0..5, rA0..12, rB0..12, loA0..12, hiA0..12,
-loB0..12, hiB0..12, invT``.
+loB0..12, hiB0..12, invT`` (:class:`VdcParams`).
+
+The regressor ``Y(ω, V_r, dV_r/dt, g)`` is used through :data:`Y_TABLE`: each non-zero entry
+is an exact sum of ± words ``a_i`` (``a = dv_r + ω × v_r + g``), ``P_ij = ω_i ω_r,j`` and
+``dw_i`` (the required angular acceleration). Entries are never rounded on their own: the
+engine multiplies each summand by ``θ̂_j`` (or by the velocity error) directly.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import lru_cache
 
-from mrm_cosim.protocol.fixed import (ACC, FORCE, GAIN, INVT, RHOT, SIG, THETA, TRIG, VEL,
-                                      theta_group)
-from mrm_cosim.protocol.isa import Microcode, Program, T
+import numpy as np
 
-from mrm_cosim.hdl.node.engine import MacEngine
-from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel, link_terms
+from .fixed import ACC, FORCE, GAIN, INVT, RHOT, SIG, THETA, TRIG, VEL, theta_group
+from .isa import Microcode, Program, T
 
-__all__ = ["build_vdc_program", "vdc_microcode", "VdcUnit", "vdc_input_words",
-           "vdc_param_words", "vdc_state_words", "LINKS"]
+__all__ = ["N_PARAMS", "LINKS", "Y_TABLE", "link_terms", "VdcParams", "theta_words",
+           "build_vdc_program", "vdc_microcode", "vdc_param_words"]
 
+#: Inertial parameters per link (MRM Table 1 order): mass, first moments, second moments.
+N_PARAMS = 13
+#: Register-name letter of each link: ``A`` Link a (in {A}), ``B`` Link b (in {C}).
 LINKS = ("A", "B")
+
+
+def _e(spec: str) -> list[tuple[int, str, int]]:
+    """Parse ``"-dw2 +P10"`` into [(sign, kind, index)], index of P as 10*i + j."""
+    out = []
+    for tok in spec.split():
+        sign = -1 if tok[0] == "-" else 1
+        body = tok.lstrip("+-")
+        kind = "P" if body[0] == "P" else "dw" if body.startswith("dw") else "a"
+        out.append((sign, kind, int(body[len(kind):])))
+    return out
+
+
+# Y[(row, col)] for rows f0 f1 f2 n0 n1 n2 and the 13 parameters (MRM Table 1 order); derived
+# from the closed form in DESIGN.md "VDC in equations" (docs/node.md), tested against
+# models.spatial.regressor.
+Y_TABLE: dict[tuple[int, int], list[tuple[int, str, int]]] = {
+    (0, 0): _e("+a0"), (1, 0): _e("+a1"), (2, 0): _e("+a2"),
+    (0, 1): _e("-P11 -P22"), (0, 2): _e("-dw2 +P10"), (0, 3): _e("+dw1 +P20"),
+    (1, 1): _e("+dw2 +P01"), (1, 2): _e("-P00 -P22"), (1, 3): _e("-dw0 +P21"),
+    (2, 1): _e("-dw1 +P02"), (2, 2): _e("+dw0 +P12"), (2, 3): _e("-P00 -P11"),
+    (3, 2): _e("+a2"), (3, 3): _e("-a1"),
+    (4, 1): _e("-a2"), (4, 3): _e("+a0"),
+    (5, 1): _e("+a1"), (5, 2): _e("-a0"),
+    (4, 4): _e("+dw1 -P02"), (5, 4): _e("+dw2 +P01"),
+    (3, 5): _e("+dw0 +P12"), (5, 5): _e("+dw2 -P10"),
+    (3, 6): _e("+dw0 -P21"), (4, 6): _e("+dw1 +P20"),
+    (3, 7): _e("-dw1 +P02"), (4, 7): _e("-dw0 -P12"), (5, 7): _e("+P11 -P00"),
+    (3, 8): _e("-dw2 -P01"), (4, 8): _e("+P00 -P22"), (5, 8): _e("-dw0 +P21"),
+    (3, 9): _e("+P22 -P11"), (4, 9): _e("-dw2 +P10"), (5, 9): _e("-dw1 -P20"),
+    (3, 10): _e("+dw0 +P12 -P21"), (4, 10): _e("+P20"), (5, 10): _e("-P10"),
+    (3, 11): _e("-P21"), (4, 11): _e("+dw1 +P20 -P02"), (5, 11): _e("+P01"),
+    (3, 12): _e("+P12"), (4, 12): _e("-P02"), (5, 12): _e("+dw2 +P01 -P10"),
+}
+
+
+_ROWS = {r: [(rc, s) for rc, s in sorted(Y_TABLE.items()) if rc[0] == r] for r in range(6)}
+_COLS = {c: [(rc, s) for rc, s in sorted(Y_TABLE.items()) if rc[1] == c] for c in range(13)}
+
+
+def link_terms(row: int | None = None, col: int | None = None):
+    """Non-zero entries of :data:`Y_TABLE` in a row or a column, as ``((row, col), summands)``."""
+    if row is not None and col is None:
+        return _ROWS[row]
+    if col is not None and row is None:
+        return _COLS[col]
+    return [(rc, s) for rc, s in sorted(Y_TABLE.items())
+            if (row is None or rc[0] == row) and (col is None or rc[1] == col)]
+
+
+@dataclass
+class VdcParams:
+    """Uploaded words of the VDC unit; index 0 Link a, 1 Link b.
+
+    Attributes
+    ----------
+    K : list of 2 lists of 6 int, GAIN
+    rho_T : list of 2 lists of 13 int, RHOT of each parameter's group
+    lower, upper : list of 2 lists of 13 int, THETA of each parameter's group
+    inv_T : int, INVT (1/period of the backward difference)
+    """
+
+    K: list
+    rho_T: list
+    lower: list
+    upper: list
+    inv_T: int
+
+    @classmethod
+    def from_float(cls, K, rho, lower, upper, period: float) -> VdcParams:
+        """Words from float gains (shapes (2, 6), (2, 13), (2, 13), (2, 13)) and period (s)."""
+        K = np.asarray(K, dtype=float).reshape(2, 6)
+        rho = np.asarray(rho, dtype=float).reshape(2, N_PARAMS)
+        lo = np.asarray(lower, dtype=float).reshape(2, N_PARAMS)
+        hi = np.asarray(upper, dtype=float).reshape(2, N_PARAMS)
+        return cls(
+            K=[[GAIN.encode(x) for x in K[i]] for i in range(2)],
+            rho_T=[[RHOT[theta_group(j)].encode(rho[i, j] * period) for j in range(N_PARAMS)]
+                   for i in range(2)],
+            lower=[[THETA[theta_group(j)].encode(lo[i, j]) for j in range(N_PARAMS)]
+                   for i in range(2)],
+            upper=[[THETA[theta_group(j)].encode(hi[i, j]) for j in range(N_PARAMS)]
+                   for i in range(2)],
+            inv_T=INVT.encode(1.0 / period),
+        )
+
+
+def theta_words(theta) -> list:
+    """THETA words of float estimates, shape (2, 13): Link a, then Link b."""
+    t = np.asarray(theta, dtype=float).reshape(2, N_PARAMS)
+    return [[THETA[theta_group(j)].encode(t[i, j]) for j in range(N_PARAMS)] for i in range(2)]
 
 
 def build_vdc_program() -> Program:
@@ -163,27 +264,8 @@ def vdc_microcode() -> Microcode:
     return build_vdc_program().compile()
 
 
-class VdcUnit(MacEngine):
-    """The engine loaded with the VDC program (:func:`vdc_microcode`)."""
-
-    def __init__(self):
-        super().__init__(vdc_microcode())
-
-
-def vdc_input_words(x: VdcInputs) -> dict[str, int]:
-    """Register words of one run's inputs, by name."""
-    out = {"qdr": x.qd_r, "qd": x.qd, "cq": x.cos_q, "sq": x.sin_q}
-    for k in range(6):
-        out[f"VC{k}"] = x.V_C[k]
-        out[f"VrC{k}"] = x.V_rC[k]
-    for k in range(3):
-        out[f"gC{k}"] = x.g_C[k]
-    return out
-
-
-def vdc_param_words(model: VdcModel) -> dict[str, int]:
+def vdc_param_words(prm: VdcParams) -> dict[str, int]:
     """Register words of the uploads (gains, adaptation, bounds, 1/T), by name."""
-    prm = model.params
     out = {"invT": prm.inv_T}
     for i, L in enumerate(LINKS):
         for k in range(6):
@@ -192,16 +274,4 @@ def vdc_param_words(model: VdcModel) -> dict[str, int]:
             out[f"r{L}{j}"] = prm.rho_T[i][j]
             out[f"lo{L}{j}"] = prm.lower[i][j]
             out[f"hi{L}{j}"] = prm.upper[i][j]
-    return out
-
-
-def vdc_state_words(model: VdcModel) -> dict[str, int]:
-    """Register words of the state (estimates, derivative history), by name."""
-    out = {}
-    for i, L in enumerate(LINKS):
-        for j in range(13):
-            out[f"th{L}{j}"] = model.theta[i][j]
-    for k in range(6):
-        out[f"pC{k}"] = model.prev_C[k]
-    out["pqdr"] = model.prev_qd_r
     return out

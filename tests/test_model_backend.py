@@ -119,7 +119,8 @@ def test_fast_joint_tick_equals_the_reference():
     from dataclasses import fields
 
     from mrm_cosim.cosim.model import fast_joint_tick
-    from mrm_cosim.hdl.node.joint_ref import MODES, JointInputs, JointModel, JointParams
+    from mrm_cosim.hdl.node.joint_ref import JointInputs, JointModel
+    from mrm_cosim.protocol.joint_program import MODES, JointParams
 
     rng = np.random.default_rng(7)
     lo, hi = -(1 << 23), (1 << 23) - 1
@@ -350,7 +351,7 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
     only where observed) is still the eager one."""
     from mrm_cosim.cosim.closed_loop import Gains, node_uploads, pid_gains
     from mrm_cosim.protocol import packet as proto
-    from mrm_cosim.hdl.node.joint_ref import JointParams
+    from mrm_cosim.protocol.joint_program import JointParams
     from mrm_cosim.protocol.regs import Config, config_payloads, joint_upload
     from mrm_cosim.models.actuators import ACTUATORS
     from mrm_cosim.models.robot import load_robot
@@ -513,7 +514,8 @@ def test_fast_vdc_equals_the_reference():
     extremes included so that every saturation and clip acts, ten periods in a row (the
     estimates and the previous required velocities carry)."""
     from mrm_cosim.cosim.model import FastVdc
-    from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel, VdcParams
+    from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel
+    from mrm_cosim.protocol.vdc_program import VdcParams
 
     rng = np.random.default_rng(21)
     lo, hi = -(1 << 23), (1 << 23) - 1

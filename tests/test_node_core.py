@@ -15,7 +15,7 @@ from mrm_cosim.hdl.node.core import NodeCore
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.hdl.node.encoder_ref import EncoderParams
 from mrm_cosim.protocol.fixed import FORCE
-from mrm_cosim.hdl.node.joint_ref import JointParams
+from mrm_cosim.protocol.joint_program import JointParams
 from mrm_cosim.protocol.regs import (
     Config, NodeEvent, Status, config_payloads, joint_upload, pack_comm_b, pack_comm_d,
     parse_comm_a, parse_comm_c, vdc_upload,

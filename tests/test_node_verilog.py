@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from mrm_cosim.protocol.joint_program import JointUnit
+from mrm_cosim.hdl.node.joint import JointUnit
 from mrm_cosim.hdl.synth import count_cells, find_yosys, synth_component
 from mrm_cosim.mrm.commands import hdl as hdl_command
 from mrm_cosim.errors import InputError

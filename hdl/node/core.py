@@ -51,21 +51,21 @@ from amaranth.lib.wiring import In, Out
 
 from mrm_cosim.hdl.link.chars import ErrorCounts, saturating_sum
 from mrm_cosim.hdl.link.crc import crc16_next
-from mrm_cosim.protocol.crc import CRC16_INIT
-from mrm_cosim.protocol.link import ERROR_CLASSES
 from mrm_cosim.hdl.link.packet import Beat, PacketType, RxStats
-
-from .encoder import QuadratureEncoder
-from .encoder_ref import EncoderParams
+from mrm_cosim.protocol.crc import CRC16_INIT
 from mrm_cosim.protocol.fixed import WORD
 from mrm_cosim.protocol.isa import IO_BASE
 from mrm_cosim.protocol.joint_program import INPUTS as JOINT_INPUTS
-from mrm_cosim.protocol.joint_program import JointUnit
+from mrm_cosim.protocol.link import ERROR_CLASSES
 from mrm_cosim.protocol.regs import (COMM_B_WORDS, CONFIG_DEFAULTS, MODES, PAYLOAD, RX_DROPS,
                                      Bank, Config)
 from mrm_cosim.protocol.regs import NodeEvent as Ev
+
+from .encoder import QuadratureEncoder
+from .encoder_ref import EncoderParams
+from .joint import JointUnit
 from .trig import SinCos
-from mrm_cosim.protocol.vdc_program import VdcUnit
+from .vdc import VdcUnit
 from .watchdog import Watchdog
 
 __all__ = ["NodeCore"]

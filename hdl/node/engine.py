@@ -30,9 +30,7 @@ from amaranth.utils import ceil_log2
 
 from mrm_cosim.protocol.fixed import WORD, WORD_MAX, WORD_MIN
 from mrm_cosim.protocol.isa import (ACC_WIDTH, ADDR_BITS, INSTR_BITS, INSTR_FIELDS, IO_BASE,
-                                    Microcode, Op)
-
-from .engine_ref import mem_depth
+                                    Microcode, Op, mem_depth)
 
 __all__ = ["MacEngine", "InstrLayout"]
 
