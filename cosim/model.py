@@ -64,9 +64,8 @@ import numpy as np
 
 from mrm_cosim.protocol import packet as ref
 from mrm_cosim.hdl.node.core_ref import _NEVER, _TIME_MAX, NodeModel
-from mrm_cosim.hdl.node.encoder_ref import (
-    AGE_MAX, DC_MAX, VEL_LATENCY, EncoderParams, encoders_per_node, velocity_word,
-)
+from mrm_cosim.hdl.node.encoder_ref import VEL_LATENCY, velocity_word
+from mrm_cosim.protocol.encoder import AGE_MAX, DC_MAX, EncoderParams, encoders_per_node
 from mrm_cosim.protocol.fixed import (
     ACC, FORCE, GAIN, INVT, RHOT, SIG, THETA, TRIG, VEL, WORD_MAX, WORD_MIN, theta_group,
 )

@@ -16,13 +16,13 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.encoder import encoders_per_node
+from mrm_cosim.protocol.fixed import WORD
 from mrm_cosim.protocol.link import ERROR_CLASSES
 
 from .link.chain import faulty_line, line_fault_layout
 from .link.chars import Char, ErrorCounts, LinkState, saturating_sum
 from .master_port import MasterPort
-from .node.encoder_ref import encoders_per_node
-from mrm_cosim.protocol.fixed import WORD
 from .node.top import SlaveNode
 
 __all__ = ["System", "check_n_nodes", "MAX_NODES"]

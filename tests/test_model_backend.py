@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from mrm_cosim.cosim.model import EncoderEvents, ModelAssumptionError
-from mrm_cosim.hdl.node.encoder_ref import EncoderModel, EncoderParams
+from mrm_cosim.hdl.node.encoder_ref import EncoderModel
+from mrm_cosim.protocol.encoder import EncoderParams
 from mrm_cosim.models.encoder import quadrature_levels
 
 
@@ -435,7 +436,7 @@ def test_deferred_strobes_equal_strobing_every_tick(seed, params):
     into the next sample) against strobing at every tick: the same counts at every deferred
     tick and the same (count, velocity, errors) at every sample, through measurements, bounds,
     stops, strobes closer than the velocity latency, and ages that saturate."""
-    from mrm_cosim.hdl.node.encoder_ref import AGE_MAX
+    from mrm_cosim.protocol.encoder import AGE_MAX
 
     rng = np.random.default_rng(100 + seed)
     n = 60_000
@@ -476,7 +477,8 @@ def test_the_bound_never_grows_with_its_denominator():
     ``y1 · 2^−p`` of every denominator 1 … AGE_MAX is at most that of the one before, so
     ``velocity_word(num, den)`` is non-increasing in ``den`` (a rounding of a non-increasing
     value). All 2^26 denominators, vectorised, spot-checked against ``reciprocal``."""
-    from mrm_cosim.hdl.node.encoder_ref import AGE_MAX, RECIP_TABLE, reciprocal
+    from mrm_cosim.hdl.node.encoder_ref import reciprocal
+    from mrm_cosim.protocol.encoder import AGE_MAX, RECIP_TABLE
 
     table = np.array(RECIP_TABLE, dtype=np.int64)
     prev = None

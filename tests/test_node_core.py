@@ -13,7 +13,7 @@ from mrm_cosim.protocol.crc import crc16
 from mrm_cosim.protocol.packet import Header, PacketType
 from mrm_cosim.hdl.node.core import NodeCore
 from mrm_cosim.hdl.node.core_ref import NodeModel
-from mrm_cosim.hdl.node.encoder_ref import EncoderParams
+from mrm_cosim.protocol.encoder import EncoderParams
 from mrm_cosim.protocol.fixed import FORCE
 from mrm_cosim.protocol.joint_program import JointParams
 from mrm_cosim.protocol.regs import (

@@ -13,7 +13,7 @@ from mrm_cosim.hdl.link.chain import master_receive, put_chars
 from mrm_cosim.hdl.link.chars import Char
 from mrm_cosim.hdl.link.codec import Codec
 from mrm_cosim.hdl.node.core_ref import NodeModel
-from mrm_cosim.hdl.node.encoder_ref import EncoderParams
+from mrm_cosim.protocol.encoder import EncoderParams
 from mrm_cosim.protocol.regs import (
     Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c, vdc_upload,
 )

@@ -53,6 +53,7 @@ from mrm_cosim.hdl.link.chars import ErrorCounts, saturating_sum
 from mrm_cosim.hdl.link.crc import crc16_next
 from mrm_cosim.hdl.link.packet import Beat, PacketType, RxStats
 from mrm_cosim.protocol.crc import CRC16_INIT
+from mrm_cosim.protocol.encoder import EncoderParams
 from mrm_cosim.protocol.fixed import WORD
 from mrm_cosim.protocol.isa import IO_BASE
 from mrm_cosim.protocol.joint_program import INPUTS as JOINT_INPUTS
@@ -62,7 +63,6 @@ from mrm_cosim.protocol.regs import (COMM_B_WORDS, CONFIG_DEFAULTS, MODES, PAYLO
 from mrm_cosim.protocol.regs import NodeEvent as Ev
 
 from .encoder import QuadratureEncoder
-from .encoder_ref import EncoderParams
 from .joint import JointUnit
 from .trig import SinCos
 from .vdc import VdcUnit

@@ -41,6 +41,7 @@ from functools import cache
 
 from mrm_cosim.hdl.link.codec_ref import saturating_sum_ref
 from mrm_cosim.protocol.crc import CRC16_INIT, crc16
+from mrm_cosim.protocol.encoder import EncoderParams
 from mrm_cosim.protocol.fixed import saturate
 from mrm_cosim.protocol.joint_program import MODES as JOINT_MODES
 from mrm_cosim.protocol.joint_program import JointParams, joint_microcode
@@ -51,7 +52,6 @@ from mrm_cosim.protocol.regs import (COMM_B_WORDS, COMM_D_WORDS, CONFIG_DEFAULTS
 from mrm_cosim.protocol.regs import NodeEvent as Ev
 from mrm_cosim.protocol.vdc_program import VdcParams, vdc_microcode
 
-from .encoder_ref import EncoderParams
 from .joint_ref import JointInputs, JointModel
 from .trig_ref import sin_cos
 from .vdc_ref import VdcInputs, VdcModel

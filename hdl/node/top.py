@@ -15,12 +15,12 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from mrm_cosim.hdl.link.node import LinkNode, line_signature
-from mrm_cosim.hdl.helpers import rejecting
-
-from .core import NodeCore
-from .encoder_ref import EncoderParams
+from mrm_cosim.protocol.encoder import EncoderParams
 from mrm_cosim.protocol.fixed import WORD
+
+from ..helpers import rejecting
+from ..link.node import LinkNode, line_signature
+from .core import NodeCore
 
 __all__ = ["SlaveNode", "slave_node_top", "node_core_top"]
 

@@ -12,8 +12,8 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.cordic import ATAN, GUARD, ITERATIONS, WIDTH, X0, ZGUARD, bam_constant
 from mrm_cosim.protocol.fixed import WORD
-from .trig_ref import ATAN, GUARD, ITERATIONS, WIDTH, X0, ZGUARD, bam_constant
 
 __all__ = ["SinCos", "LATENCY"]
 
