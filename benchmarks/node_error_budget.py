@@ -2,7 +2,7 @@
 
 Prints the figures quoted in docs/node.md "Error budget":
 
-1. VDC forces, fixed (bit-exact reference) vs float (master.vdc_float) on the *same decoded
+1. VDC forces, fixed (bit-exact reference) vs float (hdl.node.vdc_float_ref) on the *same decoded
    inputs*, along the MRM paper's quintic test on mrm3 (every module, 1 s at 1 kHz), with and
    without adaptation; and the parameter estimates' divergence in LSBs.
 2. What the node's information costs even in float: required accelerations by backward
@@ -27,7 +27,7 @@ from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel
 from mrm_cosim.protocol.joint_program import JointParams
 from mrm_cosim.protocol.vdc_program import VdcParams, theta_words
 from mrm_cosim.master.quintic import QuinticProfile
-from mrm_cosim.master.vdc_float import (
+from mrm_cosim.hdl.node.vdc_float_ref import (
     ModuleGains, ModuleVDC, link_a_acceleration, link_a_velocity, required_net_force, rz,
 )
 from mrm_cosim.models.robot import load_robot

@@ -18,7 +18,7 @@ from mrm_cosim.protocol.vdc_program import (
 from mrm_cosim.hdl.node.vdc import VdcUnit
 from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel, vdc_input_words, vdc_state_words
 from mrm_cosim.master.quintic import QuinticProfile
-from mrm_cosim.master.vdc_float import ModuleGains, ModuleVDC
+from mrm_cosim.hdl.node.vdc_float_ref import ModuleGains, ModuleVDC
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.models.spatial import regressor
 

@@ -5,7 +5,8 @@ velocity, actual and required velocity of {C}), the encoder snapshot (``q̇`` an
 ``cos q``, ``sin q``) and the gravity words of the previous Comm D, it returns the Comm C words
 (required net force/moment of Link a in {A} and of Link b in {C}) and then adapts the
 parameter estimates with the projection function. The float model it approximates is
-:class:`master.vdc_float.ModuleVDC`; the number formats are in :mod:`.fixed` and docs/node.md.
+:class:`~.vdc_float_ref.ModuleVDC`; the number formats are in :mod:`mrm_cosim.protocol.fixed`
+and docs/node.md.
 
 Every rounding point is written out below; each is ``fx(Σ products, format)``: the exact sum,
 rounded half up once onto the format's LSB and saturated to 24 bits — what one statement of the
