@@ -44,8 +44,8 @@ from mrm_cosim.errors import InputError
 
 from .crc import CRC16_INIT, crc16
 from .fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, WORD, saturate, theta_group
-from .joint_program import JointParams, joint_microcode
 from .joint_program import MODES as JOINT_MODES
+from .joint_program import JointParams, joint_microcode
 from .packet import DATA_PAYLOAD
 from .vdc_program import LINKS, VdcParams, theta_words, vdc_microcode, vdc_param_words
 

@@ -14,10 +14,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from mrm_cosim.protocol.packet import COUNTER_MAX
-
 from mrm_cosim.protocol.link import (ERROR_CLASSES, FCT_CREDIT, GROUP_BITS, MAX_CREDIT,
                                      NULL_PATTERN, CharKind, LinkState, codec_params)
+from mrm_cosim.protocol.packet import COUNTER_MAX
 
 __all__ = ["CodecRef", "CodecOutputs", "char_value", "char_fields", "saturating_sum_ref"]
 

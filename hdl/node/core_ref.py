@@ -65,8 +65,8 @@ _NEVER = 1 << 62
 @cache
 def _vdc_timing(entry: str) -> tuple[int, int]:
     """``(mark_cycles, cycles)`` of the VDC program's entry point: properties of the ROM
-    (:func:`~.vdc.vdc_microcode`, built once), scanned once per entry instead of on every
-    Comm B."""
+    (:func:`~mrm_cosim.protocol.vdc_program.vdc_microcode`, built once), scanned once per
+    entry instead of on every Comm B."""
     mc = vdc_microcode()
     return mc.mark_cycles(entry), mc.cycles(entry)
 

@@ -1,8 +1,9 @@
 """Microcoded multiply-accumulate engine: one shared 24×24 multiplier sequenced from a ROM.
 
-This is how the node computes without a divider and with few multipliers, as a Virtex-II
-design would (DESIGN.md "Slave node"): a program of multiply-accumulate statements
-(:mod:`.isa`), scheduled at build time, runs one term per cycle through a seven-stage pipeline::
+This is how the node computes without a divider and with few multipliers, as a Virtex-II design
+would (DESIGN.md "Slave node"): a program of multiply-accumulate statements
+(:mod:`mrm_cosim.protocol.isa`), scheduled at build time, runs one term per cycle through a
+seven-stage pipeline::
 
     R   instruction from ROM; register-file (or input-port) read of operands a, b
     O   operands registered (off the block RAM's slow output)

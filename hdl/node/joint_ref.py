@@ -30,7 +30,7 @@ Part B prepares ``(q_des, v_des)`` for the next tick at ``t_next`` cycles after 
 is latched. Torque limits and the watchdog's ramp act after the engine (:mod:`.watchdog`).
 
 Each rounding point is one ``fx`` below (exact sum, one rounding half up, saturation); the
-formats are in :mod:`.fixed`.
+formats are in :mod:`mrm_cosim.protocol.fixed`.
 """
 
 from __future__ import annotations

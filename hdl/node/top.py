@@ -115,7 +115,7 @@ def slave_node_top(*, slots: int = 3, start_div: int | None = None, run_div: int
                    filter_cycles: int = 2, min_window: int = 2048,
                    stop_cycles: int = 1 << 24) -> SlaveNode:
     """Factory for the ``node`` top: link parameters as ``link_node``, encoder parameters as
-    :class:`~hdl.node.encoder_ref.EncoderParams` (50 MHz clock)."""
+    :class:`~mrm_cosim.protocol.encoder.EncoderParams` (50 MHz clock)."""
     return SlaveNode(codec=dict(slots=slots, start_div=start_div, run_div=run_div,
                                 reset_cycles=reset_cycles, wait_cycles=wait_cycles,
                                 disconnect_cycles=disconnect_cycles,

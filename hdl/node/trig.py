@@ -3,8 +3,8 @@
 # Ref: J. E. Volder, "The CORDIC trigonometric computing technique", IRE Trans. Electronic
 # Computers EC-8(3), 1959 (rotation mode).
 
-No divider and no table: one constant multiplication turns the count into a 24-bit binary
-angle, then :data:`~hdl.node.trig_ref.ITERATIONS` shift-and-add steps, two cycles each (shift,
+No divider and no table: one constant multiplication turns the count into a 24-bit binary angle,
+then :data:`~mrm_cosim.protocol.cordic.ITERATIONS` shift-and-add steps, two cycles each (shift,
 then add: short paths). The arithmetic is specified, bit for bit, by :mod:`.trig_ref`.
 """
 

@@ -10,8 +10,9 @@ and docs/node.md.
 
 Every rounding point is written out below; each is ``fx(Σ products, format)``: the exact sum,
 rounded half up once onto the format's LSB and saturated to 24 bits — what one statement of the
-engine does (:mod:`.vdc` is the same computation as an engine program; tests check that they
-agree bit for bit, and that both agree with the float model within the measured budget).
+engine does (:mod:`mrm_cosim.protocol.vdc_program` is the same computation as an engine program;
+tests check that they agree bit for bit, and that both agree with the float model within the
+measured budget).
 
 The regressor is used through :data:`~mrm_cosim.protocol.vdc_program.Y_TABLE`, as in the
 program; the uploaded words are :class:`~mrm_cosim.protocol.vdc_program.VdcParams`.
