@@ -16,9 +16,9 @@ import time
 import numpy as np
 from amaranth.sim import Simulator
 
-from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.protocol import packet as ref
 from mrm_cosim.hdl.link.chain import Chain, get_packet, master_send, put_packet
-from mrm_cosim.hdl.link.chars import CONTROL_BITS, DATA_BITS, NULL_BITS, TIME_BITS
+from mrm_cosim.protocol.link import CONTROL_BITS, DATA_BITS, NULL_BITS, TIME_BITS
 
 _CONTROL = {(0, 0): "FCT", (1, 0): "EOP", (0, 1): "EEP", (1, 1): "ESC"}  # (C0, C1)
 

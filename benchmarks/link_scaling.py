@@ -44,10 +44,10 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from mrm_cosim.hdl.link.chars import CONTROL_BITS, DATA_BITS, TIME_BITS
-from mrm_cosim.hdl.link.packet_ref import CRC_BYTES, HEADER_BYTES
-from mrm_cosim.hdl.node.regs import COMM_B_WORDS, PAYLOAD
 from mrm_cosim.master.cycle import MasterTiming
+from mrm_cosim.protocol.link import CONTROL_BITS, DATA_BITS, TIME_BITS
+from mrm_cosim.protocol.packet import CRC_BYTES, HEADER_BYTES
+from mrm_cosim.protocol.regs import COMM_B_WORDS, PAYLOAD
 from mrm_cosim.units import CLOCK_HZ
 
 #: Line bits per 20 ns cycle at 150 Mbit/s.

@@ -2,7 +2,7 @@
 
 Prints the figures quoted in docs/node.md "Error budget":
 
-1. VDC forces, fixed (bit-exact reference) vs float (master.vdc_float) on the *same decoded
+1. VDC forces, fixed (bit-exact reference) vs float (hdl.node.vdc_float_ref) on the *same decoded
    inputs*, along the MRM paper's quintic test on mrm3 (every module, 1 s at 1 kHz), with and
    without adaptation; and the parameter estimates' divergence in LSBs.
 2. What the node's information costs even in float: required accelerations by backward
@@ -21,11 +21,13 @@ import math
 import numpy as np
 import pinocchio as pin
 
-from mrm_cosim.hdl.node.fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, theta_group
-from mrm_cosim.hdl.node.joint_ref import JointInputs, JointModel, JointParams
-from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel, VdcParams
+from mrm_cosim.protocol.fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, theta_group
+from mrm_cosim.hdl.node.joint_ref import JointInputs, JointModel
+from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel
+from mrm_cosim.protocol.joint_program import JointParams
+from mrm_cosim.protocol.vdc_program import VdcParams, theta_words
 from mrm_cosim.master.quintic import QuinticProfile
-from mrm_cosim.master.vdc_float import (
+from mrm_cosim.hdl.node.vdc_float_ref import (
     ModuleGains, ModuleVDC, link_a_acceleration, link_a_velocity, required_net_force, rz,
 )
 from mrm_cosim.models.robot import load_robot
@@ -76,7 +78,7 @@ def make_model(theta, rho_scale):
     rho = rho_scale * np.array([50.0] + [2.0] * 3 + [0.05] * 9)[None, :].repeat(2, 0)
     lo = np.minimum(theta * 0.7, theta * 1.3) - 1e-4
     hi = np.maximum(theta * 0.7, theta * 1.3) + 1e-4
-    return VdcModel(VdcParams.from_float(K, rho, lo, hi, 1e-3), VdcModel.theta_words(theta))
+    return VdcModel(VdcParams.from_float(K, rho, lo, hi, 1e-3), theta_words(theta))
 
 
 def float_twin(model):

@@ -13,10 +13,10 @@ import time
 import numpy as np
 from amaranth.sim import Simulator
 
-from mrm_cosim.hdl.link.packet_ref import PacketType
+from mrm_cosim.protocol.packet import PacketType
 from mrm_cosim.hdl.node.core import NodeCore
 from mrm_cosim.hdl.node.core_ref import NodeModel
-from mrm_cosim.hdl.node.regs import Config, config_payloads, pack_comm_b, pack_comm_d
+from mrm_cosim.protocol.regs import Config, config_payloads, pack_comm_b, pack_comm_d
 from mrm_cosim.models.encoder import quadrature_levels
 
 

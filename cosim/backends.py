@@ -24,9 +24,9 @@ from mrm_cosim.cosim.gateware_side import GatewareSide, Observed, PlantLines, Re
 from mrm_cosim.errors import InputError
 from mrm_cosim.hdl.link import packet_ref as ref
 from mrm_cosim.hdl.link.chain import char_int, char_value
-from mrm_cosim.hdl.node.fixed import FORCE
-from mrm_cosim.hdl.node.regs import NodeEvent
 from mrm_cosim.models.encoder import quadrature_levels
+from mrm_cosim.protocol.fixed import FORCE
+from mrm_cosim.protocol.regs import NodeEvent
 from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["LineSide", "CompiledBackend", "PysimBackend", "VcdWindow", "drive",

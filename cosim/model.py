@@ -57,9 +57,9 @@ from mrm_cosim.cosim.model_link import LINK_UP_CYCLE, LinkTiming
 from mrm_cosim.cosim.model_node import EncoderEvents, FastNode
 from mrm_cosim.hdl.link import packet_ref as ref
 from mrm_cosim.hdl.node.core_ref import NodeModel
-from mrm_cosim.hdl.node.encoder_ref import encoders_per_node
-from mrm_cosim.hdl.node.fixed import FORCE
-from mrm_cosim.hdl.node.regs import Config
+from mrm_cosim.protocol.encoder import encoders_per_node
+from mrm_cosim.protocol.fixed import FORCE
+from mrm_cosim.protocol.regs import Config
 
 __all__ = ["ModelBackend", "ModelAssumptionError"]
 

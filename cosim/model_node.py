@@ -17,12 +17,16 @@ import numpy as np
 
 from mrm_cosim.hdl.node.core_ref import _NEVER, _TIME_MAX, NodeModel
 from mrm_cosim.hdl.node.encoder_ref import (
-    AGE_MAX, DC_MAX, VEL_LATENCY, EncoderParams, velocity_word,
+    AGE_MAX,
+    DC_MAX,
+    VEL_LATENCY,
+    EncoderParams,
+    velocity_word,
 )
-from mrm_cosim.hdl.node.fixed import WORD_MAX
 from mrm_cosim.hdl.node.joint import joint_microcode
 from mrm_cosim.hdl.node.joint_ref import MODES as JOINT_MODES
-from mrm_cosim.hdl.node.regs import Config
+from mrm_cosim.protocol.fixed import WORD_MAX
+from mrm_cosim.protocol.regs import Config
 
 __all__ = ["FastNode", "EncoderEvents"]
 

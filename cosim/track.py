@@ -53,8 +53,8 @@ def node_counts_range() -> tuple[int, int]:
     program's ``KC`` word (the high end)."""
     import math
 
-    from mrm_cosim.hdl.node.encoder_ref import EncoderParams
-    from mrm_cosim.hdl.node.fixed import KC
+    from mrm_cosim.protocol.encoder import EncoderParams
+    from mrm_cosim.protocol.fixed import KC
 
     lo, hi = EncoderParams().counts_per_rev_range()
 
@@ -76,7 +76,7 @@ def node_counts_range() -> tuple[int, int]:
 def node_encoders(robot) -> list:
     """The encoder interface of each module's node, built for that module's counts per
     revolution (the node's velocity constant and its angle scale depend on them)."""
-    from mrm_cosim.hdl.node.encoder_ref import EncoderParams
+    from mrm_cosim.protocol.encoder import EncoderParams
 
     return [EncoderParams(counts_per_rev=mod.type.counts_per_rev) for mod in robot.modules]
 
@@ -214,7 +214,7 @@ def link_errors_detail(result) -> dict:
 
     ``master_rx_dropped``: frames the master dropped (CRC, length, EEP); ``master_port``: the
     master port codec's errors (five classes summed); ``nodes``: each of
-    :data:`hdl.node.regs.LINK_HEALTH` summed over the nodes, as last reported in Comm A;
+    :data:`protocol.regs.LINK_HEALTH` summed over the nodes, as last reported in Comm A;
     ``per_node``: the same per node (keys "1".."N"). The summary's ``link_errors`` is the sum
     of all of them (0: no fault anywhere on the chain).
     """
@@ -308,7 +308,7 @@ def loop_system(robot):
 def loop_system_key(robot) -> str:
     """The compiled-model cache key of :func:`loop_system`: the number of nodes and, where
     they are not the gateware's default, the nodes' counts per revolution."""
-    from mrm_cosim.hdl.node.encoder_ref import EncoderParams
+    from mrm_cosim.protocol.encoder import EncoderParams
 
     cprs = [e.counts_per_rev for e in node_encoders(robot)]
     key = f"system{robot.n}-faults"

@@ -16,11 +16,13 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.encoder import encoders_per_node
+from mrm_cosim.protocol.fixed import WORD
+from mrm_cosim.protocol.link import ERROR_CLASSES
+
 from .link.chain import faulty_line, line_fault_layout
-from .link.chars import ERROR_CLASSES, Char, ErrorCounts, LinkState, saturating_sum
+from .link.chars import Char, ErrorCounts, LinkState, saturating_sum
 from .master_port import MasterPort
-from .node.encoder_ref import encoders_per_node
-from .node.fixed import WORD
 from .node.top import SlaveNode
 
 __all__ = ["System", "check_n_nodes", "MAX_NODES"]
@@ -71,7 +73,7 @@ class System(wiring.Component):
         :class:`~hdl.link.chain.Chain`'s; all zero: good wires. A co-simulation testbench
         capability (``cosim``), not part of the robot's gateware.
     events1 … eventsN : Out(16)
-        The nodes' observation ports (:class:`~hdl.node.regs.NodeEvent` strobes).
+        The nodes' observation ports (:class:`~mrm_cosim.protocol.regs.NodeEvent` strobes).
     """
 
     def __init__(self, n_nodes: int, *, codec: dict | None = None, encoder=None,

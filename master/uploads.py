@@ -14,14 +14,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from mrm_cosim.errors import InputError
-from mrm_cosim.hdl.link import packet_ref as ref
-from mrm_cosim.hdl.node.fixed import FORCE
-from mrm_cosim.hdl.node.joint_ref import JointParams
-from mrm_cosim.hdl.node.regs import MODES, Config, config_payloads, joint_upload, vdc_upload
 from mrm_cosim.master.cycle import Master, Send
 from mrm_cosim.models.actuators import ACTUATORS
 from mrm_cosim.models.encoder import counts_per_rad, joint_counts
 from mrm_cosim.models.robot import Robot
+from mrm_cosim.protocol import packet as ref
+from mrm_cosim.protocol.fixed import FORCE
+from mrm_cosim.protocol.joint_program import JointParams
+from mrm_cosim.protocol.regs import MODES, Config, config_payloads, joint_upload, vdc_upload
 from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["Gains", "pid_gains", "node_uploads", "check_node_period", "startup_sends"]

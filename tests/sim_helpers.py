@@ -12,7 +12,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.sim import Simulator
 
-from mrm_cosim.hdl.link.chars import ERROR_CLASSES
+from mrm_cosim.protocol.link import ERROR_CLASSES
 from mrm_cosim.hdl.link.codec import Codec
 
 __all__ = [

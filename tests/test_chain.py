@@ -14,6 +14,7 @@ from mrm_cosim.hdl.link import packet_ref as ref
 from mrm_cosim.hdl.link.chain import (
     Chain, master_receive, master_send, node_receive, node_send, put_chars, read_stats,
 )
+from mrm_cosim.protocol import packet as proto
 from .sim_helpers import run_simulation
 
 SHORT = {"reset_cycles": 60, "wait_cycles": 150}
@@ -57,12 +58,14 @@ def test_chain_delivers_like_the_reference_and_counts_bad_packets():
     chain = Chain(3, codec=SHORT)
     frames = []
     for seq in range(10):
-        dest = int(rng.choice([1, 2, 3, ref.BROADCAST, 7]))
+        dest = int(rng.choice([1, 2, 3, proto.BROADCAST, 7]))
         payload = rng.integers(0, 256, size=int(rng.integers(1, 6))).tolist()
-        frames.append(ref.encode(ref.Header(dest, 0, int(ref.PacketType.CONFIG), seq), payload))
-    corrupt = ref.encode(ref.Header(2, 0, int(ref.PacketType.PARAM), 99), [1, 2, 3])
+        frames.append(proto.encode(proto.Header(dest, 0, int(proto.PacketType.CONFIG), seq),
+                                   payload))
+    corrupt = proto.encode(proto.Header(2, 0, int(proto.PacketType.PARAM), 99), [1, 2, 3])
     corrupt[5] ^= 0x10
-    cut = ref.encode(ref.Header(1, 0, int(ref.PacketType.PARAM), 98), [4, 5, 6])[:-3] + [ref.EEP]
+    cut = (proto.encode(proto.Header(1, 0, int(proto.PacketType.PARAM), 98), [4, 5, 6])[:-3]
+           + [proto.EEP])
     frames[3:3] = [corrupt]
     frames[7:7] = [cut]
     model = ref.ChainModel(3)
@@ -128,9 +131,9 @@ def test_time_codes_reach_every_node_with_a_fixed_hop_latency():
 def test_simultaneous_replies_arrive_intact_in_node_order():
     rng = np.random.default_rng(31)
     chain = Chain(3, codec=SHORT)
-    replies_a = {k: rng.integers(0, 256, size=ref.DATA_PAYLOAD).tolist() for k in (1, 2, 3)}
-    replies_c = {k: rng.integers(0, 256, size=ref.DATA_PAYLOAD).tolist() for k in (1, 2, 3)}
-    requests = {k: rng.integers(0, 256, size=ref.DATA_PAYLOAD).tolist() for k in (1, 2, 3)}
+    replies_a = {k: rng.integers(0, 256, size=proto.DATA_PAYLOAD).tolist() for k in (1, 2, 3)}
+    replies_c = {k: rng.integers(0, 256, size=proto.DATA_PAYLOAD).tolist() for k in (1, 2, 3)}
+    requests = {k: rng.integers(0, 256, size=proto.DATA_PAYLOAD).tolist() for k in (1, 2, 3)}
 
     def node_host(k):
         node = chain.nodes[k - 1]
@@ -139,13 +142,13 @@ def test_simultaneous_replies_arrive_intact_in_node_order():
             # Comm A: every node answers the time-code at once.
             await ctx.tick().until(node.tc_strobe)
             seq = ctx.get(node.tc_time)
-            await node_send(ctx, node, ref.Header(0, 0, int(ref.PacketType.COMM_A), seq),
+            await node_send(ctx, node, proto.Header(0, 0, int(proto.PacketType.COMM_A), seq),
                             replies_a[k])
             # Comm B -> Comm C: answer the request as soon as it is in.
             header, payload = await node_receive(ctx, node)
-            assert (header.src, header.type, list(payload)) == (0, ref.PacketType.COMM_B,
+            assert (header.src, header.type, list(payload)) == (0, proto.PacketType.COMM_B,
                                                                 requests[k])
-            await node_send(ctx, node, ref.Header(0, 0, int(ref.PacketType.COMM_C), header.seq),
+            await node_send(ctx, node, proto.Header(0, 0, int(proto.PacketType.COMM_C), header.seq),
                             replies_c[k])
         return testbench
 
@@ -156,7 +159,7 @@ def test_simultaneous_replies_arrive_intact_in_node_order():
             await ctx.tick()
         # Requests to the three nodes back to back, while their replies come back.
         for k in (1, 2, 3):
-            await master_send(ctx, chain, ref.Header(k, 0, int(ref.PacketType.COMM_B), 10 + k),
+            await master_send(ctx, chain, proto.Header(k, 0, int(proto.PacketType.COMM_B), 10 + k),
                               requests[k])
 
     async def time_code_under_load(ctx):
@@ -183,19 +186,19 @@ def test_simultaneous_replies_arrive_intact_in_node_order():
 
     async def master_rx(ctx):
         packets = await master_receive(ctx, chain, 3)
-        checked = [ref.check_frame(p) for p in packets]
-        assert [c[0] for c in checked] == [ref.Verdict.GOOD] * 3
+        checked = [proto.check_frame(p) for p in packets]
+        assert [c[0] for c in checked] == [proto.Verdict.GOOD] * 3
         assert [c[1].src for c in checked] == [1, 2, 3], "documented order: node 1, 2, 3"
         for _, header, payload in checked:
-            assert header == ref.Header(0, header.src, ref.PacketType.COMM_A, 5)
+            assert header == proto.Header(0, header.src, proto.PacketType.COMM_A, 5)
             assert list(payload) == replies_a[header.src]
         comm_a_done.append(True)
         packets = await master_receive(ctx, chain, 3)
-        checked = [ref.check_frame(p) for p in packets]
-        assert [c[0] for c in checked] == [ref.Verdict.GOOD] * 3
+        checked = [proto.check_frame(p) for p in packets]
+        assert [c[0] for c in checked] == [proto.Verdict.GOOD] * 3
         assert [c[1].src for c in checked] == [1, 2, 3]
         for _, header, payload in checked:
-            assert header == ref.Header(0, header.src, ref.PacketType.COMM_C, 10 + header.src)
+            assert header == proto.Header(0, header.src, proto.PacketType.COMM_C, 10 + header.src)
             assert list(payload) == replies_c[header.src]
         for node in chain.nodes:
             assert read_stats(ctx, node.rx_stats) == {"good": 1, "crc": 0, "length": 0, "eep": 0}
@@ -225,8 +228,8 @@ def test_chain_starts_at_standard_timers_and_carries_packages_both_ways():
     """ECSS timers (Error-Reset 6.4 µs, Error-Wait 12.8 µs, start at 10 Mbit/s)."""
     rng = np.random.default_rng(32)
     chain = Chain(3)
-    down = rng.integers(0, 256, size=ref.DATA_PAYLOAD).tolist()
-    up = rng.integers(0, 256, size=ref.DATA_PAYLOAD).tolist()
+    down = rng.integers(0, 256, size=proto.DATA_PAYLOAD).tolist()
+    up = rng.integers(0, 256, size=proto.DATA_PAYLOAD).tolist()
     last = chain.nodes[-1]
 
     async def master(ctx):
@@ -234,17 +237,17 @@ def test_chain_starts_at_standard_timers_and_carries_packages_both_ways():
         # Error-Reset + Error-Wait (960 cycles) + the NULL/FCT exchange at 10 Mbit/s.
         assert 960 < cycles < 1500, cycles
         sent = await send_time_code(ctx, chain, 1)
-        await master_send(ctx, chain, ref.Header(3, 0, int(ref.PacketType.COMM_D), 1), down)
+        await master_send(ctx, chain, proto.Header(3, 0, int(proto.PacketType.COMM_D), 1), down)
         stamps = [ctx.get(node.tc_stamp) for node in chain.nodes]
         check_hops(sent, stamps)
         (packet,) = await master_receive(ctx, chain)
-        assert ref.check_frame(packet) == (ref.Verdict.GOOD, ref.Header(0, 3, 0x0A, 1),
+        assert proto.check_frame(packet) == (proto.Verdict.GOOD, proto.Header(0, 3, 0x0A, 1),
                                            bytes(up))
 
     async def node3(ctx):
         header, payload = await node_receive(ctx, last)
-        assert (header, list(payload)) == (ref.Header(3, 0, ref.PacketType.COMM_D, 1), down)
-        await node_send(ctx, last, ref.Header(0, 0, int(ref.PacketType.COMM_A), header.seq), up)
+        assert (header, list(payload)) == (proto.Header(3, 0, proto.PacketType.COMM_D, 1), down)
+        await node_send(ctx, last, proto.Header(0, 0, int(proto.PacketType.COMM_A), header.seq), up)
 
     sim = Simulator(chain)
     sim.add_clock(20e-9)

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from amaranth.sim import Simulator
 
-from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.protocol import packet as proto
 from mrm_cosim.hdl.link.chain import (
     Chain, master_receive, master_send, node_receive, node_send, read_stats,
 )
@@ -230,19 +230,19 @@ def test_cut_on_the_way_down_is_counted_and_the_cut_package_never_delivered(
     bench = FaultBench(timers)
     chain = bench.chain
     n1, _, n3 = chain.nodes
-    cut, good, reply = (rng.integers(0, 256, size=ref.DATA_PAYLOAD).tolist() for _ in range(3))
+    cut, good, reply = (rng.integers(0, 256, size=proto.DATA_PAYLOAD).tolist() for _ in range(3))
     result = {}
 
     async def master(ctx):
         await bench.bring_up(ctx)
-        await master_send(ctx, chain, ref.Header(3, 0, int(ref.PacketType.COMM_B), 1), cut)
+        await master_send(ctx, chain, proto.Header(3, 0, int(proto.PacketType.COMM_B), 1), cut)
         await bench.recovered(ctx)
         ctx.set(chain.time_in, 9)
         ctx.set(chain.tick_in, 1)
         result["tc_sent"] = ctx.get(chain.cycle)
         await ctx.tick()
         ctx.set(chain.tick_in, 0)
-        await master_send(ctx, chain, ref.Header(3, 0, int(ref.PacketType.COMM_B), 2), good)
+        await master_send(ctx, chain, proto.Header(3, 0, int(proto.PacketType.COMM_B), 2), good)
 
     async def fault_injector(ctx):
         await bench.inject(ctx, chain.fault_down, fault, after=FAULT_AFTER,
@@ -250,15 +250,15 @@ def test_cut_on_the_way_down_is_counted_and_the_cut_package_never_delivered(
 
     async def node3(ctx):
         header, payload = await node_receive(ctx, n3)
-        assert (header, list(payload)) == (ref.Header(3, 0, ref.PacketType.COMM_B, 2), good), \
+        assert (header, list(payload)) == (proto.Header(3, 0, proto.PacketType.COMM_B, 2), good), \
             "the first package node 3 gets must be the one sent after the recovery"
-        await node_send(ctx, n3, ref.Header(0, 0, int(ref.PacketType.COMM_C), header.seq),
+        await node_send(ctx, n3, proto.Header(0, 0, int(proto.PacketType.COMM_C), header.seq),
                         reply)
 
     async def master_rx(ctx):
         (packet,) = await master_receive(ctx, chain)
-        assert ref.check_frame(packet) == (ref.Verdict.GOOD,
-                                           ref.Header(0, 3, ref.PacketType.COMM_C, 2),
+        assert proto.check_frame(packet) == (proto.Verdict.GOOD,
+                                           proto.Header(0, 3, proto.PacketType.COMM_C, 2),
                                            bytes(reply))
         await ctx.tick().repeat(20)
         result["errors"] = bench.errors(ctx)
@@ -297,8 +297,8 @@ def test_bit_error_on_the_way_up_is_counted_and_the_cut_reply_ends_in_eep():
     bench = FaultBench()
     chain = bench.chain
     n1, _, n3 = chain.nodes
-    replies = {1: rng.integers(0, 256, size=ref.DATA_PAYLOAD).tolist(),
-               2: rng.integers(0, 256, size=ref.DATA_PAYLOAD).tolist()}
+    replies = {1: rng.integers(0, 256, size=proto.DATA_PAYLOAD).tolist(),
+               2: rng.integers(0, 256, size=proto.DATA_PAYLOAD).tolist()}
     result = {}
 
     async def time_code(ctx, value):
@@ -321,7 +321,7 @@ def test_bit_error_on_the_way_up_is_counted_and_the_cut_reply_ends_in_eep():
         for _ in range(2):
             await ctx.tick().until(n3.tc_strobe)
             seq = ctx.get(n3.tc_time)
-            await node_send(ctx, n3, ref.Header(0, 0, int(ref.PacketType.COMM_A), seq),
+            await node_send(ctx, n3, proto.Header(0, 0, int(proto.PacketType.COMM_A), seq),
                             replies[seq])
 
     async def master_rx(ctx):
@@ -340,12 +340,12 @@ def test_bit_error_on_the_way_up_is_counted_and_the_cut_reply_ends_in_eep():
 
     bench.check_line(result["errors"], "node1.down", "parity")
     cut, good = result["packets"]
-    sent = ref.encode(ref.Header(0, 3, int(ref.PacketType.COMM_A), 1), replies[1])
-    assert ref.check_frame(cut)[0] == ref.Verdict.EEP
+    sent = proto.encode(proto.Header(0, 3, int(proto.PacketType.COMM_A), 1), replies[1])
+    assert proto.check_frame(cut)[0] == proto.Verdict.EEP
     assert FAULT_AFTER <= len(cut) - 1 < len(sent) - 1
     assert cut[:-1] == sent[:len(cut) - 1], "the bad character must never be delivered"
-    assert ref.check_frame(good) == (ref.Verdict.GOOD,
-                                     ref.Header(0, 3, ref.PacketType.COMM_A, 2),
+    assert proto.check_frame(good) == (proto.Verdict.GOOD,
+                                     proto.Header(0, 3, proto.PacketType.COMM_A, 2),
                                      bytes(replies[2]))
     assert result["stats"] == [{"good": 0, "crc": 0, "length": 0, "eep": 0}] * 3
     assert result["dropped"] == [0, 0, 0]

@@ -261,8 +261,8 @@ def test_a_robot_with_a_home_posture_tracks_from_it():
     instead of 0.8 mrad, exit 0). Now each node is preset to its home count (CONFIG PRESET,
     what the plant's encoder shows there): the master reads the home posture in period 0 and
     the run tracks as well as from zero."""
-    from mrm_cosim.hdl.link.packet_ref import PacketType
-    from mrm_cosim.hdl.node.regs import Config
+    from mrm_cosim.protocol.packet import PacketType
+    from mrm_cosim.protocol.regs import Config
     from mrm_cosim.models.encoder import counts_per_rad, joint_counts
 
     robot = robot_from_dict(_home_robot([10.0, 20.0, -30.0]))
@@ -315,8 +315,8 @@ def test_the_watchdog_timeout_follows_the_period():
     period: with ``[timing] period_cycles = 150000`` (3 ms) every node tripped between two
     periods' packets, the torques ramped to zero and the arm fell (1.07 rad off), the run
     ending with exit 0. The timeout is two periods now, so a 3 ms period tracks as 1 ms does."""
-    from mrm_cosim.hdl.link.packet_ref import PacketType
-    from mrm_cosim.hdl.node.regs import Config
+    from mrm_cosim.protocol.packet import PacketType
+    from mrm_cosim.protocol.regs import Config
     from mrm_cosim.models.robot import load_robot
 
     def timeouts(period):
@@ -345,8 +345,8 @@ def test_the_vdc_differences_and_adapts_over_the_masters_period():
     from mrm_cosim.cosim.closed_loop import ClosedLoop
     from mrm_cosim.cosim.model import ModelBackend
     from mrm_cosim.cosim.track import _trajectory, node_encoders
-    from mrm_cosim.hdl.node.fixed import INVT, RHOT
-    from mrm_cosim.hdl.node.regs import Config
+    from mrm_cosim.protocol.fixed import INVT, RHOT
+    from mrm_cosim.protocol.regs import Config
     from mrm_cosim.models.robot import load_robot
 
     robot = load_robot("mrm3")

@@ -5,8 +5,8 @@ import pytest
 from amaranth.lib.crc import catalog
 from amaranth.sim import Simulator
 
-from mrm_cosim.hdl.link.crc import CRC16, CRC16_CHECK, CRC16_INIT
-from mrm_cosim.hdl.link.packet_ref import crc16
+from mrm_cosim.hdl.link.crc import CRC16
+from mrm_cosim.protocol.crc import CRC16_CHECK, CRC16_INIT, crc16
 
 
 def bitwise_crc16(data):

@@ -9,10 +9,10 @@ import pytest
 
 import mrm_cosim.mrm.cli as cli
 from mrm_cosim.cosim import experiment_config as ec
-from mrm_cosim.master.uploads import Gains
-from mrm_cosim.master.cycle import MasterTiming
-from mrm_cosim.models.plant import Perturbation, PlantConfig
 from mrm_cosim.errors import InputError
+from mrm_cosim.master.cycle import MasterTiming
+from mrm_cosim.master.uploads import Gains
+from mrm_cosim.models.plant import Perturbation, PlantConfig
 
 ROBOTS = Path(__file__).resolve().parents[1] / "models" / "robots"
 
@@ -176,9 +176,9 @@ def test_cli_names_the_field_exits_2_and_writes_nothing(tmp_path, capsys):
 
 def test_friction_comp_uploads_the_nominal_friction_as_vdc_joint_estimates():
     from mrm_cosim.master.uploads import Gains, JointParams, node_uploads
-    from mrm_cosim.hdl.node.regs import joint_upload
     from mrm_cosim.models.actuators import ACTUATORS
     from mrm_cosim.models.robot import load_robot
+    from mrm_cosim.protocol.regs import joint_upload
 
     robot = load_robot("mrm3")
     plain = node_uploads(robot, "vdc", Gains())

@@ -16,11 +16,13 @@ from amaranth.sim import Simulator
 
 from mrm_cosim.cosim.closed_loop import FAULT_KINDS, LineFault
 from mrm_cosim.hdl.link.chain import get_packet, line_fault_layout, put_packet
-from mrm_cosim.hdl.link.chars import ERROR_CLASSES, saturating_sum, saturating_sum_ref
-from mrm_cosim.hdl.link.packet_ref import Header, PacketType
+from mrm_cosim.hdl.link.chars import saturating_sum
+from mrm_cosim.hdl.link.codec_ref import saturating_sum_ref
+from mrm_cosim.protocol.link import ERROR_CLASSES
+from mrm_cosim.protocol.packet import Header, PacketType
 from mrm_cosim.hdl.node.core import NodeCore
 from mrm_cosim.hdl.node.core_ref import NodeModel
-from mrm_cosim.hdl.node.regs import LINK_HEALTH, RX_DROPS, parse_comm_a
+from mrm_cosim.protocol.regs import LINK_HEALTH, RX_DROPS, parse_comm_a
 from mrm_cosim.errors import InputError
 
 from .sim_helpers import packet_ends, run_simulation

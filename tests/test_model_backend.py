@@ -120,8 +120,8 @@ def test_fx_point_equals_fx(arity):
     """The references' rounding points (hdl.node.vdc_ref.fx_point: the joint controller's and
     the VDC's hot path, which the model backend runs) against fx on random words and LSBs,
     extremes included so that every saturation acts."""
-    from mrm_cosim.hdl.node.fixed import Fmt
     from mrm_cosim.hdl.node.vdc_ref import fx, fx_point
+    from mrm_cosim.protocol.fixed import Fmt
 
     rng = np.random.default_rng(arity)
     lo, hi = -(1 << 23), (1 << 23) - 1
@@ -138,11 +138,11 @@ def test_fx_point_equals_fx(arity):
 def test_strict_model_refuses_a_grid_it_cannot_match():
     """Period 0 off the nodes' timer grid: the time-code resynchronises them, which the model
     can only place by its approximate latency, so a strict run stops and says why."""
-    from mrm_cosim.master.uploads import Gains, node_uploads
     from mrm_cosim.cosim.closed_loop import ClosedLoop
     from mrm_cosim.cosim.model import ModelBackend
     from mrm_cosim.cosim.track import _trajectory
     from mrm_cosim.master.cycle import Master
+    from mrm_cosim.master.uploads import Gains, node_uploads
     from mrm_cosim.models.plant import Plant
     from mrm_cosim.models.robot import load_robot
 
@@ -161,8 +161,8 @@ class RecordingMaster:
 
     @staticmethod
     def make(robot, controller):
-        from mrm_cosim.master.uploads import Gains, pid_gains
         from mrm_cosim.master.cycle import Master, MasterTiming
+        from mrm_cosim.master.uploads import Gains, pid_gains
 
         gains = Gains()
         master = Master(robot, controller, _wiggle(robot), robot.counts_per_rev,
@@ -193,8 +193,8 @@ def _wiggle(robot):
 
 
 def _loop(backend, controller, cycles, seed=3):
-    from mrm_cosim.master.uploads import Gains, node_uploads
     from mrm_cosim.cosim.track import run_loop
+    from mrm_cosim.master.uploads import Gains, node_uploads
     from mrm_cosim.models.plant import Plant
     from mrm_cosim.models.robot import load_robot
 
@@ -240,11 +240,11 @@ def test_model_reports_a_comm_d_near_the_commit_phase():
     the commit phase: the gateware may commit it this period or the next, so the model says
     it cannot vouch for the result. A Comm D well after the phase is late on both backends,
     counted, committed a period later, and the runs are still identical."""
-    from mrm_cosim.master.uploads import Gains, node_uploads
     from mrm_cosim.cosim.closed_loop import ClosedLoop
     from mrm_cosim.cosim.model import ModelBackend
     from mrm_cosim.cosim.track import _trajectory, run_loop
     from mrm_cosim.master.cycle import Master, MasterTiming
+    from mrm_cosim.master.uploads import Gains, node_uploads
     from mrm_cosim.models.plant import Plant
     from mrm_cosim.models.robot import load_robot
 
@@ -277,11 +277,11 @@ def test_model_reports_a_comm_d_near_the_commit_phase():
 def _quintic_loop(controller, cycles, lazy, uploads=None, hook=None, start=50_000):
     """The paper's quintic on mrm3 for ``cycles`` after period 0, model backend only;
     ``hook(loop)`` before the run."""
-    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
     from mrm_cosim.cosim.closed_loop import ClosedLoop
     from mrm_cosim.cosim.model import ModelBackend
     from mrm_cosim.cosim.track import _trajectory
     from mrm_cosim.master.cycle import Master, MasterTiming
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
     from mrm_cosim.models.plant import Plant
     from mrm_cosim.models.robot import load_robot
 
@@ -339,12 +339,12 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
     """PID in the node with an anti-windup bound of a few IHI words: the coarse integral sits
     on its clip for much of the run; the lazy path's integral (updated on every tick, torque
     only where observed) is still the eager one."""
-    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
     from mrm_cosim.hdl.link import packet_ref as ref
     from mrm_cosim.hdl.node.joint_ref import JointParams
-    from mrm_cosim.hdl.node.regs import Config, config_payloads, joint_upload
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
     from mrm_cosim.models.actuators import ACTUATORS
     from mrm_cosim.models.robot import load_robot
+    from mrm_cosim.protocol.regs import Config, config_payloads, joint_upload
 
     robot = load_robot("mrm3")
     gains = Gains()

@@ -9,13 +9,14 @@ import pytest
 from amaranth.sim import Simulator
 
 from mrm_cosim.hdl.link.chain import get_packet, put_packet
-from mrm_cosim.hdl.link.packet_ref import Header, PacketType, crc16
+from mrm_cosim.protocol.crc import crc16
+from mrm_cosim.protocol.packet import Header, PacketType
 from mrm_cosim.hdl.node.core import NodeCore
 from mrm_cosim.hdl.node.core_ref import NodeModel
-from mrm_cosim.hdl.node.encoder_ref import EncoderParams
-from mrm_cosim.hdl.node.fixed import FORCE
-from mrm_cosim.hdl.node.joint_ref import JointParams
-from mrm_cosim.hdl.node.regs import (
+from mrm_cosim.protocol.encoder import EncoderParams
+from mrm_cosim.protocol.fixed import FORCE
+from mrm_cosim.protocol.joint_program import JointParams
+from mrm_cosim.protocol.regs import (
     Config, NodeEvent, Status, config_payloads, joint_upload, pack_comm_b, pack_comm_d,
     parse_comm_a, parse_comm_c, vdc_upload,
 )
@@ -242,7 +243,7 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
     if mode == 2:
         # torque-only: τ = τ_D, committed at phase COMMIT; the tick at COMMIT still has the old
         # word, the next one the new, which lands cycles("torque") + 1 later.
-        from mrm_cosim.hdl.node.joint import joint_microcode
+        from mrm_cosim.protocol.joint_program import joint_microcode
 
         land = period_starts[0] + COMMIT + TICK + joint_microcode().cycles("torque") + 1
         d0 = period_packets(np.random.default_rng(0), 0)[1]
@@ -257,8 +258,8 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
 
 
 def test_payload_helpers_round_trip_and_refuse_bad_uploads():
-    from mrm_cosim.hdl.node.fixed import VEL
-    from mrm_cosim.hdl.node.regs import Bank, param_payloads, unpack_words
+    from mrm_cosim.protocol.fixed import VEL
+    from mrm_cosim.protocol.regs import Bank, param_payloads, unpack_words
     from mrm_cosim.errors import InputError
 
     b = pack_comm_b(0.5, [1, 2, 3, 4, 5, 6], [-1, -2, -3, -4, -5, -6], prime=True)
@@ -293,7 +294,7 @@ def test_upload_crc_and_count_equal_the_link_crc_over_the_payloads():
     (the link's CRC reference, computed here from the bytes) and their count, as the request
     found them, equal to the reference model's reply; one dropped or corrupted upload changes
     the CRC (and a dropped one the count)."""
-    from mrm_cosim.hdl.node.regs import upload_check
+    from mrm_cosim.protocol.regs import upload_check
 
     rng = np.random.default_rng(5)
     plan = []                       # (type, payload) in order

@@ -8,10 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mrm_cosim.hdl.node.encoder import QuadratureEncoder
-from mrm_cosim.hdl.node.encoder_ref import (
-    AGE_MAX, VEL_LATENCY, EncoderModel, EncoderParams, reciprocal, velocity_word,
-)
-from mrm_cosim.hdl.node.fixed import VEL
+from mrm_cosim.hdl.node.encoder_ref import VEL_LATENCY, EncoderModel, reciprocal, velocity_word
+from mrm_cosim.protocol.encoder import AGE_MAX, EncoderParams
+from mrm_cosim.protocol.fixed import VEL
 from mrm_cosim.models.encoder import counts_per_rad, quadrature_levels
 
 from .sim_helpers import run_simulation

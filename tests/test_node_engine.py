@@ -10,9 +10,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mrm_cosim.hdl.node.engine import MacEngine
-from mrm_cosim.hdl.node.engine_ref import EngineModel, mem_depth, run_statements
-from mrm_cosim.hdl.node.fixed import WORD_MAX, WORD_MIN, Fmt, round_shift, saturate
-from mrm_cosim.hdl.node.isa import IO_BASE, LATENCY, Instr, Op, Program, T, decode, encode
+from mrm_cosim.hdl.node.engine_ref import EngineModel, run_statements
+from mrm_cosim.protocol.fixed import WORD_MAX, WORD_MIN, Fmt, round_shift, saturate
+from mrm_cosim.protocol.isa import (IO_BASE, LATENCY, Instr, Op, Program, T, decode, encode,
+                                    mem_depth)
 
 from .sim_helpers import run_simulation
 

@@ -11,9 +11,9 @@ import pytest
 from mrm_cosim.cosim import plots
 from mrm_cosim.cosim.model_link import EVENT_TOLERANCE
 from mrm_cosim.cosim.track import _phases_us
-from mrm_cosim.hdl.node.isa import LATENCY, Op
-from mrm_cosim.hdl.node.regs import NodeEvent
-from mrm_cosim.hdl.node.vdc import vdc_microcode
+from mrm_cosim.protocol.isa import LATENCY, Op
+from mrm_cosim.protocol.regs import NodeEvent
+from mrm_cosim.protocol.vdc_program import vdc_microcode
 
 from .test_model_backend import _loop
 

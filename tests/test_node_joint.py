@@ -10,12 +10,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mrm_cosim.hdl.node.engine_ref import EngineModel
-from mrm_cosim.hdl.node.fixed import ACC, FORCE, POS, VEL, WORD_MAX, WORD_MIN
-from mrm_cosim.hdl.node.isa import IO_BASE
-from mrm_cosim.hdl.node.joint import (
-    joint_input_words, joint_microcode, joint_param_words, joint_state_words,
-)
-from mrm_cosim.hdl.node.joint_ref import MODES, JointInputs, JointModel, JointParams
+from mrm_cosim.protocol.fixed import ACC, FORCE, POS, VEL, WORD_MAX, WORD_MIN
+from mrm_cosim.protocol.isa import IO_BASE
+from mrm_cosim.protocol.joint_program import MODES, JointParams, joint_microcode, joint_param_words
+from mrm_cosim.hdl.node.joint_ref import (JointInputs, JointModel, joint_input_words,
+                                          joint_state_words)
 
 from .test_node_engine import run_engine
 

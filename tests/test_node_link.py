@@ -8,13 +8,13 @@ from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.sim import Simulator
 
-from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.protocol import packet as proto
 from mrm_cosim.hdl.link.chain import master_receive, put_chars
 from mrm_cosim.hdl.link.chars import Char
 from mrm_cosim.hdl.link.codec import Codec
 from mrm_cosim.hdl.node.core_ref import NodeModel
-from mrm_cosim.hdl.node.encoder_ref import EncoderParams
-from mrm_cosim.hdl.node.regs import (
+from mrm_cosim.protocol.encoder import EncoderParams
+from mrm_cosim.protocol.regs import (
     Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c, vdc_upload,
 )
 from mrm_cosim.hdl.node.top import SlaveNode
@@ -69,7 +69,7 @@ def test_node_answers_the_exchange_over_the_link():
     robot = load_robot("mrm3")
     theta = robot.nominal_theta[1]
     rng = np.random.default_rng(1)
-    uploads = [(ref.PacketType.PARAM, p) for p in
+    uploads = [(proto.PacketType.PARAM, p) for p in
                vdc_upload(theta, np.full((2, 6), 30.0), np.zeros((2, 13)), theta - 0.01,
                           theta + 0.01)]
     g = np.array([0.0, 0.0, 9.81])
@@ -80,12 +80,13 @@ def test_node_answers_the_exchange_over_the_link():
 
     async def frame(ctx, ptype, payload, seq=0):
         await put_chars(ctx, dut.master_tx,
-                        ref.encode(ref.Header(1, ref.MASTER_ADDRESS, int(ptype), seq), payload))
+                        proto.encode(proto.Header(1, proto.MASTER_ADDRESS, int(ptype), seq),
+                                     payload))
 
     async def reply(ctx):
         (chars,) = await master_receive(ctx, dut)
-        verdict, header, payload = ref.check_frame(chars)
-        assert verdict == ref.Verdict.GOOD
+        verdict, header, payload = proto.check_frame(chars)
+        assert verdict == proto.Verdict.GOOD
         return header, bytes(payload)
 
     async def master(ctx):
@@ -97,16 +98,16 @@ def test_node_answers_the_exchange_over_the_link():
             raise AssertionError("link did not come up")
         for ptype, payload in uploads:
             await frame(ctx, ptype, payload)
-        await frame(ctx, ref.PacketType.COMM_D, d)            # gravity for the first VDC run
+        await frame(ctx, proto.PacketType.COMM_D, d)            # gravity for the first VDC run
         ctx.set(dut.time_in, 5)
         ctx.set(dut.tick_in, 1)
         await ctx.tick()
         ctx.set(dut.tick_in, 0)
         await ctx.tick().repeat(100)
-        await frame(ctx, ref.PacketType.COMM_A, b"\0", seq=7)
+        await frame(ctx, proto.PacketType.COMM_A, b"\0", seq=7)
         replies["A"] = await reply(ctx)
-        await frame(ctx, ref.PacketType.COMM_B, b)
-        await frame(ctx, ref.PacketType.COMM_C, b"\0", seq=8)
+        await frame(ctx, proto.PacketType.COMM_B, b)
+        await frame(ctx, proto.PacketType.COMM_C, b"\0", seq=8)
         replies["C"] = await reply(ctx)
 
     sim = Simulator(dut)
@@ -117,19 +118,19 @@ def test_node_answers_the_exchange_over_the_link():
     model = NodeModel(encoder=ENC)
     for ptype, payload in uploads:
         model.packet(0, ptype, payload)
-    model.packet(0, ref.PacketType.COMM_D, d)
+    model.packet(0, proto.PacketType.COMM_D, d)
     model.period_start(0, 0, 0)                    # the joint rests at count 0
-    ref_a = model.packet(0, ref.PacketType.COMM_A, b"\0", period=5)
-    model.packet(0, ref.PacketType.COMM_B, b)
-    ref_c = model.packet(0, ref.PacketType.COMM_C, b"\0", period=5)
+    ref_a = model.packet(0, proto.PacketType.COMM_A, b"\0", period=5)
+    model.packet(0, proto.PacketType.COMM_B, b)
+    ref_c = model.packet(0, proto.PacketType.COMM_C, b"\0", period=5)
 
     header_a, payload_a = replies["A"]
     assert (header_a.dest, header_a.src, header_a.type, header_a.seq) == \
-        (ref.MASTER_ADDRESS, 1, ref.PacketType.COMM_A, 7)
+        (proto.MASTER_ADDRESS, 1, proto.PacketType.COMM_A, 7)
     assert payload_a == ref_a
     assert parse_comm_a(payload_a)["period"] == 5
     header_c, payload_c = replies["C"]
-    assert (header_c.src, header_c.type, header_c.seq) == (1, ref.PacketType.COMM_C, 8)
+    assert (header_c.src, header_c.type, header_c.seq) == (1, proto.PacketType.COMM_C, 8)
     assert payload_c == ref_c
     F_a, F_b, status, _ = parse_comm_c(payload_c)
     assert status & Status.FRESH and any(F_b)

@@ -9,7 +9,7 @@ from amaranth.sim import Simulator
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mrm_cosim.hdl.node.fixed import TRIG
+from mrm_cosim.protocol.fixed import TRIG
 from mrm_cosim.hdl.node.trig import LATENCY, SinCos
 from mrm_cosim.hdl.node.trig_ref import binary_angle, sin_cos
 

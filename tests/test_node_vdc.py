@@ -8,16 +8,17 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mrm_cosim.hdl.node.engine_ref import EngineModel
-from mrm_cosim.hdl.node.isa import IO_BASE
-from mrm_cosim.hdl.node.fixed import (
+from mrm_cosim.protocol.isa import IO_BASE
+from mrm_cosim.protocol.fixed import (
     ACC, FORCE, GAIN, RHOT, THETA, VEL, WORD_MAX, WORD_MIN, theta_group,
 )
-from mrm_cosim.hdl.node.vdc import (
-    VdcUnit, vdc_input_words, vdc_microcode, vdc_param_words, vdc_state_words,
+from mrm_cosim.protocol.vdc_program import (
+    Y_TABLE, VdcParams, theta_words, vdc_microcode, vdc_param_words,
 )
-from mrm_cosim.hdl.node.vdc_ref import Y_TABLE, VdcInputs, VdcModel, VdcParams
+from mrm_cosim.hdl.node.vdc import VdcUnit
+from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel, vdc_input_words, vdc_state_words
 from mrm_cosim.master.quintic import QuinticProfile
-from mrm_cosim.master.vdc_float import ModuleGains, ModuleVDC
+from mrm_cosim.hdl.node.vdc_float_ref import ModuleGains, ModuleVDC
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.models.spatial import regressor
 
@@ -49,7 +50,7 @@ def _model(rng, theta=None):
     lower = theta - np.abs(theta) * 0.3 - 1e-4
     upper = theta + np.abs(theta) * 0.3 + 1e-4
     params = VdcParams.from_float(K, rho, lower, upper, 1e-3)
-    return VdcModel(params, VdcModel.theta_words(theta)), (K, rho, lower, upper)
+    return VdcModel(params, theta_words(theta)), (K, rho, lower, upper)
 
 
 def _random_inputs(rng, scale=1.0):
@@ -73,7 +74,7 @@ def _engine_step(engine: EngineModel, mc, x: VdcInputs, first: bool):
 def _engine_for(model: VdcModel) -> EngineModel:
     mc = vdc_microcode()
     engine = EngineModel(mc)
-    for name, v in {**vdc_param_words(model), **vdc_state_words(model)}.items():
+    for name, v in {**vdc_param_words(model.params), **vdc_state_words(model)}.items():
         engine.write(mc.addr(name), v)
     return engine
 
@@ -130,7 +131,7 @@ def test_rtl_equals_reference():
     mc = vdc_microcode()
     xs = [_random_inputs(rng, 1.0), _random_inputs(rng, 1.0)]
     image = list(mc.init)
-    for name, v in {**vdc_param_words(model), **vdc_state_words(model),
+    for name, v in {**vdc_param_words(model.params), **vdc_state_words(model),
                     **vdc_input_words(xs[0])}.items():
         image[mc.addr(name)] = v
     writes = [(mc.addr(n), v) for n, v in vdc_input_words(xs[1]).items()]

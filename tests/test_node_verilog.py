@@ -72,7 +72,7 @@ def test_encoder_parameters_the_estimator_cannot_take_are_named(tmp_path, top, p
 
 
 def test_the_counts_per_rev_range_is_exact():
-    from mrm_cosim.hdl.node.encoder_ref import EncoderParams
+    from mrm_cosim.protocol.encoder import EncoderParams
 
     lo, hi = EncoderParams().counts_per_rev_range()
     assert lo <= 800_000 <= hi

@@ -5,7 +5,7 @@ from amaranth.sim import Simulator
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mrm_cosim.hdl.node.fixed import WORD_MAX, WORD_MIN
+from mrm_cosim.protocol.fixed import WORD_MAX, WORD_MIN
 from mrm_cosim.hdl.node.watchdog import Watchdog
 from mrm_cosim.hdl.node.watchdog_ref import WatchdogModel
 

@@ -11,113 +11,115 @@ from amaranth.sim import Simulator
 from mrm_cosim.hdl.link import packet_ref as ref
 from mrm_cosim.hdl.link.chain import get_chars, get_packet, put_chars, put_packet, read_stats
 from mrm_cosim.hdl.link.packet import Depacketizer, Packetizer
+from mrm_cosim.protocol import packet as proto
+from mrm_cosim.protocol.crc import crc16
 from .sim_helpers import run_simulation
 
 ADDRESS = 0x05
 
 
 def random_header(rng, *, dest=None):
-    return ref.Header(int(rng.integers(256)) if dest is None else dest, int(rng.integers(256)),
-                      int(rng.choice([*map(int, ref.PacketType), int(rng.integers(256))])),
+    return proto.Header(int(rng.integers(256)) if dest is None else dest, int(rng.integers(256)),
+                      int(rng.choice([*map(int, proto.PacketType), int(rng.integers(256))])),
                       int(rng.integers(256)))
 
 
-def random_payload(rng, max_payload=ref.DEFAULT_MAX_PAYLOAD):
-    n = int(rng.choice([1, 2, ref.DATA_PAYLOAD, max_payload, rng.integers(1, max_payload + 1)]))
+def random_payload(rng, max_payload=proto.DEFAULT_MAX_PAYLOAD):
+    n = int(rng.choice([1, 2, proto.DATA_PAYLOAD, max_payload, rng.integers(1, max_payload + 1)]))
     return bytes(rng.integers(0, 256, size=n).tolist())
 
 
-def bad_packets(rng, max_payload=ref.DEFAULT_MAX_PAYLOAD):
+def bad_packets(rng, max_payload=proto.DEFAULT_MAX_PAYLOAD):
     """A good frame and one of each kind of damaged frame, in random order."""
     def good():
-        return ref.encode(random_header(rng), random_payload(rng, max_payload),
+        return proto.encode(random_header(rng), random_payload(rng, max_payload),
                           max_payload=max_payload)
     flipped = good()
     position = int(rng.integers(len(flipped) - 1))
     flipped[position] ^= 1 << int(rng.integers(8))
-    short = good()[:int(rng.integers(0, ref.HEADER_BYTES + ref.CRC_BYTES + 1))] + [ref.EOP]
-    body = ref.Header(1, 2, 3, 4).to_bytes() + bytes(range(max_payload + 1))
-    crc = ref.crc16(body)
-    too_long = [*body, crc >> 8, crc & 0xFF, ref.EOP]  # correct CRC, one byte too many
-    eep = good()[:-1] + [ref.EEP]
+    short = good()[:int(rng.integers(0, proto.HEADER_BYTES + proto.CRC_BYTES + 1))] + [proto.EOP]
+    body = proto.Header(1, 2, 3, 4).to_bytes() + bytes(range(max_payload + 1))
+    crc = crc16(body)
+    too_long = [*body, crc >> 8, crc & 0xFF, proto.EOP]  # correct CRC, one byte too many
+    eep = good()[:-1] + [proto.EEP]
     truncated = good()
     del truncated[int(rng.integers(len(truncated) - 1))]
-    packets = [good(), flipped, short, too_long, eep, truncated, good(), [ref.EOP]]
+    packets = [good(), flipped, short, too_long, eep, truncated, good(), [proto.EOP]]
     order = rng.permutation(len(packets))
     return [packets[i] for i in order]
 
 
 def test_reference_frame_layout():
-    header = ref.Header(dest=3, src=0, type=ref.PacketType.COMM_B, seq=0x7E)
-    frame = ref.encode(header, bytes(range(40)))
+    header = proto.Header(dest=3, src=0, type=proto.PacketType.COMM_B, seq=0x7E)
+    frame = proto.encode(header, bytes(range(40)))
     assert len(frame) == 4 + 40 + 2 + 1, "a 40-byte package is 46 data characters and an EOP"
     assert frame[:4] == [3, 0, 0x0B, 0x7E]
     assert frame[4:44] == list(range(40))
-    crc = ref.crc16(bytes([3, 0, 0x0B, 0x7E, *range(40)]))
-    assert frame[44:] == [crc >> 8, crc & 0xFF, ref.EOP]
-    assert ref.check_frame(frame) == (ref.Verdict.GOOD, header, bytes(range(40)))
+    crc = crc16(bytes([3, 0, 0x0B, 0x7E, *range(40)]))
+    assert frame[44:] == [crc >> 8, crc & 0xFF, proto.EOP]
+    assert proto.check_frame(frame) == (proto.Verdict.GOOD, header, bytes(range(40)))
 
 
 def test_reference_classifies_bad_frames():
-    good = ref.encode(ref.Header(1, 0, 0x10, 9), b"\x01\x02\x03")
-    assert ref.check_frame(good)[0] is ref.Verdict.GOOD
-    assert ref.check_frame(good[:-1] + [ref.EEP])[0] is ref.Verdict.EEP
-    assert ref.check_frame([ref.EEP])[0] is ref.Verdict.EEP
-    assert ref.check_frame([ref.EOP])[0] is ref.Verdict.LENGTH
-    assert ref.check_frame(good[:6] + [ref.EOP])[0] is ref.Verdict.LENGTH
+    good = proto.encode(proto.Header(1, 0, 0x10, 9), b"\x01\x02\x03")
+    assert proto.check_frame(good)[0] is proto.Verdict.GOOD
+    assert proto.check_frame(good[:-1] + [proto.EEP])[0] is proto.Verdict.EEP
+    assert proto.check_frame([proto.EEP])[0] is proto.Verdict.EEP
+    assert proto.check_frame([proto.EOP])[0] is proto.Verdict.LENGTH
+    assert proto.check_frame(good[:6] + [proto.EOP])[0] is proto.Verdict.LENGTH
     corrupt = list(good)
     corrupt[5] ^= 0x40
-    assert ref.check_frame(corrupt)[0] is ref.Verdict.CRC
+    assert proto.check_frame(corrupt)[0] is proto.Verdict.CRC
     body = bytes(4 + 9)
-    crc = ref.crc16(body)
-    frame = [*body, crc >> 8, crc & 0xFF, ref.EOP]
-    assert ref.check_frame(frame, max_payload=9)[0] is ref.Verdict.GOOD
-    assert ref.check_frame(frame, max_payload=8)[0] is ref.Verdict.LENGTH
+    crc = crc16(body)
+    frame = [*body, crc >> 8, crc & 0xFF, proto.EOP]
+    assert proto.check_frame(frame, max_payload=9)[0] is proto.Verdict.GOOD
+    assert proto.check_frame(frame, max_payload=8)[0] is proto.Verdict.LENGTH
 
 
 def test_reference_rejects_bad_input():
     with pytest.raises(ValueError, match="Payload must hold"):
-        ref.encode(ref.Header(1, 0, 0, 0), b"")
+        proto.encode(proto.Header(1, 0, 0, 0), b"")
     with pytest.raises(ValueError, match="Payload must hold"):
-        ref.encode(ref.Header(1, 0, 0, 0), bytes(65))
+        proto.encode(proto.Header(1, 0, 0, 0), bytes(65))
     with pytest.raises(ValueError, match="Header.seq"):
-        ref.Header(1, 0, 0, 256)
+        proto.Header(1, 0, 0, 256)
     with pytest.raises(ValueError, match="end with EOP"):
-        ref.check_frame([1, 2, 3])
+        proto.check_frame([1, 2, 3])
 
 
-headers = st.builds(ref.Header, *[st.integers(0, 255)] * 4)
-payloads = st.binary(min_size=1, max_size=ref.DEFAULT_MAX_PAYLOAD)
+headers = st.builds(proto.Header, *[st.integers(0, 255)] * 4)
+payloads = st.binary(min_size=1, max_size=proto.DEFAULT_MAX_PAYLOAD)
 
 
 @settings(max_examples=200, deadline=None)
 @given(headers, payloads, st.data())
 def test_reference_round_trip_and_any_single_corruption_is_rejected(header, payload, data):
-    frame = ref.encode(header, payload)
-    assert ref.check_frame(frame) == (ref.Verdict.GOOD, header, payload)
+    frame = proto.encode(header, payload)
+    assert proto.check_frame(frame) == (proto.Verdict.GOOD, header, payload)
     index = data.draw(st.integers(0, len(frame) - 2))
     bad = list(frame)
     bad[index] ^= data.draw(st.integers(1, 255))   # any error burst within one character
-    assert ref.check_frame(bad)[0] is ref.Verdict.CRC
+    assert proto.check_frame(bad)[0] is proto.Verdict.CRC
 
 
 @settings(max_examples=200, deadline=None)
-@given(st.lists(st.one_of(st.integers(0, 255), st.sampled_from([ref.EOP, ref.EEP])),
+@given(st.lists(st.one_of(st.integers(0, 255), st.sampled_from([proto.EOP, proto.EEP])),
                 max_size=200))
 def test_reference_delivers_only_well_formed_frames(chars):
     model = ref.DepacketizerModel()
     for header, payload in model.feed(chars):
-        frame = ref.encode(header, payload)
+        frame = proto.encode(header, payload)
         assert any(chars[i:i + len(frame)] == frame for i in range(len(chars)))
-    ends = sum(char in (ref.EOP, ref.EEP) for char in chars)
+    ends = sum(char in (proto.EOP, proto.EEP) for char in chars)
     assert sum(model.counts.values()) == ends
 
 
 def test_reference_counters_saturate():
     model = ref.DepacketizerModel()
-    model.counts["eep"] = ref.COUNTER_MAX - 1
-    model.feed([ref.EEP, ref.EEP, ref.EEP])
-    assert model.counts["eep"] == ref.COUNTER_MAX
+    model.counts["eep"] = proto.COUNTER_MAX - 1
+    model.feed([proto.EEP, proto.EEP, proto.EEP])
+    assert model.counts["eep"] == proto.COUNTER_MAX
 
 
 def test_packetizer_matches_reference():
@@ -125,7 +127,7 @@ def test_packetizer_matches_reference():
     packets = [(random_header(rng), random_payload(rng)) for _ in range(12)]
     expected = []
     for header, payload in packets:
-        expected += ref.encode(ref.Header(header.dest, ADDRESS, header.type, header.seq),
+        expected += proto.encode(proto.Header(header.dest, ADDRESS, header.type, header.seq),
                                payload)
     dut = Packetizer()
 
@@ -208,7 +210,7 @@ def test_round_trip_through_packetizer_and_depacketizer():
     async def host_rx(ctx):
         for header, payload in packets:
             got = await get_packet(ctx, dut.depack.beats, rng=rng, p_stall=0.5)
-            assert got == (ref.Header(header.dest, ADDRESS, header.type, header.seq), payload)
+            assert got == (proto.Header(header.dest, ADDRESS, header.type, header.seq), payload)
         assert read_stats(ctx, dut.depack.stats) == {"good": 10, "crc": 0, "length": 0,
                                                       "eep": 0}
 
@@ -221,7 +223,7 @@ def test_round_trip_through_packetizer_and_depacketizer():
 
 def test_full_buffers_stop_the_link_instead_of_overwriting():
     payloads = [bytes([n] * (n + 1)) for n in range(3)]
-    frames = [ref.encode(ref.Header(1, 0, ref.PacketType.CONFIG, n), p)
+    frames = [proto.encode(proto.Header(1, 0, proto.PacketType.CONFIG, n), p)
               for n, p in enumerate(payloads)]
     dut = Depacketizer(slots=2)
 

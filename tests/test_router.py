@@ -6,6 +6,7 @@ from amaranth.sim import Simulator
 from mrm_cosim.hdl.link import packet_ref as ref
 from mrm_cosim.hdl.link.chain import char_int, char_value, get_chars, put_chars
 from mrm_cosim.hdl.link.router import Router
+from mrm_cosim.protocol import packet as proto
 from .sim_helpers import run_simulation
 
 ADDRESS = 2
@@ -15,10 +16,10 @@ def random_packets(rng, n, dests):
     """``n`` frames with random destinations from ``dests`` and unique payloads."""
     packets = []
     for index in range(n):
-        header = ref.Header(int(rng.choice(dests)), int(rng.integers(256)),
-                            int(ref.PacketType.COMM_A), index & 0xFF)
+        header = proto.Header(int(rng.choice(dests)), int(rng.integers(256)),
+                            int(proto.PacketType.COMM_A), index & 0xFF)
         payload = bytes([index, *rng.integers(0, 256, size=int(rng.integers(0, 12))).tolist()])
-        packets.append(ref.encode(header, payload))
+        packets.append(proto.encode(header, payload))
     return packets
 
 
@@ -41,8 +42,8 @@ def flatten(packets):
 
 def test_down_path_routes_by_address():
     rng = np.random.default_rng(20)
-    packets = random_packets(rng, 24, [ADDRESS, ref.BROADCAST, 1, 3, 7, ref.MASTER_ADDRESS])
-    inputs = packets[:8] + [[ref.EOP]] + packets[8:16] + [[ref.EEP]] + packets[16:]
+    packets = random_packets(rng, 24, [ADDRESS, proto.BROADCAST, 1, 3, 7, proto.MASTER_ADDRESS])
+    inputs = packets[:8] + [[proto.EOP]] + packets[8:16] + [[proto.EEP]] + packets[16:]
     model = ref.RouterModel(ADDRESS)
     to_local, to_down = [], []
     for packet in inputs:
@@ -75,7 +76,7 @@ def test_down_path_routes_by_address():
 
 def test_end_of_chain_discards_packets_for_missing_nodes():
     rng = np.random.default_rng(21)
-    packets = random_packets(rng, 16, [ADDRESS, ref.BROADCAST, 3, 9])
+    packets = random_packets(rng, 16, [ADDRESS, proto.BROADCAST, 3, 9])
     model = ref.RouterModel(ADDRESS)
     to_local = [model.from_upstream(p, down_running=False)[0] for p in packets]
     to_local = [p for p in to_local if p]
@@ -99,7 +100,7 @@ def test_end_of_chain_discards_packets_for_missing_nodes():
 
 def test_up_path_merges_whole_packets():
     rng = np.random.default_rng(22)
-    own = random_packets(rng, 12, [ref.MASTER_ADDRESS])
+    own = random_packets(rng, 12, [proto.MASTER_ADDRESS])
     forwarded = [[p[0], p[1] ^ 0x80, *p[2:]] for p in random_packets(rng, 12, [0])]
     dut = Router()
     sim = make_sim(dut)
@@ -112,7 +113,7 @@ def test_up_path_merges_whole_packets():
 
     async def upstream(ctx):
         chars = await get_chars(ctx, dut.up_tx, len(own) + len(forwarded), rng=rng, p_stall=0.4)
-        output = ref.split_packets(chars)
+        output = proto.split_packets(chars)
         assert ref.is_packet_merge(output, own, forwarded), "packets interleaved or lost"
         sources = ["own" if packet in own else "fwd" for packet in output]
         assert "own" in sources[:len(sources) // 2] and "fwd" in sources[:len(sources) // 2]
@@ -138,7 +139,7 @@ def test_round_robin_alternates_when_both_wait():
 
     async def upstream(ctx):
         await ctx.tick().repeat(5)  # let both sides wait
-        output = ref.split_packets(await get_chars(ctx, dut.up_tx, 6))
+        output = proto.split_packets(await get_chars(ctx, dut.up_tx, 6))
         # After reset the tie goes downstream first, then the grant alternates.
         assert output == [forwarded[0], own[0], forwarded[1], own[1], forwarded[2], own[2]]
 
@@ -168,10 +169,10 @@ def test_upstream_link_down_discards_without_blocking_the_host():
 
 def test_link_loss_mid_packet_follows_the_codec_rules():
     """Before the codec took any of a packet the router drops it; after, it keeps feeding it."""
-    packet_a = ref.encode(ref.Header(5, 0, 0x0A, 1), bytes(range(6)))
-    packet_b = ref.encode(ref.Header(5, 0, 0x0A, 2), bytes(range(6, 12)))
-    packet_c = ref.encode(ref.Header(6, 0, 0x0A, 3), bytes(range(12, 18)))
-    packet_d = ref.encode(ref.Header(7, 0, 0x0A, 4), bytes(range(18, 24)))
+    packet_a = proto.encode(proto.Header(5, 0, 0x0A, 1), bytes(range(6)))
+    packet_b = proto.encode(proto.Header(5, 0, 0x0A, 2), bytes(range(6, 12)))
+    packet_c = proto.encode(proto.Header(6, 0, 0x0A, 3), bytes(range(12, 18)))
+    packet_d = proto.encode(proto.Header(7, 0, 0x0A, 4), bytes(range(18, 24)))
     dut = Router()
     sim = make_sim(dut)
 
@@ -224,5 +225,5 @@ async def take_chars(ctx, stream, n):
 
 
 def test_char_value_round_trip():
-    for char in [0, 1, 0x7F, 0xFF, ref.EOP, ref.EEP]:
+    for char in [0, 1, 0x7F, 0xFF, proto.EOP, proto.EEP]:
         assert char_int(char_value(char)) == char

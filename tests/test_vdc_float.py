@@ -1,10 +1,10 @@
-"""Float VDC of one module (master/vdc_float.py) against pinocchio and closed forms."""
+"""Float VDC of one module (hdl/node/vdc_float_ref.py) against pinocchio and closed forms."""
 
 import numpy as np
 import pinocchio as pin
 import pytest
 
-from mrm_cosim.master.vdc_float import (
+from mrm_cosim.hdl.node.vdc_float_ref import (
     ModuleGains, ModuleVDC, adaptation_signal, link_a_acceleration, link_a_velocity,
     link_regressor, projection_update, required_net_force, rz,
 )

@@ -4,7 +4,7 @@
 :class:`~hdl.link.node.LinkNode` s back to back (master ─ node 1 ─ node 2 ─ … ─ node N, node
 ``k`` at address ``k``; the last node's downstream port is left unconnected). The async helpers
 below drive and check its streams from Amaranth testbenches (``sim.add_testbench``); characters
-and packets are in the integer form of :mod:`hdl.link.packet_ref`.
+and packets are in the integer form of :mod:`mrm_cosim.protocol.packet`.
 
 With ``line_faults=True`` every line of the chain passes through a fault injector the testbench
 controls (cut, stuck, flipped line samples; see :func:`line_fault_layout`). It exists for
@@ -17,13 +17,14 @@ from amaranth import *
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from . import packet_ref as ref
+from mrm_cosim.protocol import packet as proto
+from mrm_cosim.protocol.packet import DEFAULT_MAX_PAYLOAD
+
+from ..helpers import rejecting
 from .chars import Char, CharKind
 from .codec import Codec
 from .node import LinkNode
 from .packet import Beat, Header
-from .packet_ref import DEFAULT_MAX_PAYLOAD
-from .params import rejecting
 
 __all__ = ["Chain", "line_fault_layout", "faulty_line", "char_value", "char_int", "beat_value",
            "beat_fields", "put_chars", "get_chars", "put_packet", "get_packet", "master_send",
@@ -33,8 +34,8 @@ __all__ = ["Chain", "line_fault_layout", "faulty_line", "char_value", "char_int"
 _CHAR = Char.as_shape()
 _BEAT = Beat.as_shape()
 _HEADER = Header.as_shape()
-_KIND_OF = {ref.EOP: CharKind.EOP.value, ref.EEP: CharKind.EEP.value}
-_INT_OF = {CharKind.EOP.value: ref.EOP, CharKind.EEP.value: ref.EEP}
+_KIND_OF = {proto.EOP: CharKind.EOP.value, proto.EEP: CharKind.EEP.value}
+_INT_OF = {CharKind.EOP.value: proto.EOP, CharKind.EEP.value: proto.EEP}
 
 
 def char_value(char: int) -> int:
@@ -52,7 +53,7 @@ def char_int(raw: int) -> int:
     return _INT_OF[kind]
 
 
-def beat_value(header: ref.Header, byte: int, last: bool) -> int:
+def beat_value(header: proto.Header, byte: int, last: bool) -> int:
     """Raw value of a :class:`~hdl.link.packet.Beat`."""
     h = 0
     for name in ("dest", "src", "type", "seq"):
@@ -61,10 +62,10 @@ def beat_value(header: ref.Header, byte: int, last: bool) -> int:
             (int(bool(last)) << _BEAT["last"].offset))
 
 
-def beat_fields(raw: int) -> tuple[ref.Header, int, bool]:
+def beat_fields(raw: int) -> tuple[proto.Header, int, bool]:
     """``(header, byte, last)`` of the raw value of a :class:`~hdl.link.packet.Beat`."""
     h = raw >> _BEAT["header"].offset
-    header = ref.Header(*((h >> _HEADER[name].offset) & 0xFF
+    header = proto.Header(*((h >> _HEADER[name].offset) & 0xFF
                           for name in ("dest", "src", "type", "seq")))
     return header, (raw >> _BEAT["data"].offset) & 0xFF, bool((raw >> _BEAT["last"].offset) & 1)
 
@@ -103,12 +104,12 @@ async def get_chars(ctx, stream, n_packets: int, *, rng=None, p_stall: float = 0
         _, _, valid, raw = await ctx.tick().sample(stream.valid, stream.payload.as_value())
         if ready and valid:
             chars.append(char_int(raw))
-            ends += chars[-1] in (ref.EOP, ref.EEP)
+            ends += chars[-1] in (proto.EOP, proto.EEP)
     ctx.set(stream.ready, 0)
     return chars
 
 
-async def put_packet(ctx, stream, header: ref.Header, payload, *, rng=None,
+async def put_packet(ctx, stream, header: proto.Header, payload, *, rng=None,
                      p_idle: float = 0.0):
     """Offer one packet as :class:`~hdl.link.packet.Beat` s on a host stream."""
     payload = bytes(payload)
@@ -119,7 +120,7 @@ async def put_packet(ctx, stream, header: ref.Header, payload, *, rng=None,
 
 
 async def get_packet(ctx, stream, *, rng=None, p_stall: float = 0.0
-                     ) -> tuple[ref.Header, bytes]:
+                     ) -> tuple[proto.Header, bytes]:
     """Take one packet from a host :class:`~hdl.link.packet.Beat` stream.
 
     Checks that the header stays the same on every beat of the packet.
@@ -176,7 +177,7 @@ class Chain(wiring.Component):
     Attributes
     ----------
     master_tx : In(stream.Signature(Char))
-        Characters the master sends (frames from :func:`~hdl.link.packet_ref.encode`).
+        Characters the master sends (frames from :func:`~mrm_cosim.protocol.packet.encode`).
     master_rx : Out(stream.Signature(Char))
         Characters the master receives.
     tick_in, time_in : In(1), In(8)
@@ -263,23 +264,23 @@ class Chain(wiring.Component):
         return m
 
 
-async def master_send(ctx, chain: Chain, header: ref.Header, payload, **kwargs):
+async def master_send(ctx, chain: Chain, header: proto.Header, payload, **kwargs):
     """Send one frame from the master (``kwargs`` go to :func:`put_chars`)."""
-    await put_chars(ctx, chain.master_tx, ref.encode(header, payload), **kwargs)
+    await put_chars(ctx, chain.master_tx, proto.encode(header, payload), **kwargs)
 
 
 async def master_receive(ctx, chain: Chain, n_packets: int = 1, **kwargs
                          ) -> list[list[int]]:
     """Receive ``n_packets`` packets at the master, as character lists."""
-    return ref.split_packets(await get_chars(ctx, chain.master_rx, n_packets, **kwargs))
+    return proto.split_packets(await get_chars(ctx, chain.master_rx, n_packets, **kwargs))
 
 
-async def node_send(ctx, node: LinkNode, header: ref.Header, payload, **kwargs):
+async def node_send(ctx, node: LinkNode, header: proto.Header, payload, **kwargs):
     """Send one packet from a node's host interface (``kwargs`` go to :func:`put_packet`)."""
     await put_packet(ctx, node.tx, header, payload, **kwargs)
 
 
-async def node_receive(ctx, node: LinkNode, **kwargs) -> tuple[ref.Header, bytes]:
+async def node_receive(ctx, node: LinkNode, **kwargs) -> tuple[proto.Header, bytes]:
     """Receive one packet at a node's host interface."""
     return await get_packet(ctx, node.rx, **kwargs)
 

@@ -25,12 +25,14 @@ from amaranth.lib import stream, wiring
 from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.wiring import In, Out
 
-from .chars import FCT_CREDIT, MAX_CREDIT, Char, CharKind, ErrorCounts, LinkState
+from mrm_cosim.protocol.link import FCT_CREDIT, MAX_CREDIT, codec_params
+from mrm_cosim.units import CLOCK_HZ
+
+from ..helpers import rejecting
+from .chars import Char, CharKind, ErrorCounts, LinkState
 from .ds import DSReceiver
-from .params import codec_params, rejecting
 from .fsm import LinkFSM
 from .rx import CharReceiver
-from mrm_cosim.units import CLOCK_HZ
 
 from .tx import CharTransmitter
 

@@ -14,13 +14,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from .chars import ERROR_CLASSES, FCT_CREDIT, MAX_CREDIT, CharKind, LinkState
-from .ds import GROUP_BITS
-from .packet_ref import COUNTER_MAX
-from .params import codec_params
-from .rx import NULL_PATTERN
+from mrm_cosim.protocol.link import (ERROR_CLASSES, FCT_CREDIT, GROUP_BITS, MAX_CREDIT,
+                                     NULL_PATTERN, CharKind, LinkState, codec_params)
+from mrm_cosim.protocol.packet import COUNTER_MAX
 
-__all__ = ["CodecRef", "CodecOutputs", "char_value", "char_fields"]
+__all__ = ["CodecRef", "CodecOutputs", "char_value", "char_fields", "saturating_sum_ref"]
 
 _ER, _EW, _READY, _STARTED, _CONNECTING, _RUN = (s.value for s in LinkState)
 _DATA, _EOP, _EEP = CharKind.DATA.value, CharKind.EOP.value, CharKind.EEP.value
@@ -34,6 +32,12 @@ def char_value(kind: int, data: int = 0) -> int:
 def char_fields(value: int) -> tuple[int, int]:
     """Unpack a :class:`~hdl.link.chars.Char` value into ``(kind, data)``."""
     return value & 3, (value >> 2) & 0xFF
+
+
+def saturating_sum_ref(values, width: int = 16) -> int:
+    """Reference of :func:`~mrm_cosim.hdl.link.chars.saturating_sum`: the sum of ``values``
+    saturated at ``2**width - 1`` (how a node reports its codecs' error classes as one)."""
+    return min(sum(int(v) for v in values), (1 << width) - 1)
 
 
 class CodecOutputs(NamedTuple):

@@ -1,35 +1,21 @@
 """CRC-16/CCITT-FALSE, one byte per clock, for the packet layer.
 
-# Ref: ITU-T V.41 polynomial; parameters as catalogued by reveng ("CRC-16/IBM-3740", alias
-# "CRC-16/CCITT-FALSE"): width 16, poly 0x1021, init 0xFFFF, refin/refout false, xorout 0,
-# check("123456789") = 0x29B1, residue 0x0000.
+# Ref: ITU-T V.41 polynomial; the parameters, the bit-serial definition and the zero-residue
+# property the receiver relies on are in :mod:`mrm_cosim.protocol.crc`.
 
-Each data byte updates the register as eight steps of the long division, most significant bit
-first::
-
-    crc ^= byte << 8
-    repeat 8:  crc = (crc << 1) ^ (0x1021 if crc & 0x8000 else 0)      (16 bits kept)
-
-Because the CRC is not reflected and has no output XOR, running the same register over a frame
-*followed by its CRC sent high byte first* leaves the register at 0 (the residue). The receiver
-uses that: it does not need to know where the payload ends to check a frame.
-
-:func:`crc16_next` builds that update as an XOR network (the eight steps unrolled into one
-GF(2)-linear map, each new bit the XOR of fixed old register and data bits), so the
-:class:`CRC16` component handles one byte per cycle with no state machine.
+:func:`crc16_next` builds the update of one byte (eight steps of the long division) as an XOR
+network (the eight steps unrolled into one GF(2)-linear map, each new bit the XOR of fixed old
+register and data bits), so the :class:`CRC16` component handles one byte per cycle with no
+state machine.
 """
 
 from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.crc import CRC16_INIT, CRC16_POLY
 
-__all__ = ["CRC16_POLY", "CRC16_INIT", "CRC16_CHECK", "crc16_next", "CRC16"]
-
-
-CRC16_POLY  = 0x1021
-CRC16_INIT  = 0xFFFF
-CRC16_CHECK = 0x29B1  # CRC of the ASCII bytes "123456789"
+__all__ = ["crc16_next", "CRC16"]
 
 
 def _next_state_taps():

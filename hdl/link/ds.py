@@ -18,12 +18,11 @@ from amaranth import *
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from .params import check_div, check_slots, rejecting
+from mrm_cosim.protocol.link import GROUP_BITS, check_div, check_slots
 
-__all__ = ["TxBits", "DSTransmitter", "DSReceiver", "GROUP_BITS"]
+from ..helpers import rejecting
 
-#: Longest group of line bits the transmitter accepts at once (a time-code: ESC + data).
-GROUP_BITS = 14
+__all__ = ["TxBits", "DSTransmitter", "DSReceiver"]
 
 
 class TxBits(data.Struct):

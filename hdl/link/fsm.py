@@ -28,8 +28,10 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.link import check_cycles
+
+from ..helpers import rejecting
 from .chars import ErrorCounts, LinkState
-from .params import check_cycles, rejecting
 
 __all__ = ["LinkFSM"]
 

@@ -30,11 +30,12 @@ from amaranth import *
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.packet import DEFAULT_MAX_PAYLOAD
+
+from ..helpers import rejecting
 from .chars import ErrorCounts
 from .codec import Codec
 from .packet import Beat, Depacketizer, Packetizer, RxStats
-from .packet_ref import DEFAULT_MAX_PAYLOAD
-from .params import rejecting
 from .router import Router
 
 

@@ -12,40 +12,32 @@ router could route it by logical address. All fields are bytes sent as data char
 frame is 46 data characters and an EOP. There is no length field: the EOP delimits the frame,
 and the receiver counts the characters. The CRC is CRC-16/CCITT-FALSE over dest..payload
 (:mod:`hdl.link.crc`); the receiver folds in the CRC bytes too and checks for a zero residue.
+The frame, the packet types and the receiver's checks are defined in
+:mod:`mrm_cosim.protocol.packet`; this module is their gateware.
 
 On the host side a packet is a stream of :class:`Beat` — one per payload byte, each carrying
 the packet's header, the last one flagged — in both directions.
 """
 
 from amaranth import *
-from amaranth.lib import data, enum, stream, wiring
+from amaranth.lib import data, stream, wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
+from mrm_cosim.protocol import packet as proto
+from mrm_cosim.protocol.packet import (COUNTER_MAX, CRC_BYTES, DEFAULT_MAX_PAYLOAD, HEADER_BYTES,
+                                       MIN_PAYLOAD)
+
+from ..helpers import rejecting, shaped_enum
 from .chars import Char, CharKind
 from .crc import CRC16
-from .params import rejecting
-from .packet_ref import (BROADCAST, COUNTER_MAX, CRC_BYTES, DATA_PAYLOAD, DEFAULT_MAX_PAYLOAD,
-                         HEADER_BYTES, MASTER_ADDRESS, MIN_PAYLOAD)
+
+__all__ = ["PacketType", "Header", "Beat", "RxStats", "Packetizer", "Depacketizer"]
 
 
-__all__ = ["MASTER_ADDRESS", "BROADCAST", "HEADER_BYTES", "CRC_BYTES", "MIN_PAYLOAD",
-           "DATA_PAYLOAD", "DEFAULT_MAX_PAYLOAD", "PacketType", "Header", "Beat", "RxStats",
-           "Packetizer", "Depacketizer"]
-
-
-class PacketType(enum.Enum, shape=8):
-    """Packet types. The link layer carries any byte; these are the ones the project defines."""
-
-    COMM_A = 0x0A  # slave -> master: joint position, velocity, status
-    COMM_B = 0x0B  # master -> slave: required joint velocity, V, V_r
-    COMM_C = 0x0C  # slave -> master: required net force/moment of Link a and Link b
-    COMM_D = 0x0D  # master -> slave: required joint load torque (projection on the axis)
-    CONFIG = 0x10  # configuration register write / read-back
-    PARAM  = 0x20  # parameter upload (VDC estimates, bounds, gains)
-    DMP    = 0x30  # motion-primitive deployment (weights, centres, widths)
-    STATUS = 0x40  # status / error counters report
+#: The packet types of :class:`mrm_cosim.protocol.packet.PacketType` as an 8-bit field.
+PacketType = shaped_enum(proto.PacketType, 8, __name__)
 
 
 class Header(data.Struct):

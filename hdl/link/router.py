@@ -32,8 +32,9 @@ from amaranth import *
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.packet import BROADCAST, COUNTER_MAX
+
 from .chars import Char, CharKind
-from .packet_ref import BROADCAST, COUNTER_MAX
 
 
 __all__ = ["Router"]

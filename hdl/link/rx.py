@@ -18,14 +18,12 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.link import NULL_PATTERN, check_cycles, check_slots
+
+from ..helpers import rejecting
 from .chars import Char, CharKind, ControlCode
-from .params import check_cycles, check_slots, rejecting
 
-__all__ = ["CharReceiver", "NULL_PATTERN"]
-
-#: The last seven bits of the first NULL, oldest in bit 6: ``1 1 1`` (ESC after its parity)
-#: then ``0 1 0 0`` (FCT with parity 0).
-NULL_PATTERN = 0b1110100
+__all__ = ["CharReceiver"]
 
 
 class CharReceiver(wiring.Component):

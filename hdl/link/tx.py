@@ -16,10 +16,12 @@ from amaranth import *
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from .chars import (CONTROL_BITS, DATA_BITS, NULL_BITS, TIME_BITS, Char, CharKind, ControlChar,
-                    ControlCode, DataChar)
+from mrm_cosim.protocol.link import (CONTROL_BITS, DATA_BITS, NULL_BITS, TIME_BITS, check_div,
+                                     check_slots)
+
+from ..helpers import rejecting
+from .chars import Char, CharKind, ControlChar, ControlCode, DataChar
 from .ds import DSTransmitter
-from .params import check_div, check_slots, rejecting
 
 __all__ = ["CharTransmitter"]
 

@@ -17,9 +17,10 @@ from amaranth import *
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.fixed import WORD
+from mrm_cosim.protocol.regs import CONFIG_DEFAULTS, MODES, Config
+
 from .decoder import ConfigRecord
-from .fixed import WORD
-from .regs import CONFIG_DEFAULTS, MODES, Config
 
 __all__ = ["NodeConfig"]
 

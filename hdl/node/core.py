@@ -64,20 +64,21 @@ from amaranth import *
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from mrm_cosim.hdl.link.chars import ERROR_CLASSES, ErrorCounts, saturating_sum
+from mrm_cosim.hdl.link.chars import ErrorCounts, saturating_sum
 from mrm_cosim.hdl.link.packet import Beat, PacketType, RxStats
+from mrm_cosim.protocol.encoder import EncoderParams
+from mrm_cosim.protocol.fixed import WORD
+from mrm_cosim.protocol.isa import IO_BASE
+from mrm_cosim.protocol.joint_program import INPUTS as JOINT_INPUTS
+from mrm_cosim.protocol.link import ERROR_CLASSES
+from mrm_cosim.protocol.regs import RX_DROPS, Bank
+from mrm_cosim.protocol.regs import NodeEvent as Ev
 
 from .commit import ReferenceCommit
 from .config import NodeConfig
 from .decoder import PacketDecoder
 from .encoder import QuadratureEncoder
-from .encoder_ref import EncoderParams
-from .fixed import WORD
-from .isa import IO_BASE
-from .joint import INPUTS as JOINT_INPUTS
 from .joint import JointUnit
-from .regs import RX_DROPS, Bank
-from .regs import NodeEvent as Ev
 from .reply import ReplyBuilder
 from .ticks import ControlTicks
 from .timer import PeriodTimer

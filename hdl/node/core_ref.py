@@ -14,8 +14,8 @@ Internal events follow the node's period timer (free-running from reset, phase 0
   Comm A reply carries (count, velocity, torque, status, encoder errors, counters), CORDIC of
   the count; an ARM received before the previous cycle takes effect here (PID integral cleared);
 * control ticks every ``TICK`` cycles from each boundary; a tick's command lands
-  ``cycles(mode)`` cycles later (:meth:`~hdl.node.isa.Microcode.cycles`), then the limits and
-  the watchdog apply;
+  ``cycles(mode)`` cycles later (:meth:`~mrm_cosim.protocol.isa.Microcode.cycles`), then the
+  limits and the watchdog apply;
 * commit point (phase ``COMMIT``): an armed node's last full Comm D becomes the joint
   engine's input (disarmed: at its last byte).
 
@@ -23,12 +23,13 @@ External events: :meth:`timecode` at the strobe's cycle, :meth:`packet` at the c
 byte is taken. Within one cycle, internal events come first (they see the registers as they were
 before the cycle, as the packet does).
 
-Observation port. With :attr:`NodeModel.events` a list, the model appends ``(cycle,
-NodeEvent)`` for every strobe of the gateware's ``events`` port (:class:`~hdl.node.regs.NodeEvent`),
-not necessarily in cycle order: boundaries, resyncs, time-codes, packets taken and commits when
-they happen; the VDC's start one cycle after the Comm B (the engine is idle then: a Comm B
-follows the boundary's CORDIC), its MARK and END :meth:`~hdl.node.isa.Microcode.mark_cycles`
-and :meth:`~hdl.node.isa.Microcode.cycles` after that; a reply leaving the cycle after its
+Observation port. With :attr:`NodeModel.events` a list, the model appends ``(cycle, NodeEvent)``
+for every strobe of the gateware's ``events`` port
+(:class:`~mrm_cosim.protocol.regs.NodeEvent`), not necessarily in cycle order: boundaries,
+resyncs, time-codes, packets taken and commits when they happen; the VDC's start one cycle after
+the Comm B (the engine is idle then: a Comm B follows the boundary's CORDIC), its MARK and END
+:meth:`~mrm_cosim.protocol.isa.Microcode.mark_cycles` and
+:meth:`~mrm_cosim.protocol.isa.Microcode.cycles` after that; a reply leaving the cycle after its
 request (Comm C: after the request and the MARK), which assumes the reply FSM is idle, i.e. the
 previous reply has left (in the A/B/C/D cycle they are tens of µs apart).
 """
@@ -38,21 +39,22 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from functools import cache
 
-from mrm_cosim.hdl.link.chars import ERROR_CLASSES, saturating_sum_ref
-from mrm_cosim.hdl.link.crc import CRC16_INIT
-from mrm_cosim.hdl.link.packet_ref import PacketType, crc16
+from mrm_cosim.hdl.link.codec_ref import saturating_sum_ref
+from mrm_cosim.protocol.crc import CRC16_INIT, crc16
+from mrm_cosim.protocol.encoder import EncoderParams
+from mrm_cosim.protocol.fixed import saturate
+from mrm_cosim.protocol.joint_program import MODES as JOINT_MODES
+from mrm_cosim.protocol.joint_program import JointParams, joint_microcode
+from mrm_cosim.protocol.link import ERROR_CLASSES
+from mrm_cosim.protocol.packet import PacketType
+from mrm_cosim.protocol.regs import (COMM_B_WORDS, COMM_D_WORDS, CONFIG_DEFAULTS, PAYLOAD,
+                                     RX_DROPS, Bank, Config, Status, pack_words, unpack_words)
+from mrm_cosim.protocol.regs import NodeEvent as Ev
+from mrm_cosim.protocol.vdc_program import VdcParams, vdc_microcode
 
-from .encoder_ref import EncoderParams
-from .fixed import saturate
-from .joint import joint_microcode
-from .joint_ref import MODES as JOINT_MODES
-from .joint_ref import JointInputs, JointModel, JointParams
-from .regs import (COMM_B_WORDS, COMM_D_WORDS, CONFIG_DEFAULTS, PAYLOAD, RX_DROPS, Bank, Config,
-                   Status, pack_words, unpack_words)
-from .regs import NodeEvent as Ev
+from .joint_ref import JointInputs, JointModel
 from .trig_ref import sin_cos
-from .vdc import vdc_microcode
-from .vdc_ref import VdcInputs, VdcModel, VdcParams
+from .vdc_ref import VdcInputs, VdcModel
 
 __all__ = ["NodeModel"]
 
@@ -63,8 +65,8 @@ _NEVER = 1 << 62
 @cache
 def _vdc_timing(entry: str) -> tuple[int, int]:
     """``(mark_cycles, cycles)`` of the VDC program's entry point: properties of the ROM
-    (:func:`~.vdc.vdc_microcode`, built once), scanned once per entry instead of on every
-    Comm B."""
+    (:func:`~mrm_cosim.protocol.vdc_program.vdc_microcode`, built once), scanned once per
+    entry instead of on every Comm B."""
     mc = vdc_microcode()
     return mc.mark_cycles(entry), mc.cycles(entry)
 

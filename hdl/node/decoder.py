@@ -24,10 +24,9 @@ from amaranth.lib.wiring import In, Out
 
 from mrm_cosim.hdl.link.crc import CRC16_INIT, crc16_next
 from mrm_cosim.hdl.link.packet import Beat, PacketType
-
-from .fixed import WORD
-from .isa import Microcode
-from .regs import COMM_B_WORDS, PAYLOAD, Bank
+from mrm_cosim.protocol.fixed import WORD
+from mrm_cosim.protocol.isa import Microcode
+from mrm_cosim.protocol.regs import COMM_B_WORDS, PAYLOAD, Bank
 
 __all__ = ["PacketDecoder", "HostWrite", "ConfigRecord", "PacketEnd", "CommDWords"]
 

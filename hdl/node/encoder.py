@@ -27,8 +27,8 @@ from amaranth.lib import wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 
-from .encoder_ref import AGE_BITS, AGE_MAX, DC_MAX, RECIP_TABLE, EncoderParams
-from .fixed import WORD, WORD_MAX, WORD_MIN
+from mrm_cosim.protocol.encoder import AGE_BITS, AGE_MAX, DC_MAX, RECIP_TABLE, EncoderParams
+from mrm_cosim.protocol.fixed import WORD, WORD_MAX, WORD_MIN
 
 __all__ = ["QuadratureEncoder"]
 

@@ -1,8 +1,9 @@
 """Microcoded multiply-accumulate engine: one shared 24×24 multiplier sequenced from a ROM.
 
-This is how the node computes without a divider and with few multipliers, as a Virtex-II
-design would (DESIGN.md "Slave node"): a program of multiply-accumulate statements
-(:mod:`.isa`), scheduled at build time, runs one term per cycle through a seven-stage pipeline::
+This is how the node computes without a divider and with few multipliers, as a Virtex-II design
+would (DESIGN.md "Slave node"): a program of multiply-accumulate statements
+(:mod:`mrm_cosim.protocol.isa`), scheduled at build time, runs one term per cycle through a
+seven-stage pipeline::
 
     R   instruction from ROM; register-file (or input-port) read of operands a, b
     O   operands registered (off the block RAM's slow output)
@@ -14,12 +15,12 @@ design would (DESIGN.md "Slave node"): a program of multiply-accumulate statemen
     W1  take bits ``oshift .. oshift+23`` (the sum rounded half up), saturate (or wrap)
     W2  write the register file or an output register; MARK / END pulse ``mark`` / ``done``
 
-A result is readable by a term issued :data:`~hdl.node.isa.LATENCY` cycles after the last term
-that produced it; the scheduler guarantees that. The product and output shifters are built for
-the shift amounts the program uses only (a handful), not as full barrel shifters. The host port
-reads the register file at any time (one cycle of latency) and writes it while the engine is
-idle. Timing: a ``start`` strobe
-in cycle 0 gives ``done`` in cycle :meth:`Microcode.cycles <hdl.node.isa.Microcode.cycles>`.
+A result is readable by a term issued :data:`~mrm_cosim.protocol.isa.LATENCY` cycles after the
+last term that produced it; the scheduler guarantees that. The product and output shifters are
+built for the shift amounts the program uses only (a handful), not as full barrel shifters. The
+host port reads the register file at any time (one cycle of latency) and writes it while the
+engine is idle. Timing: a ``start`` strobe in cycle 0 gives ``done`` in cycle
+:meth:`Microcode.cycles <mrm_cosim.protocol.isa.Microcode.cycles>`.
 """
 
 from amaranth import *
@@ -28,9 +29,9 @@ from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
-from .engine_ref import mem_depth
-from .fixed import WORD, WORD_MAX, WORD_MIN
-from .isa import ACC_WIDTH, ADDR_BITS, INSTR_FIELDS, INSTR_BITS, IO_BASE, Microcode, Op
+from mrm_cosim.protocol.fixed import WORD, WORD_MAX, WORD_MIN
+from mrm_cosim.protocol.isa import (ACC_WIDTH, ADDR_BITS, INSTR_BITS, INSTR_FIELDS, IO_BASE,
+                                    Microcode, Op, mem_depth)
 
 __all__ = ["MacEngine", "InstrLayout"]
 

@@ -10,15 +10,10 @@
 
 from __future__ import annotations
 
-from .fixed import WORD, round_shift, saturate, wrap
-from .isa import IO_BASE, IO_PORTS, Microcode, Op
+from mrm_cosim.protocol.fixed import WORD, round_shift, saturate, wrap
+from mrm_cosim.protocol.isa import IO_BASE, IO_PORTS, Microcode, Op, mem_depth
 
-__all__ = ["EngineModel", "run_statements", "mem_depth"]
-
-
-def mem_depth(depth: int) -> int:
-    """Register-file size the gateware builds for ``depth`` words: the next power of two."""
-    return 1 << max(0, (depth - 1).bit_length())
+__all__ = ["EngineModel", "run_statements"]
 
 
 def _word(v: int) -> int:
@@ -39,7 +34,7 @@ class EngineModel:
     mem : list of int
         Register file (:func:`mem_depth` words; addresses are taken modulo its size).
     outputs : list of int
-        Output registers, :data:`~hdl.node.isa.IO_PORTS` words.
+        Output registers, :data:`~mrm_cosim.protocol.isa.IO_PORTS` words.
     """
 
     def __init__(self, microcode: Microcode, mem=None):

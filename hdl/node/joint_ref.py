@@ -30,93 +30,42 @@ Part B prepares ``(q_des, v_des)`` for the next tick at ``t_next`` cycles after 
 is latched. Torque limits and the watchdog's ramp act after the engine (:mod:`.watchdog`).
 
 Each rounding point is one ``fx`` below (exact sum, one rounding half up, saturation); the
-formats are in :mod:`.fixed`.
+formats are in :mod:`mrm_cosim.protocol.fixed`.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
-from .fixed import (ACC, ANG, CNT, CT, FORCE, GAIN, IHI, IM, IVLC, IVS, KC, KI, KP, LAM, LAMC,
-                    POS, SGN, TIME, TS, VEL, VISC, saturate)
+from mrm_cosim.protocol.fixed import (
+    ACC,
+    ANG,
+    CNT,
+    CT,
+    FORCE,
+    GAIN,
+    IHI,
+    IM,
+    IVLC,
+    IVS,
+    KC,
+    KI,
+    KP,
+    LAM,
+    LAMC,
+    POS,
+    SGN,
+    TIME,
+    TS,
+    VEL,
+    VISC,
+    saturate,
+)
+from mrm_cosim.protocol.joint_program import MODES, JointParams
+
 from .vdc_ref import fx_point
-from mrm_cosim.units import CLOCK_HZ
 
-__all__ = ["MODES", "JointParams", "JointInputs", "JointModel"]
-
-MODES = ("vdc", "pid", "torque")
-
-
-@dataclass
-class JointParams:
-    """Uploaded words of the joint engine (see :meth:`from_float` for their meaning)."""
-
-    cT: int
-    cTh: int
-    Kc: int
-    lamc: int
-    lam: int
-    ivs: int
-    ivlc: int
-    kj: int
-    th0: int
-    th1: int
-    th2: int
-    th3: int
-    kp: int
-    ki: int
-    kd: int
-    ilo: int
-    ihi: int
-
-    FORMATS = dict(cT=CT, cTh=CT, Kc=KC, lamc=LAMC, lam=LAM, ivs=IVS, ivlc=IVLC, kj=GAIN,
-                   th0=IM, th1=VISC, th2=FORCE, th3=FORCE, kp=KP, ki=KI, kd=GAIN, ilo=IHI,
-                   ihi=IHI)
-
-    @classmethod
-    def from_float(cls, *, counts_per_rev: int = 800_000, clock_hz: float = float(CLOCK_HZ),
-                   tick_cycles: int = 50, lam: float = 50.0, k_j: float = 0.0,
-                   inertia: float = 0.0, viscous: float = 0.0, coulomb: float = 0.0,
-                   offset: float = 0.0, v_smooth: float = 1e-3, k_p: float = 0.0,
-                   k_i: float = 0.0, k_d: float = 0.0, i_max: float = 0.0,
-                   field: str = "joint") -> JointParams:
-        """Words from SI values, refusing any that does not fit (:class:`InputError`).
-
-        Parameters
-        ----------
-        counts_per_rev : int
-        clock_hz : float
-        tick_cycles : int
-            Cycles per control tick (for the integral gain).
-        lam : float, 1/s
-            λ of ``q̇_r = q̇_d + λ (q_d − q)``.
-        k_j : float, N·m·s/rad
-            Joint velocity-error gain.
-        inertia, viscous, coulomb, offset : float
-            Joint regressor estimates: reflected rotor inertia (kg·m²), viscous (N·m·s/rad),
-            Coulomb (N·m) friction and a constant torque (N·m).
-        v_smooth : float, rad/s
-            Speed over which the smooth sign goes from −1 to 1 (half of it each side).
-        k_p, k_i, k_d : float
-            PID gains in N·m/rad, N·m/(rad·s), N·m·s/rad.
-        i_max : float, rad·s
-            Anti-windup bound of the integral of the position error (on its coarse part).
-        field : str
-            Name used in error messages.
-        """
-        rad = 2 * math.pi / counts_per_rev          # rad per count
-        tick = tick_cycles / clock_hz
-        values = dict(cT=1 / clock_hz, cTh=0.5 / clock_hz, Kc=1 / rad, lamc=lam * rad,
-                      lam=lam, ivs=1 / v_smooth, ivlc=lam * rad / v_smooth, kj=k_j,
-                      th0=inertia, th1=viscous, th2=coulomb, th3=offset, kp=k_p * rad,
-                      ki=k_i * rad * tick, kd=k_d, ilo=-i_max / (rad * tick),
-                      ihi=i_max / (rad * tick))
-        return cls(**{k: cls.FORMATS[k].encode_checked(v, f"{field}.{k}")
-                      for k, v in values.items()})
-
-    def words(self) -> dict[str, int]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+__all__ = ["JointInputs", "JointModel", "joint_input_words", "joint_state_words"]
 
 
 @dataclass
@@ -235,3 +184,13 @@ class JointModel:
         h = _VD(vd0, ad0 * tsh)
         dq = _DQ(h * ts)
         self.q_des = _QD(qd0, dq * p.Kc)
+
+
+def joint_input_words(x: JointInputs) -> list[int]:
+    """Input-port words in port order (:data:`~mrm_cosim.protocol.joint_program.INPUTS`)."""
+    return [x.q, x.qd, x.tn, x.tau_D, x.qd0, x.vd0, x.ad0]
+
+
+def joint_state_words(model: JointModel) -> dict[str, int]:
+    """Register words of the state (reference for the next tick, PID integral), by name."""
+    return {"qdes": model.q_des, "vdes": model.v_des, "ilo_s": model.i_lo, "ihi_s": model.i_hi}

@@ -18,10 +18,10 @@ from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from mrm_cosim.hdl.link.packet import Beat, PacketType
+from mrm_cosim.protocol.fixed import WORD
+from mrm_cosim.protocol.regs import PAYLOAD
 
 from .decoder import PacketEnd
-from .fixed import WORD
-from .regs import PAYLOAD
 from .timer import Snapshot
 
 __all__ = ["ReplyBuilder", "CommAReply", "CommCReply", "LinkHealth"]

@@ -15,12 +15,13 @@ from amaranth import *
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.fixed import WORD
+from mrm_cosim.protocol.isa import ADDR_BITS, Microcode
+from mrm_cosim.protocol.joint_program import INPUTS as JOINT_INPUTS
+from mrm_cosim.protocol.regs import MODES
+
 from .commit import TIME_MAX
 from .decoder import CommDWords, HostWrite
-from .fixed import WORD
-from .isa import ADDR_BITS, Microcode
-from .joint import INPUTS as JOINT_INPUTS
-from .regs import MODES
 
 __all__ = ["ControlTicks", "TickInputs"]
 

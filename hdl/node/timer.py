@@ -14,7 +14,7 @@ from amaranth import *
 from amaranth.lib import data, wiring
 from amaranth.lib.wiring import In, Out
 
-from .fixed import WORD
+from mrm_cosim.protocol.fixed import WORD
 
 __all__ = ["PeriodTimer", "Snapshot"]
 

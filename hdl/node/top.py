@@ -15,12 +15,12 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from mrm_cosim.hdl.link.node import LinkNode, line_signature
-from mrm_cosim.hdl.link.params import rejecting
+from mrm_cosim.protocol.encoder import EncoderParams
+from mrm_cosim.protocol.fixed import WORD
 
+from ..helpers import rejecting
+from ..link.node import LinkNode, line_signature
 from .core import NodeCore
-from .encoder_ref import EncoderParams
-from .fixed import WORD
 
 __all__ = ["SlaveNode", "slave_node_top", "node_core_top"]
 
@@ -45,11 +45,11 @@ class SlaveNode(wiring.Component):
     torque : Out(signed(24))
         Torque command, FORCE word (N·m · 2^13).
     status : Out(16)
-        :class:`~hdl.node.regs.Status` bits.
+        :class:`~mrm_cosim.protocol.regs.Status` bits.
     count : Out(signed(32))
         Live encoder count.
     events : Out(16)
-        The core's observation port (:class:`~hdl.node.regs.NodeEvent` strobes).
+        The core's observation port (:class:`~mrm_cosim.protocol.regs.NodeEvent` strobes).
     """
 
     def __init__(self, *, codec: dict | None = None, encoder: EncoderParams | None = None):
@@ -115,7 +115,7 @@ def slave_node_top(*, slots: int = 3, start_div: int | None = None, run_div: int
                    filter_cycles: int = 2, min_window: int = 2048,
                    stop_cycles: int = 1 << 24) -> SlaveNode:
     """Factory for the ``node`` top: link parameters as ``link_node``, encoder parameters as
-    :class:`~hdl.node.encoder_ref.EncoderParams` (50 MHz clock)."""
+    :class:`~mrm_cosim.protocol.encoder.EncoderParams` (50 MHz clock)."""
     return SlaveNode(codec=dict(slots=slots, start_div=start_div, run_div=run_div,
                                 reset_cycles=reset_cycles, wait_cycles=wait_cycles,
                                 disconnect_cycles=disconnect_cycles,

@@ -3,8 +3,8 @@
 # Ref: J. E. Volder, "The CORDIC trigonometric computing technique", IRE Trans. Electronic
 # Computers EC-8(3), 1959 (rotation mode).
 
-No divider and no table: one constant multiplication turns the count into a 24-bit binary
-angle, then :data:`~hdl.node.trig_ref.ITERATIONS` shift-and-add steps, two cycles each (shift,
+No divider and no table: one constant multiplication turns the count into a 24-bit binary angle,
+then :data:`~mrm_cosim.protocol.cordic.ITERATIONS` shift-and-add steps, two cycles each (shift,
 then add: short paths). The arithmetic is specified, bit for bit, by :mod:`.trig_ref`.
 """
 
@@ -12,8 +12,8 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from .fixed import WORD
-from .trig_ref import ATAN, GUARD, ITERATIONS, WIDTH, X0, ZGUARD, bam_constant
+from mrm_cosim.protocol.cordic import ATAN, GUARD, ITERATIONS, WIDTH, X0, ZGUARD, bam_constant
+from mrm_cosim.protocol.fixed import WORD
 
 __all__ = ["SinCos", "LATENCY"]
 

@@ -17,29 +17,10 @@
 
 from __future__ import annotations
 
-import math
+from mrm_cosim.protocol.cordic import ATAN, GUARD, ITERATIONS, X0, ZGUARD, bam_constant
+from mrm_cosim.protocol.fixed import round_shift, wrap
 
-from .fixed import TRIG, round_shift, wrap
-
-__all__ = ["ITERATIONS", "GUARD", "ZGUARD", "WIDTH", "ATAN", "X0", "bam_constant",
-           "binary_angle", "cordic", "sin_cos"]
-
-ITERATIONS = 24
-GUARD = 4
-ZGUARD = 4
-WIDTH = 2 + (-TRIG.lsb) + GUARD          # |x|, |y| ≤ 1.65 before rounding
-_ZBITS = 24 + ZGUARD
-ATAN = [round(math.atan(2.0**-i) / (2 * math.pi) * 2**_ZBITS) for i in range(ITERATIONS)]
-_GAIN = math.prod(math.sqrt(1 + 2.0**(-2 * i)) for i in range(ITERATIONS))
-X0 = round(2**(-TRIG.lsb + GUARD) / _GAIN)
-
-
-def bam_constant(counts_per_rev: int) -> int:
-    """``KB = round(2^46 / counts_per_rev)``: binary-angle units (2^-24 turn) per count, Q22."""
-    if not isinstance(counts_per_rev, int) or counts_per_rev <= 0:
-        raise ValueError(f"counts per revolution must be a positive integer, not "
-                         f"{counts_per_rev!r}")
-    return round(2**46 / counts_per_rev)
+__all__ = ["binary_angle", "cordic", "sin_cos"]
 
 
 def binary_angle(count: int, counts_per_rev: int) -> int:

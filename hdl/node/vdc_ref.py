@@ -5,17 +5,19 @@ velocity, actual and required velocity of {C}), the encoder snapshot (``q̇`` an
 ``cos q``, ``sin q``) and the gravity words of the previous Comm D, it returns the Comm C words
 (required net force/moment of Link a in {A} and of Link b in {C}) and then adapts the
 parameter estimates with the projection function. The float model it approximates is
-:class:`master.vdc_float.ModuleVDC`; the number formats are in :mod:`.fixed` and docs/node.md.
+:class:`~.vdc_float_ref.ModuleVDC`; the number formats are in :mod:`mrm_cosim.protocol.fixed`
+and docs/node.md.
 
 Every rounding point is written out below; each is ``fx(Σ products, format)``: the exact sum,
 rounded half up once onto the format's LSB and saturated to 24 bits — what one statement of the
-engine does (:mod:`.vdc` is the same computation as an engine program; tests check that they
-agree bit for bit, and that both agree with the float model within the measured budget).
+engine does (:mod:`mrm_cosim.protocol.vdc_program` is the same computation as an engine program;
+tests check that they agree bit for bit, and that both agree with the float model within the
+measured budget).
 
-The regressor ``Y(ω, V_r, dV_r/dt, g)`` is used through :data:`Y_TABLE`: each non-zero entry
-is an exact sum of ± words ``a_i`` (``a = dv_r + ω × v_r + g``), ``P_ij = ω_i ω_r,j`` and
-``dw_i`` (the required angular acceleration). Entries are never rounded on their own: the
-engine multiplies each summand by ``θ̂_j`` (or by the velocity error) directly.
+The regressor is used through :data:`~mrm_cosim.protocol.vdc_program.Y_TABLE`, as in the
+program; the uploaded words are :class:`~mrm_cosim.protocol.vdc_program.VdcParams`.
+:func:`vdc_input_words` and :func:`vdc_state_words` name this model's words as the program's
+registers, to load the engine with the same inputs and state.
 """
 
 from __future__ import annotations
@@ -24,58 +26,25 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .fixed import ACC, FORCE, GAIN, INVT, RHOT, SIG, THETA, TRIG, VEL, WORD_MAX, WORD_MIN, \
-    round_shift, saturate, theta_group
+from mrm_cosim.protocol.fixed import (
+    ACC,
+    FORCE,
+    GAIN,
+    INVT,
+    RHOT,
+    SIG,
+    THETA,
+    TRIG,
+    VEL,
+    WORD_MAX,
+    WORD_MIN,
+    round_shift,
+    saturate,
+    theta_group,
+)
+from mrm_cosim.protocol.vdc_program import LINKS, Y_TABLE, VdcParams, link_terms
 
-__all__ = ["Y_TABLE", "fx", "fx_point", "VdcParams", "VdcInputs", "VdcModel", "link_terms"]
-
-
-def _e(spec: str) -> list[tuple[int, str, int]]:
-    """Parse ``"-dw2 +P10"`` into [(sign, kind, index)], index of P as 10*i + j."""
-    out = []
-    for tok in spec.split():
-        sign = -1 if tok[0] == "-" else 1
-        body = tok.lstrip("+-")
-        kind = "P" if body[0] == "P" else "dw" if body.startswith("dw") else "a"
-        out.append((sign, kind, int(body[len(kind):])))
-    return out
-
-
-# Y[(row, col)] for rows f0 f1 f2 n0 n1 n2 and the 13 parameters (MRM Table 1 order); derived
-# from the closed form in DESIGN.md "VDC in equations" (docs/node.md), tested against
-# models.spatial.regressor.
-Y_TABLE: dict[tuple[int, int], list[tuple[int, str, int]]] = {
-    (0, 0): _e("+a0"), (1, 0): _e("+a1"), (2, 0): _e("+a2"),
-    (0, 1): _e("-P11 -P22"), (0, 2): _e("-dw2 +P10"), (0, 3): _e("+dw1 +P20"),
-    (1, 1): _e("+dw2 +P01"), (1, 2): _e("-P00 -P22"), (1, 3): _e("-dw0 +P21"),
-    (2, 1): _e("-dw1 +P02"), (2, 2): _e("+dw0 +P12"), (2, 3): _e("-P00 -P11"),
-    (3, 2): _e("+a2"), (3, 3): _e("-a1"),
-    (4, 1): _e("-a2"), (4, 3): _e("+a0"),
-    (5, 1): _e("+a1"), (5, 2): _e("-a0"),
-    (4, 4): _e("+dw1 -P02"), (5, 4): _e("+dw2 +P01"),
-    (3, 5): _e("+dw0 +P12"), (5, 5): _e("+dw2 -P10"),
-    (3, 6): _e("+dw0 -P21"), (4, 6): _e("+dw1 +P20"),
-    (3, 7): _e("-dw1 +P02"), (4, 7): _e("-dw0 -P12"), (5, 7): _e("+P11 -P00"),
-    (3, 8): _e("-dw2 -P01"), (4, 8): _e("+P00 -P22"), (5, 8): _e("-dw0 +P21"),
-    (3, 9): _e("+P22 -P11"), (4, 9): _e("-dw2 +P10"), (5, 9): _e("-dw1 -P20"),
-    (3, 10): _e("+dw0 +P12 -P21"), (4, 10): _e("+P20"), (5, 10): _e("-P10"),
-    (3, 11): _e("-P21"), (4, 11): _e("+dw1 +P20 -P02"), (5, 11): _e("+P01"),
-    (3, 12): _e("+P12"), (4, 12): _e("-P02"), (5, 12): _e("+dw2 +P01 -P10"),
-}
-
-
-_ROWS = {r: [(rc, s) for rc, s in sorted(Y_TABLE.items()) if rc[0] == r] for r in range(6)}
-_COLS = {c: [(rc, s) for rc, s in sorted(Y_TABLE.items()) if rc[1] == c] for c in range(13)}
-
-
-def link_terms(row: int | None = None, col: int | None = None):
-    """Non-zero entries of :data:`Y_TABLE` in a row or a column, as ``((row, col), summands)``."""
-    if row is not None and col is None:
-        return _ROWS[row]
-    if col is not None and row is None:
-        return _COLS[col]
-    return [(rc, s) for rc, s in sorted(Y_TABLE.items())
-            if (row is None or rc[0] == row) and (col is None or rc[1] == col)]
+__all__ = ["fx", "VdcInputs", "VdcModel", "vdc_input_words", "vdc_state_words"]
 
 
 def fx(parts, fmt, wrap: bool = False) -> int:
@@ -135,41 +104,6 @@ def fx_point(fmt, *lsbs):
             v = (sum(x << s for x, s in zip(values, shifts, strict=True)) + half) >> r
             return lo if v < lo else hi if v > hi else v
     return point
-
-
-@dataclass
-class VdcParams:
-    """Uploaded words of the VDC unit; index 0 Link a, 1 Link b.
-
-    Attributes
-    ----------
-    K : list of 2 lists of 6 int, GAIN
-    rho_T : list of 2 lists of 13 int, RHOT of each parameter's group
-    lower, upper : list of 2 lists of 13 int, THETA of each parameter's group
-    inv_T : int, INVT (1/period of the backward difference)
-    """
-
-    K: list
-    rho_T: list
-    lower: list
-    upper: list
-    inv_T: int
-
-    @classmethod
-    def from_float(cls, K, rho, lower, upper, period: float) -> VdcParams:
-        """Words from float gains (shapes (2, 6), (2, 13), (2, 13), (2, 13)) and period (s)."""
-        K = np.asarray(K, dtype=float).reshape(2, 6)
-        rho = np.asarray(rho, dtype=float).reshape(2, 13)
-        lo = np.asarray(lower, dtype=float).reshape(2, 13)
-        hi = np.asarray(upper, dtype=float).reshape(2, 13)
-        return cls(
-            K=[[GAIN.encode(x) for x in K[i]] for i in range(2)],
-            rho_T=[[RHOT[theta_group(j)].encode(rho[i, j] * period) for j in range(13)]
-                   for i in range(2)],
-            lower=[[THETA[theta_group(j)].encode(lo[i, j]) for j in range(13)] for i in range(2)],
-            upper=[[THETA[theta_group(j)].encode(hi[i, j]) for j in range(13)] for i in range(2)],
-            inv_T=INVT.encode(1.0 / period),
-        )
 
 
 @dataclass
@@ -270,12 +204,6 @@ class VdcModel:
     prev_qd_r: int = 0
     primed: bool = False
 
-    @staticmethod
-    def theta_words(theta) -> list:
-        """THETA words of float estimates, shape (2, 13)."""
-        t = np.asarray(theta, dtype=float).reshape(2, 13)
-        return [[THETA[theta_group(j)].encode(t[i, j]) for j in range(13)] for i in range(2)]
-
     def _link(self, i: int, V, V_r, dV, g):
         """Required net force words and adaptation of link ``i``."""
         th = self.theta[i]
@@ -346,3 +274,26 @@ class VdcModel:
         self.prev_C = list(x.V_rC)
         self.prev_qd_r = x.qd_r
         return F_a, F_b
+
+
+def vdc_input_words(x: VdcInputs) -> dict[str, int]:
+    """Register words of one run's inputs, by name."""
+    out = {"qdr": x.qd_r, "qd": x.qd, "cq": x.cos_q, "sq": x.sin_q}
+    for k in range(6):
+        out[f"VC{k}"] = x.V_C[k]
+        out[f"VrC{k}"] = x.V_rC[k]
+    for k in range(3):
+        out[f"gC{k}"] = x.g_C[k]
+    return out
+
+
+def vdc_state_words(model: VdcModel) -> dict[str, int]:
+    """Register words of the state (estimates, derivative history), by name."""
+    out = {}
+    for i, L in enumerate(LINKS):
+        for j in range(13):
+            out[f"th{L}{j}"] = model.theta[i][j]
+    for k in range(6):
+        out[f"pC{k}"] = model.prev_C[k]
+    out["pqdr"] = model.prev_qd_r
+    return out

@@ -19,10 +19,10 @@ from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from mrm_cosim.hdl.link.packet import PacketType
+from mrm_cosim.protocol.fixed import WORD
+from mrm_cosim.protocol.isa import ADDR_BITS, Microcode
 
 from .decoder import HostWrite, PacketEnd
-from .fixed import WORD
-from .isa import ADDR_BITS, Microcode
 
 __all__ = ["VdcSequencer"]
 

@@ -11,7 +11,7 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from .fixed import WORD
+from mrm_cosim.protocol.fixed import WORD
 
 __all__ = ["Watchdog"]
 

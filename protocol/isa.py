@@ -1,7 +1,8 @@
 """Instruction set, program builder and scheduler of the node's multiply-accumulate engine.
 
-The engine (:mod:`.engine`) issues one instruction per cycle from a ROM. A program is written as
-*statements* over named registers, each with a fixed-point format (:mod:`.fixed`)::
+The engine (:mod:`mrm_cosim.hdl.node.engine`) issues one instruction per cycle from a ROM. A
+program is written as *statements* over named registers, each with a fixed-point format
+(:mod:`.fixed`)::
 
     dst = sat24( round( Σ ± a_k · b_k ) )        (MAC; "a_k" alone means a_k · 1)
     dst = min(a, b) / max(a, b)                   (MIN / MAX, same format)
@@ -20,7 +21,7 @@ shift stays small.
 The scheduler orders statements (respecting read-after-write with the pipeline's
 :data:`LATENCY`, and keeping write-after-read and write-after-write pairs in program order) and
 fills the gaps with NOPs, so the pipelined engine computes exactly what executing the
-statements one after the other computes (:mod:`.engine_ref` checks both).
+statements one after the other computes (:mod:`mrm_cosim.hdl.node.engine_ref` checks both).
 
 Addresses are :data:`ADDR_BITS` wide: the register file below :data:`IO_BASE`, the engine's
 input ports (read) and output registers (write) at ``IO_BASE + k``.
@@ -35,7 +36,7 @@ from .fixed import WORD_MAX, WORD_MIN, Fmt
 
 __all__ = ["LATENCY", "ADDR_BITS", "IO_BASE", "IO_PORTS", "PSHIFT_MAX", "OSHIFT_MAX",
            "MAX_TERMS", "UNIT_SHIFTS", "ACC_WIDTH", "Op", "Instr", "INSTR_FIELDS", "INSTR_BITS",
-           "encode", "decode", "Term", "T", "Reg", "Program", "Microcode"]
+           "encode", "decode", "mem_depth", "Term", "T", "Reg", "Program", "Microcode"]
 
 LATENCY = 7        # issue of a statement's last term → first issue that may read its result
 ADDR_BITS = 9
@@ -102,6 +103,12 @@ def decode(word: int) -> Instr:
     for flag in ("neg", "first", "last", "wrap"):
         values[flag] = bool(values[flag])
     return Instr(**values)
+
+
+def mem_depth(depth: int) -> int:
+    """Register-file size the gateware builds for ``depth`` words: the next power of two
+    (addresses are taken modulo it)."""
+    return 1 << max(0, (depth - 1).bit_length())
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,10 @@
 """Float virtual decomposition control (VDC) of one module: the slave node's link dynamics.
 
-This is the float reference the node's fixed-point VDC unit (``hdl/node``) is measured against.
-It computes, from what a slave node receives and measures, the required net force/moment of
-the module's two links (DESIGN.md "VDC in equations"; Zhu 2010, App. A):
+This is the float oracle the node's fixed-point VDC unit is measured against: its bit-exact
+reference :class:`~mrm_cosim.hdl.node.vdc_ref.VdcModel` (and so the gateware) must stay within
+the error budget of docs/node.md of it. It is a reference like the others: it imports no
+gateware. It computes, from what a slave node receives and measures, the required net
+force/moment of the module's two links (DESIGN.md "VDC in equations"; Zhu 2010, App. A):
 
 * Frames (docs/robot.md): Link b is proximal with frame {C}, Link a distal with frame {A};
   both at the joint origin, ``ᶜR_A = Rz(q)``, ``ᶜr_CA = 0``, so ``ᶜU_A = diag(R, R)``.
@@ -34,7 +36,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mrm_cosim.models.spatial import N_PARAMS
+from mrm_cosim.protocol.vdc_program import N_PARAMS
 
 __all__ = ["rz", "link_regressor", "link_a_velocity", "link_a_acceleration", "required_net_force",
            "adaptation_signal", "projection_update", "ModuleGains", "ModuleVDC"]

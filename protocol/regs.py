@@ -40,27 +40,30 @@ import math
 
 import numpy as np
 
-from mrm_cosim.hdl.link.crc import CRC16_INIT
 from mrm_cosim.errors import InputError
 
+from .crc import CRC16_INIT, crc16
 from .fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, WORD, saturate, theta_group
-from .joint_ref import JointParams
-from .vdc_ref import VdcModel, VdcParams
+from .joint_program import MODES as JOINT_MODES
+from .joint_program import JointParams, joint_microcode
+from .packet import DATA_PAYLOAD
+from .vdc_program import LINKS, VdcParams, theta_words, vdc_microcode, vdc_param_words
 
 __all__ = ["PAYLOAD", "COMM_B_WORDS", "COMM_D_WORDS", "Config", "Bank", "Status", "MODES",
            "pack_words", "unpack_words", "pack_comm_b", "pack_comm_d", "parse_comm_a",
            "parse_comm_c", "config_payloads", "param_payloads", "vdc_upload", "joint_upload",
            "CONFIG_DEFAULTS", "upload_check", "RX_DROPS", "LINK_HEALTH", "NodeEvent"]
 
-PAYLOAD = 40
-#: The depacketizer's counters of frames it dropped (:class:`~hdl.link.packet.RxStats`),
+PAYLOAD = DATA_PAYLOAD
+#: The depacketizer's counters of frames it dropped (:class:`~mrm_cosim.hdl.link.packet.RxStats`),
 #: summed into Comm A's ``rx_dropped``.
 RX_DROPS = ("crc", "length", "eep")
 #: Comm A's link-health fields (bytes 25–32), each u16, saturating.
 LINK_HEALTH = ("up_link_errors", "down_link_errors", "rx_dropped", "router_dropped")
 COMM_B_WORDS = ("qdr",) + tuple(f"VC{k}" for k in range(6)) + tuple(f"VrC{k}" for k in range(6))
 COMM_D_WORDS = ("tauD", "gC0", "gC1", "gC2", "qd0", "vd0", "ad0")
-MODES = {"vdc": 0, "pid": 1, "torque": 2}
+#: CONFIG MODE's value of each joint-controller mode.
+MODES = {mode: value for value, mode in enumerate(JOINT_MODES)}
 MAX_PARAM_WORDS = 12
 MAX_CONFIG_RECORDS = 8
 
@@ -189,11 +192,9 @@ def upload_check(payloads) -> tuple[int, int]:
     Returns
     -------
     (int, int)
-        CRC-16/CCITT-FALSE (:mod:`hdl.link.crc`, initial 0xFFFF) over the concatenated
+        CRC-16/CCITT-FALSE (:mod:`.crc`, initial 0xFFFF) over the concatenated
         payloads, and the number of packets modulo 2^16.
     """
-    from mrm_cosim.hdl.link.packet_ref import crc16
-
     crc, n = CRC16_INIT, 0
     for p in payloads:
         crc = crc16(bytes(p), crc)
@@ -251,8 +252,6 @@ def vdc_upload(theta, K, rho, lower, upper, period: float = 1e-3) -> list[bytes]
         Adaptation gains (zero: no adaptation).
     period : float, s
     """
-    from .vdc import vdc_microcode, vdc_param_words
-
     theta = np.asarray(theta, dtype=float).reshape(2, 13)
     lower = np.asarray(lower, dtype=float).reshape(2, 13)
     upper = np.asarray(upper, dtype=float).reshape(2, 13)
@@ -270,18 +269,16 @@ def vdc_upload(theta, K, rho, lower, upper, period: float = 1e-3) -> list[bytes]
             for name, arr in (("theta", theta), ("lower", lower), ("upper", upper)):
                 fmt.encode_checked(arr[i, j], f"vdc.{name}[{i}][{j}]")
             RHOT[theta_group(j)].encode_checked(rho[i, j] * period, f"vdc.rho[{i}][{j}]")
-    model = VdcModel(VdcParams.from_float(K, rho, lower, upper, period),
-                     VdcModel.theta_words(theta))
+    params = VdcParams.from_float(K, rho, lower, upper, period)
+    estimates = theta_words(theta)
     mc = vdc_microcode()
-    words = {mc.addr(n): v for n, v in vdc_param_words(model).items()}
-    words.update({mc.addr(f"th{L}{j}"): model.theta[i][j]
-                  for i, L in enumerate("AB") for j in range(13)})
+    words = {mc.addr(n): v for n, v in vdc_param_words(params).items()}
+    words.update({mc.addr(f"th{L}{j}"): estimates[i][j]
+                  for i, L in enumerate(LINKS) for j in range(13)})
     return param_payloads(Bank.VDC, words)
 
 
 def joint_upload(params: JointParams) -> list[bytes]:
     """PARAM payloads for the joint engine."""
-    from .joint import joint_microcode
-
     mc = joint_microcode()
     return param_payloads(Bank.JOINT, {mc.addr(n): v for n, v in params.words().items()})

@@ -1,0 +1,127 @@
+"""The link: SpaceWire characters, link states, error classes, credits, codec parameters.
+
+# Ref: ECSS-E-ST-50-12C §7.2 (data characters), §7.3 (control characters, NULL, time-codes),
+#      §7.4 (parity), §8.5 (link state machine, flow control), §6.6 (signalling rate).
+
+The values the link's gateware (:mod:`mrm_cosim.hdl.link`, whose :mod:`~mrm_cosim.hdl.link.chars`
+gives them Amaranth shapes) and its cycle-level reference
+(:class:`~mrm_cosim.hdl.link.codec_ref.CodecRef`) share, so that both encode the same characters
+and accept and refuse exactly the same parameters.
+
+Bits are numbered in transmission order: bit 0 of every on-wire layout is the first bit on the
+line. A data character is ``P 0 D0..D7`` (10 bits, data LSB first); a control character is
+``P 1 C0 C1`` (4 bits). The standard writes the four control characters as ``P100`` (FCT),
+``P101`` (EOP), ``P110`` (EEP) and ``P111`` (ESC), left to right in transmission order, so with
+``C0`` as the least significant bit of :class:`ControlCode` their values are FCT = 0b00,
+EOP = 0b10, EEP = 0b01, ESC = 0b11.
+
+The parity bit ``P`` of a character covers the data or control bits of the *previous*
+character and the ``P`` and flag bits of the current one; their sum is odd (§7.4).
+"""
+
+import enum
+
+__all__ = ["CharKind", "ControlCode", "LinkState", "ERROR_CLASSES",
+           "DATA_BITS", "CONTROL_BITS", "NULL_BITS", "TIME_BITS", "GROUP_BITS", "NULL_PATTERN",
+           "FCT_CREDIT", "MAX_CREDIT", "MAX_SLOTS", "check_slots", "check_div", "check_cycles",
+           "codec_params"]
+
+
+class CharKind(enum.IntEnum):
+    """Kind of an N-char on host streams (2 bits)."""
+
+    DATA = 0  # data character, 8 bits of data
+    EOP  = 1  # normal end of packet
+    EEP  = 2  # error end of packet
+
+
+class ControlCode(enum.IntEnum):
+    """The two control bits of a control character, ``C0`` in bit 0 (sent first)."""
+
+    FCT = 0b00  # P100: flow control token
+    EOP = 0b10  # P101: normal end of packet (EOP_1)
+    EEP = 0b01  # P110: error end of packet (EOP_2)
+    ESC = 0b11  # P111: escape (ESC+FCT = NULL, ESC+data = time-code)
+
+
+class LinkState(enum.IntEnum):
+    """State of the link state machine (§8.5), in the order a link passes through them."""
+
+    ERROR_RESET = 0
+    ERROR_WAIT  = 1
+    READY       = 2
+    STARTED     = 3
+    CONNECTING  = 4
+    RUN         = 5
+
+
+#: Classes of the saturating 16-bit error counters, errors that took the link to Error-Reset,
+#: in the order of the gateware's ``ErrorCounts`` fields:
+#: ``disconnect`` — no transition for the disconnect timeout (§8.5.3, 850 ns nominal);
+#: ``parity`` — parity check failed (§7.4); ``escape`` — ESC followed by ESC, EOP or EEP;
+#: ``credit`` — FCT beyond 56 outstanding, or an N-char beyond the credit given;
+#: ``sequence`` — FCT, N-char or time-code in a state where the standard forbids it.
+ERROR_CLASSES = ("disconnect", "parity", "escape", "credit", "sequence")
+
+#: Line bits of a data character, a control character, a NULL and a time-code.
+DATA_BITS    = 10
+CONTROL_BITS = 4
+NULL_BITS    = 8
+TIME_BITS    = 14
+
+#: Longest group of line bits the transmitter takes at once: a time-code (ESC + data).
+GROUP_BITS = TIME_BITS
+
+#: The last seven bits of the first NULL, oldest in bit 6: ``1 1 1`` (ESC after its parity)
+#: then ``0 1 0 0`` (FCT with parity 0). The receiver looks for it before it frames characters.
+NULL_PATTERN = 0b1110100
+
+#: Flow control: one FCT grants 8 N-chars; at most 56 may be outstanding (§8.5 / flow control).
+FCT_CREDIT = 8
+MAX_CREDIT = 56
+
+#: Widest SERDES supported: with at most 4 slots a cycle holds at most one character boundary,
+#: which the character receiver and the transmitter's refill rule rely on.
+MAX_SLOTS = 4
+
+
+def _is_int(value):
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def check_slots(slots):
+    if not _is_int(slots) or not 1 <= slots <= MAX_SLOTS:
+        raise ValueError(f"Slots per cycle must be an integer from 1 to {MAX_SLOTS}, "
+                         f"not {slots!r}")
+
+
+def check_div(div, name):
+    if not _is_int(div) or div < 1:
+        raise ValueError(f"{name} must be a positive integer number of slots, not {div!r}")
+
+
+def check_cycles(cycles, name, minimum=1):
+    if not _is_int(cycles) or cycles < minimum:
+        raise ValueError(f"{name} must be an integer number of cycles of at least {minimum}, "
+                         f"not {cycles!r}")
+
+
+def codec_params(*, slots=3, start_div=None, run_div=1, reset_cycles=320, wait_cycles=640,
+                 disconnect_cycles=43, rx_fifo_depth=64):
+    """Check the codec's parameters; return them with ``start_div`` resolved (10 Mbit/s)."""
+    check_slots(slots)
+    if start_div is None:
+        start_div = 5 * slots
+    check_div(start_div, "Start bit period")
+    check_div(run_div, "Run bit period")
+    check_cycles(disconnect_cycles, "Disconnect time", 3)
+    check_cycles(wait_cycles, "Wait time")
+    # Exchange of silence: the peer must have detected our silence and fallen silent itself
+    # before our receiver comes out of Error-Reset.
+    check_cycles(reset_cycles, "Reset time (disconnect time + 5)", disconnect_cycles + 5)
+    if not _is_int(rx_fifo_depth) or rx_fifo_depth < FCT_CREDIT + 1:
+        raise ValueError(f"Receive FIFO depth must be an integer of at least "
+                         f"{FCT_CREDIT + 1}, not {rx_fifo_depth!r}")
+    return dict(slots=slots, start_div=start_div, run_div=run_div, reset_cycles=reset_cycles,
+                wait_cycles=wait_cycles, disconnect_cycles=disconnect_cycles,
+                rx_fifo_depth=rx_fifo_depth)
