@@ -22,9 +22,9 @@ import numpy as np
 
 from mrm_cosim.cosim.gateware_side import GatewareSide, Observed, PlantLines, Reply, drive
 from mrm_cosim.errors import InputError
-from mrm_cosim.hdl.link import packet_ref as ref
 from mrm_cosim.hdl.link.chain import char_int, char_value
 from mrm_cosim.models.encoder import quadrature_levels
+from mrm_cosim.protocol import packet as ref
 from mrm_cosim.protocol.fixed import FORCE
 from mrm_cosim.protocol.regs import NodeEvent
 from mrm_cosim.units import CLOCK_HZ

@@ -55,8 +55,8 @@ import numpy as np
 from mrm_cosim.cosim.gateware_side import GatewareSide, Observed, PlantLines, Reply
 from mrm_cosim.cosim.model_link import LINK_UP_CYCLE, LinkTiming
 from mrm_cosim.cosim.model_node import EncoderEvents, FastNode
-from mrm_cosim.hdl.link import packet_ref as ref
 from mrm_cosim.hdl.node.core_ref import NodeModel
+from mrm_cosim.protocol import packet as ref
 from mrm_cosim.protocol.encoder import encoders_per_node
 from mrm_cosim.protocol.fixed import FORCE
 from mrm_cosim.protocol.regs import Config

@@ -16,7 +16,7 @@ after the upstream link is free; a time-code reaches node k after ``12 k`` cycle
 
 from __future__ import annotations
 
-from mrm_cosim.hdl.link import packet_ref as ref
+from mrm_cosim.protocol import packet as ref
 
 __all__ = ["LinkTiming", "LINK_UP_CYCLE", "EVENT_TOLERANCE", "frame_cycles",
            "delivery_cycles"]

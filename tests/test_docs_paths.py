@@ -11,8 +11,8 @@ ROOMS = ("hdl", "master", "models", "cosim", "mrm", "protocol", "mrm_cosim", "co
          "benchmarks", "examples", "docs", ".ci")
 # a path: a room, then folders and a file name with an extension (globs and <placeholders> are
 # patterns, not files)
-PATH = re.compile(r"(?<![\w./-])((?:%s)/[\w./-]*\w\.(?:py|toml|md|png|csv|json))"
-                  % "|".join(re.escape(r) for r in ROOMS))
+_ROOMS = "|".join(re.escape(r) for r in ROOMS)
+PATH = re.compile(rf"(?<![\w./-])((?:{_ROOMS})/[\w./-]*\w\.(?:py|toml|md|png|csv|json))")
 
 
 @pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)

@@ -339,7 +339,7 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
     """PID in the node with an anti-windup bound of a few IHI words: the coarse integral sits
     on its clip for much of the run; the lazy path's integral (updated on every tick, torque
     only where observed) is still the eager one."""
-    from mrm_cosim.hdl.link import packet_ref as ref
+    from mrm_cosim.protocol import packet as ref
     from mrm_cosim.hdl.node.joint_ref import JointParams
     from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
     from mrm_cosim.models.actuators import ACTUATORS

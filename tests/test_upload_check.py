@@ -5,13 +5,12 @@ tests/test_node_core.py)."""
 
 import numpy as np
 
-from mrm_cosim.hdl.link.packet_ref import BROADCAST
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.master.cycle import Master, MasterTiming
 from mrm_cosim.master.uploads import Gains, node_uploads
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.protocol.crc import crc16
-from mrm_cosim.protocol.packet import PacketType
+from mrm_cosim.protocol.packet import BROADCAST, PacketType
 from mrm_cosim.protocol.regs import Config, config_payloads, parse_comm_a
 
 ROBOT = load_robot("mrm3")
