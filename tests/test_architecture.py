@@ -3,9 +3,10 @@
 Every module of every room is parsed with :mod:`ast` and each of its imports — at module level,
 inside functions and classes, relative ones resolved, ``importlib.import_module`` of a literal
 name included — is classified (the standard library, a third-party package by its top-level
-name, or a room of ``mrm_cosim``) and checked against :data:`RULES`. The rooms are the folders
-that ``pyproject.toml`` maps under ``mrm_cosim``; in ``hdl/`` a module named ``*_ref.py`` is a
-bit-exact reference and every other one is gateware.
+name, or a room of ``mrm_cosim``) and checked against :data:`RULES`; an import by a computed
+name, which no walk can check, is allowed only in the command line (its command registry). The
+rooms are the folders that ``pyproject.toml`` maps under ``mrm_cosim``; in ``hdl/`` a module
+named ``*_ref.py`` is a bit-exact reference and every other one is gateware.
 
 Two subprocess tests check what the static walk cannot see (a parent package's ``__init__``, a
 transitive import): importing every module of the master and the protocol room, or every
@@ -230,17 +231,6 @@ def rules_table() -> str:
     return "\n".join(rows)
 
 
-# Edges that cannot be cut in the files this change owns, each with the reason (strict: once
-# the edge is gone the test must be un-marked).
-_KNOWN = {}
-
-
-def _room_params():
-    for room in ROOMS:
-        marks = [pytest.mark.xfail(strict=True, reason=_KNOWN[room])] if room in _KNOWN else []
-        yield pytest.param(room, marks=marks, id=room)
-
-
 def test_rules_table_is_complete():
     assert list(RULES) == list(ROOMS)
     named_kinds = {*ROOMS, "stdlib", "third-party", *THIRD_PARTY}
@@ -258,7 +248,7 @@ def test_every_module_has_a_room():
     assert rooms == set(ROOMS), f"rooms without modules or unknown: {rooms ^ set(ROOMS)}"
 
 
-@pytest.mark.parametrize("room", list(_room_params()))
+@pytest.mark.parametrize("room", ROOMS)
 def test_room_follows_its_import_rule(room):
     found = [v for name, path in sorted(MODULES.items()) if room_of_module(name) == room
              for v in violations_of(name, path)]
@@ -304,8 +294,10 @@ def test_docs_quote_the_rules_table():
 
 def test_a_violation_names_file_line_and_rule(tmp_path, monkeypatch):
     fake = tmp_path / "packet.py"
-    fake.write_text("import os\n\n\ndef f():\n    from mrm_cosim.hdl.link import chars\n"
-                    "    from ..hdl.node import vdc_ref\n    import hdl.system\n")
+    fake.write_text("import importlib\n\n\ndef f(name):\n    from mrm_cosim.hdl.link import chars\n"
+                    "    from ..hdl.node import vdc_ref\n    import hdl.system\n"
+                    "    importlib.import_module('mrm_cosim.units')\n"
+                    "    return importlib.import_module(name)\n")
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     found = violations_of("mrm_cosim.protocol.packet", fake)
     assert found == [
@@ -317,6 +309,8 @@ def test_a_violation_names_file_line_and_rule(tmp_path, monkeypatch):
         f"{', '.join(RULES['protocol'].never)}",
         "packet.py:7: imports 'hdl.system' by its folder's bare name; rule: import it as "
         "mrm_cosim.hdl.system (or relatively)",
+        "packet.py:9: protocol imports a module by a computed name; rule: only the command "
+        "line may (the import rules cannot see it)",
     ], found
 
 
