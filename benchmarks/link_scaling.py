@@ -29,7 +29,7 @@ bits per 20 ns cycle at 150 Mbit/s; ``T_tc = ⌈TIME_BITS / 3⌉`` = 5 (the time
 the request waits behind it); ``h₁`` = 9, ``h`` = 11: the measured first-character latencies of
 docs/link.md "Per-hop latency" (master → node 1, node k → node k + 1); the request payloads
 are one byte (:class:`master.cycle.Master` sends ``b"\\0"``), the replies, Comm B and Comm D
-``PAYLOAD`` = 40 bytes (:mod:`hdl.node.regs`); the master's compute times are
+``PAYLOAD`` = 40 bytes (:mod:`protocol.regs`); the master's compute times are
 :class:`master.cycle.MasterTiming`'s defaults (20 µs each). Nothing is imported from the
 model backend's internals: it is what the computation is checked against.
 """

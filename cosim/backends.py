@@ -205,7 +205,7 @@ class LineSide(GatewareSide):
     """:class:`~cosim.gateware_side.GatewareSide` at character level over ``run``.
 
     Subclasses supply ``async run(n, inputs, outputs) -> dict`` on a :class:`hdl.system.System`
-    (its port names). A packet is encoded to characters (:func:`hdl.link.packet_ref.encode`)
+    (its port names). A packet is encoded to characters (:func:`protocol.packet.encode`)
     and written into the master port's FIFO as room allows, from the cycle it was sent; a
     time-code strobes ``tick_in`` in the first cycle of the next :meth:`advance`; received
     characters are assembled into frames and checked (CRC, length) with their arrival cycle.

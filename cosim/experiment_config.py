@@ -22,18 +22,22 @@ default filled in) and :func:`loads` of that text gives back an equal configurat
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 from mrm_cosim import configs
-from mrm_cosim.master.uploads import Gains
-from mrm_cosim.master.cycle import CONTROLLERS, MasterTiming
-from mrm_cosim.models.plant import Perturbation, PlantConfig
 from mrm_cosim.errors import (
-    InputError, reject_control_characters, reject_strings, require_finite, require_nonnegative,
+    InputError,
+    reject_control_characters,
+    reject_strings,
+    require_finite,
+    require_nonnegative,
     require_positive,
 )
+from mrm_cosim.master.cycle import CONTROLLERS, MasterTiming
+from mrm_cosim.master.uploads import Gains
+from mrm_cosim.models.plant import Perturbation, PlantConfig
+from mrm_cosim.tomlfile import parse_toml, read_toml
 
 __all__ = ["ExperimentConfig", "TrajectoryConfig", "load", "loads", "from_dict", "DEFAULT_CONFIG",
            "PAPER_AMPLITUDE", "PAPER_DURATION"]
@@ -141,20 +145,12 @@ def load(path=None) -> ExperimentConfig:
         dotted field).
     """
     path = Path(DEFAULT_CONFIG if path is None else path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise InputError("config", f"cannot read {str(path)!r}: {exc.strerror}") from None
-    return loads(text, base_dir=path.resolve().parent)
+    return from_dict(read_toml(path, "config"), base_dir=path.resolve().parent)
 
 
 def loads(text: str, base_dir=None) -> ExperimentConfig:
     """Validate TOML text; relative robot paths are taken from ``base_dir``."""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError("config", f"not valid TOML: {exc}") from None
-    return from_dict(data, base_dir=base_dir)
+    return from_dict(parse_toml(text, "config"), base_dir=base_dir)
 
 
 def from_dict(data: dict, base_dir=None) -> ExperimentConfig:

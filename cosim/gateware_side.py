@@ -51,7 +51,7 @@ class Reply(NamedTuple):
     src : int
         Sending node, 1-based.
     ptype : int
-        :class:`hdl.link.packet_ref.PacketType`.
+        :class:`protocol.packet.PacketType`.
     seq : int
         Sequence number in its header (a reply echoes its request's).
     payload : bytes

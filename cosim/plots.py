@@ -290,7 +290,7 @@ def timeline_bars(record, n_nodes: int, clock_hz: float = float(CLOCK_HZ)) -> li
     * ``master``: ``kinematics`` from the last Comm A arrival (``A_done``) to Comm B sent
       (VDC) or ``PID / references`` to Comm D sent (PID modes); ``forces`` from the last
       Comm C arrival (``C_done``) to Comm D sent.
-    * ``node k``, from its observation port (``record.node_events``, :class:`hdl.node.regs.
+    * ``node k``, from its observation port (``record.node_events``, :class:`protocol.regs.
       NodeEvent`): ``A↓`` period start (time-code and Comm A request leave the master) → the
       request's last byte taken (``RX_A``); ``A↑`` its reply leaves the node's reply FSM
       (``TX_A``) → complete at the master; ``B↓`` Comm B sent (the master hands it to its

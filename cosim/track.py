@@ -214,7 +214,7 @@ def link_errors_detail(result) -> dict:
 
     ``master_rx_dropped``: frames the master dropped (CRC, length, EEP); ``master_port``: the
     master port codec's errors (five classes summed); ``nodes``: each of
-    :data:`hdl.node.regs.LINK_HEALTH` summed over the nodes, as last reported in Comm A;
+    :data:`protocol.regs.LINK_HEALTH` summed over the nodes, as last reported in Comm A;
     ``per_node``: the same per node (keys "1".."N"). The summary's ``link_errors`` is the sum
     of all of them (0: no fault anywhere on the chain).
     """

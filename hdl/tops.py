@@ -9,10 +9,12 @@ from __future__ import annotations
 
 import inspect
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from amaranth.back import verilog
 from amaranth.lib import wiring
+
+from mrm_cosim.errors import InputError
 
 from .link.node import link_node_top
 from .node.top import node_core_top, slave_node_top
@@ -26,6 +28,9 @@ class Top:
 
     factory: Callable[..., wiring.Component]
     help: str
+    bounds: dict = field(default_factory=dict)
+    """``{parameter: (lo, hi)}``: the values that elaborate in seconds, checked before the
+    build (parameters not named here: :data:`PARAM_BOUNDS`)."""
 
     def parameters(self) -> dict[str, object]:
         """The factory's keyword parameters and their defaults."""
@@ -48,9 +53,17 @@ def _system(*, n_nodes: int = 3) -> wiring.Component:
     return System(n_nodes)
 
 
+#: Bounds of an integer parameter no top bounds more tightly: a 32-bit signed word (a counter
+#: or divider wider than that is no design; Python's big integers overflowed inside
+#: elaboration).
+PARAM_BOUNDS = (-(1 << 31), (1 << 31) - 1)
+
 TOPS: dict[str, Top] = {
     "spw_codec": Top(_spw_codec, "standalone SpaceWire codec (wire ports d_in, s_in, d_out, "
-                                 "s_out; N-char streams, time-codes, link control/status)"),
+                                 "s_out; N-char streams, time-codes, link control/status)",
+                      # the receive FIFO is a memory initialised entry by entry: a million
+                      # entries took minutes to elaborate; 4,096 take under a second
+                      bounds={"rx_fifo_depth": (1, 4096), "slots": (1, 64)}),
     "link_node": Top(link_node_top, "daisy-chain endpoint: up/down codecs, router, packet layer "
                                     "(host beat streams), time-code capture"),
     "node": Top(slave_node_top, "slave node: link endpoint + compute core (VDC, joint control, "
@@ -63,11 +76,19 @@ TOPS: dict[str, Top] = {
 
 
 def build_top(name: str, **params) -> wiring.Component:
-    """Build the top ``name`` with ``params``; ``KeyError`` for an unknown name or parameter."""
+    """Build the top ``name`` with ``params``; ``KeyError`` for an unknown name or parameter,
+    :class:`InputError` (field the parameter's name) for a value outside its bounds."""
     top = TOPS[name]
     unknown = set(params) - set(top.parameters())
     if unknown:
         raise KeyError(f"top {name!r} has no parameter {sorted(unknown)[0]!r}")
+    for key, value in params.items():
+        if value is None:
+            continue
+        lo, hi = top.bounds.get(key, PARAM_BOUNDS)
+        if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
+            raise InputError(key, f"must be an integer from {lo:,} to {hi:,}, not {value!r} "
+                             "(the range that elaborates in seconds)")
     return top.factory(**params)
 
 

@@ -26,13 +26,13 @@ counters, reported in every Comm A (control ticks skipped, time-codes outside th
 Comm D packets after the commit phase, illegal encoder transitions), are kept per node
 (:attr:`Master.node_counters`); a run with any of them non-zero says so. So is each node's
 view of the link — its two codecs' error totals, the frames its depacketizer dropped, the
-packets its router discarded (:data:`hdl.node.regs.LINK_HEALTH`, :attr:`Master.node_link`,
+packets its router discarded (:data:`protocol.regs.LINK_HEALTH`, :attr:`Master.node_link`,
 :meth:`Master.link_totals`): a fault anywhere on the chain is counted where it happened.
 
 Uploads. Given the CONFIG and PARAM packets sent to the nodes before the run
 (:meth:`Master.expect_uploads`), the master computes what each node must report in every
 Comm A — the CRC-16 of those payloads in order and their number
-(:func:`hdl.node.regs.upload_check`) — and counts every Comm A that disagrees
+(:func:`protocol.regs.upload_check`) — and counts every Comm A that disagrees
 (:attr:`Master.upload_errors`, per node): an upload lost, corrupted or reordered on the way.
 
 The nodes act on their own period timer (docs/node.md "Timing"): the master's period grid
@@ -160,7 +160,7 @@ class Master:
         self.tripped: set[int] = set()
         #: node -> the counters of its last Comm A (cumulative in the node)
         self.node_counters: dict[int, dict] = {}
-        #: node -> its link counters (:data:`~hdl.node.regs.LINK_HEALTH`) in its last Comm A
+        #: node -> its link counters (:data:`~protocol.regs.LINK_HEALTH`) in its last Comm A
         self.node_link: dict[int, dict] = {}
         self._seq = 0
         self._pending: list[tuple[int, list[Send]]] = []   # (cycle, actions)
@@ -195,7 +195,7 @@ class Master:
         return {k: int(sum(c[k] for c in self.node_counters.values())) for k in NODE_COUNTERS}
 
     def link_totals(self) -> dict:
-        """Sum over the nodes of each link counter (:data:`~hdl.node.regs.LINK_HEALTH`), as
+        """Sum over the nodes of each link counter (:data:`~protocol.regs.LINK_HEALTH`), as
         last reported (each is cumulative since the node's reset)."""
         return {k: int(sum(c[k] for c in self.node_link.values())) for k in LINK_HEALTH}
 
@@ -267,7 +267,7 @@ class Master:
     # --- what the nodes did (their observation ports) -------------------------------------
     def on_node_event(self, now: int, node: int, name: str) -> None:
         """Node ``node`` (1-based) strobed the observation-port flag ``name`` (a
-        :class:`hdl.node.regs.NodeEvent` name) in cycle ``now``. Kept in the record of the
+        :class:`protocol.regs.NodeEvent` name) in cycle ``now``. Kept in the record of the
         period ``[start, start + period_cycles)`` holding ``now`` as the first such cycle;
         before period 0, or in a period without a record, ignored. The master does not act on
         it: the harnesses (``cosim.closed_loop``, ``cosim.model``) report it for the timeline."""

@@ -24,19 +24,24 @@ Gravity is −9.81 m/s² along the world z axis. The world frame is pinocchio's 
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
+from mrm_cosim.errors import (
+    InputError,
+    reject_control_characters,
+    reject_strings,
+    require_finite,
+    require_nonnegative,
+    require_positive,
+    require_vector,
+)
 from mrm_cosim.models.actuators import ACTUATORS
 from mrm_cosim.models.modules import MODULE_TYPES, LinkParams, ModuleType, SpringSpec
-from mrm_cosim.errors import (
-    InputError, reject_control_characters, reject_strings, require_finite, require_nonnegative,
-    require_positive, require_vector,
-)
+from mrm_cosim.tomlfile import read_toml
 
 __all__ = ["Module", "Robot", "load_robot", "builtin_robots", "GRAVITY", "rot_x", "rot_z",
            "rpy_to_matrix", "matrix_to_rpy", "homogeneous"]
@@ -363,14 +368,7 @@ def load_robot(spec) -> Robot:
         if path.suffix != ".toml" and not path.exists():
             raise InputError("robot", f"unknown robot {str(spec)!r}; built-in robots are "
                              f"{', '.join(builtin_robots())}, or give a .toml file")
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise InputError("robot", f"cannot read {str(path)!r}: {exc.strerror}") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError("robot", f"{path}: not valid TOML: {exc}") from None
+    doc = read_toml(path, "robot")
     return robot_from_dict(doc, default_name=path.stem)
 
 
@@ -577,7 +575,12 @@ def robot_from_dict(doc: dict, default_name: str = "robot") -> Robot:
         mtype = known[tname]
         if "spring" in entry and mtype.spring_max == 0.0:
             raise InputError(f"{where}.spring", f"module type {tname!r} has no spring")
-        modules.append(Module(index=k, type=mtype, twist=_angle(entry, "twist", where),
+        twist = _angle(entry, "twist", where)
+        if abs(twist) > TWIST_MAX:
+            key = "twist_deg" if "twist_deg" in entry else "twist"
+            raise InputError(f"{where}.{key}", f"{entry[key]!r} is more than a full turn (give "
+                             "the twist within ±360°)")
+        modules.append(Module(index=k, type=mtype, twist=twist,
                               spring=_spring(entry.get("spring"), f"{where}.spring", mtype)))
     base = _pose(doc.get("base"), "base")
     tool = _pose(doc.get("tool"), "tool")
@@ -593,4 +596,73 @@ def robot_from_dict(doc: dict, default_name: str = "robot") -> Robot:
             if abs(home[k]) > mod.type.joint_limit:
                 raise InputError(f"{key}[{k}]", "outside the joint's range "
                                  f"±{math.degrees(mod.type.joint_limit):g}°")
+    _check_plausible(user_types, known, modules, base, tool)
     return Robot(name, modules, base=base, tool=tool, home=home)
+
+
+#: Ranges a module of a modular arm can have (docs/robot.md "Plausibility"); outside them a
+#: description is refused, beyond the ``warn`` figures it is loaded with a warning.
+LENGTH_MAX = 1.0            # m, each of a module's two link lengths
+LENGTH_WARN = 0.5           # m
+MODULE_LENGTH_MIN = 0.01    # m, length_a + length_b: a joint module has a body
+MASS_PRECISION = 1e-3       # largest relative error of a link mass in the node's THETA_M word
+MASS_WARN = 10.0            # kg per link
+MAX_SPEED_MAX = 20.0        # rad/s at the joint: a harmonic drive's output is a few rad/s
+TWIST_MAX = 2 * math.pi     # rad
+TOOL_MAX = 2.0              # m from the last module's tip interface
+TOOL_WARN = 0.5             # m
+BASE_MAX = 10.0             # m from the world origin
+
+
+def _check_plausible(user_types: dict, known: dict, modules, base, tool) -> None:
+    """Refuse what no modular arm has (each a named :class:`InputError`), warn on the unusual.
+
+    The ranges are :data:`LENGTH_MAX` … :data:`BASE_MAX` (docs/robot.md "Plausibility"); a
+    link's mass must reach the node's THETA_M word with at most :data:`MASS_PRECISION`
+    relative error (a 1e-12 kg link reached the node as 0 kg and ran), and fit it.
+    """
+    import logging
+
+    from mrm_cosim.protocol.fixed import THETA
+
+    log = logging.getLogger("mrm_cosim.models")
+    for tname in user_types:
+        t = known[tname]
+        where = f"module_types.{tname}"
+        for key in ("length_a", "length_b"):
+            v = getattr(t, key)
+            if v > LENGTH_MAX:
+                raise InputError(f"{where}.{key}", f"{v:g} m is longer than a module's link "
+                                 f"can be (at most {LENGTH_MAX:g} m; lengths are in metres)")
+            if v > LENGTH_WARN:
+                log.warning("%s.%s: %g m is an unusually long module link", where, key, v)
+        if t.length_a + t.length_b < MODULE_LENGTH_MIN:
+            raise InputError(f"{where}.length_a", f"length_a + length_b = "
+                             f"{t.length_a + t.length_b:g} m is shorter than a joint module "
+                             f"can be (at least {MODULE_LENGTH_MIN:g} m)")
+        if t.max_speed > MAX_SPEED_MAX:
+            raise InputError(f"{where}.max_speed", f"{t.max_speed:g} rad/s is beyond any "
+                             f"joint drive's output speed (at most {MAX_SPEED_MAX:g} rad/s)")
+        fmt = THETA[0]
+        for link in ("link_a", "link_b"):
+            m = getattr(t, link).mass
+            if m > fmt.max:
+                raise InputError(f"{where}.{link}", f"a mass of {m:g} kg does not fit the "
+                                 f"node's {fmt.name} word (at most {fmt.max:g} kg)")
+            err = abs(fmt.decode(fmt.encode(m)) - m) / m
+            if err > MASS_PRECISION:
+                raise InputError(f"{where}.{link}", f"a mass of {m:g} kg reaches the node as "
+                                 f"{fmt.decode(fmt.encode(m)):g} kg (its {fmt.name} word's step "
+                                 f"is {fmt.resolution:g} kg); at least "
+                                 f"{fmt.resolution / MASS_PRECISION:g} kg")
+            if m > MASS_WARN:
+                log.warning("%s.%s: %g kg is an unusually heavy module link", where, link, m)
+    if np.linalg.norm(tool[:3, 3]) > TOOL_MAX:
+        raise InputError("tool.xyz", f"the tool point is {np.linalg.norm(tool[:3, 3]):g} m "
+                         f"from the flange (at most {TOOL_MAX:g} m; lengths are in metres)")
+    if np.linalg.norm(tool[:3, 3]) > TOOL_WARN:
+        log.warning("tool.xyz: the tool point is %g m from the flange",
+                    np.linalg.norm(tool[:3, 3]))
+    if np.linalg.norm(base[:3, 3]) > BASE_MAX:
+        raise InputError("base.xyz", f"the base is {np.linalg.norm(base[:3, 3]):g} m from the "
+                         f"world origin (at most {BASE_MAX:g} m)")

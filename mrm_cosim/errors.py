@@ -90,7 +90,7 @@ def reject_control_characters(text: str, field: str) -> str:
     """Return ``text`` unless it holds a control character (:class:`InputError` naming
     ``field``). Names are printed to the terminal and written into URDF, JSON and Markdown: an
     escape sequence or a newline would repaint the terminal or split a line."""
-    bad = [c for c in text if unicodedata.category(c) == "Cc"]
+    bad = [c for c in text if unicodedata.category(c) in ("Cc", "Cf")]
     if bad:
         raise InputError(field, f"must not contain control characters ({bad[0]!r} in "
                          f"{text!r})")

@@ -59,7 +59,7 @@ class Rule:
 #: is imported as ``mrm_cosim.<room>`` (or relatively).
 RULES = {
     "kernel": Rule(
-        "`mrm_cosim/*.py`: errors, units, results",
+        "`mrm_cosim/*.py`: errors, units, results, tomlfile",
         may=("stdlib", "kernel"),
         never=("protocol", "reference", "gateware", "master", "models", "cosim", "mrm",
                "configs", "amaranth")),
@@ -105,7 +105,7 @@ RULES = {
 #: Room of each subpackage of ``mrm_cosim`` (``hdl`` is split by module name).
 _SUBPACKAGE_ROOM = {"protocol": "protocol", "master": "master", "models": "models",
                     "cosim": "cosim", "mrm": "mrm", "configs": "configs"}
-_KERNEL = ("errors", "units", "results")
+_KERNEL = ("errors", "units", "results", "tomlfile")
 _BARE = ("hdl", "master", "models", "cosim", "mrm", "protocol", "configs")
 
 

@@ -315,7 +315,7 @@ def test_user_module_type_like_builtin():
 def test_unknown_robot_and_unreadable_file(tmp_path):
     with pytest.raises(InputError, match="unknown robot"):
         load_robot("mrm99")
-    with pytest.raises(InputError, match="cannot read"):
+    with pytest.raises(InputError, match="does not exist"):
         load_robot(str(tmp_path / "missing.toml"))
     bad = tmp_path / "bad.toml"
     bad.write_text("name = [")

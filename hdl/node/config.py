@@ -1,10 +1,10 @@
 """CONFIG registers of the node core, and when ARM takes effect.
 
-A CONFIG record (:class:`~hdl.node.regs.Config` id, int32 value; docs/node.md "Packets")
+A CONFIG record (:class:`~protocol.regs.Config` id, int32 value; docs/node.md "Packets")
 writes one register at its last byte; a value out of a register's range is ignored (MODE
 ≥ 3, TICK 0 or ≥ 2^16, PERIOD < 2 or ≥ 2^24, SYNC_WINDOW and COMMIT ≥ 2^24). PRESET and PRIME
 are strobes to the encoder and the VDC sequencer. Every register starts at
-:data:`~hdl.node.regs.CONFIG_DEFAULTS`.
+:data:`~protocol.regs.CONFIG_DEFAULTS`.
 
 ARM = 0 disarms at once (safety first). ARM ≠ 0 takes effect at the next period boundary, so
 the state at that boundary does not depend on when the CONFIG arrived, and it clears the joint
@@ -37,7 +37,7 @@ class NodeConfig(wiring.Component):
     joint_busy : In(1)
         The joint engine runs (the fine integral clear waits for it).
     mode : Out(2)
-        Joint program: :data:`~hdl.node.regs.MODES`.
+        Joint program: :data:`~protocol.regs.MODES`.
     tick : Out(16)
         Cycles per control tick.
     timeout, ramp, tau_min, tau_max : Out(32), Out(24), Out(signed(24)), Out(signed(24))

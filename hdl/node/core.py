@@ -113,7 +113,7 @@ class NodeCore(wiring.Component):
     torque : Out(signed(24))
         Torque command (FORCE word: N·m · 2^13).
     status : Out(16)
-        :class:`~hdl.node.regs.Status` bits.
+        :class:`~protocol.regs.Status` bits.
     count : Out(signed(32))
         Live encoder count.
     velocity : Out(signed(24))
@@ -125,7 +125,7 @@ class NodeCore(wiring.Component):
     dropped : In(16)
         The router's discarded packets.
     events : Out(16)
-        Observation port: one-cycle :class:`~hdl.node.regs.NodeEvent` strobes (boundary,
+        Observation port: one-cycle :class:`~protocol.regs.NodeEvent` strobes (boundary,
         packets taken, VDC start / MARK / end, replies leaving, Comm D commit). Test points
         only: combinational copies of existing signals, nothing in the node reads them.
     """

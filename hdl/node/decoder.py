@@ -34,13 +34,13 @@ __all__ = ["PacketDecoder", "HostWrite", "ConfigRecord", "PacketEnd", "CommDWord
 class HostWrite(data.Struct):
     """A word for an engine's register file (the engine's host write port)."""
 
-    bank: 1             # :class:`~hdl.node.regs.Bank`: 0 VDC, 1 joint
+    bank: 1             # :class:`~protocol.regs.Bank`: 0 VDC, 1 joint
     addr: 9
     data: signed(WORD)
 
 
 class ConfigRecord(data.Struct):
-    """A CONFIG record (:class:`~hdl.node.regs.Config` id and its value)."""
+    """A CONFIG record (:class:`~protocol.regs.Config` id and its value)."""
 
     id:    8
     value: 32

@@ -28,7 +28,7 @@ __all__ = ["ReplyBuilder", "CommAReply", "CommCReply", "LinkHealth"]
 
 
 class LinkHealth(data.Struct):
-    """Comm A's link-health fields (:data:`~hdl.node.regs.LINK_HEALTH`), saturating counts."""
+    """Comm A's link-health fields (:data:`~protocol.regs.LINK_HEALTH`), saturating counts."""
 
     up_link_errors:   16   # the upstream codec's errors, five classes summed
     down_link_errors: 16   # the downstream codec's
@@ -78,7 +78,7 @@ class ReplyBuilder(wiring.Component):
     link : In(LinkHealth)
         The link's health.
     status : In(16)
-        The node's status (:class:`~hdl.node.regs.Status`), without FRESH's Comm C meaning.
+        The node's status (:class:`~protocol.regs.Status`), without FRESH's Comm C meaning.
     forces : In(ArrayLayout(signed(24), 12))
         The VDC program's force outputs ``FA0..FA5, FB0..FB5``.
     vdc_pending : In(1)

@@ -25,7 +25,7 @@ class Snapshot(data.Struct):
     count:    signed(32)      # encoder count
     velocity: signed(WORD)    # q̇, VEL
     torque:   signed(WORD)    # torque applied, FORCE
-    status:   16              # :class:`~hdl.node.regs.Status`
+    status:   16              # :class:`~protocol.regs.Status`
     errors:   16              # illegal encoder transitions
     overruns: 16              # control ticks skipped
     late_d:   16              # Comm D packets after the commit phase

@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import json
 import sys
-import tomllib
 
 import numpy as np
 
 from mrm_cosim.errors import InputError, require_finite, require_positive
 from mrm_cosim.results import atomic_write_text, check_output_file
+from mrm_cosim.tomlfile import read_toml
 
 LIMIT_KEYS = ("velocity", "acceleration", "jerk")
 
@@ -192,16 +192,7 @@ def parse_line_spec(doc: dict):
 
 def load_line_file(path: str):
     """Read and validate ``FILE.toml``; returns ``(start, end, LineLimits)``."""
-    try:
-        with open(path, "rb") as f:
-            doc = tomllib.load(f)
-    except FileNotFoundError:
-        raise InputError("FILE", f"{path!r} does not exist") from None
-    except IsADirectoryError:
-        raise InputError("FILE", f"{path!r} is a directory") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError("FILE", f"{path!r} is not valid TOML: {exc}") from None
-    return parse_line_spec(doc)
+    return parse_line_spec(read_toml(path, "FILE"))
 
 
 def _line(args) -> int:

@@ -1,0 +1,19 @@
+"""`mrm hdl verilog/synth --param`: every integer parameter is bounded before the build."""
+
+import pytest
+
+from mrm_cosim.mrm.cli import main
+
+
+@pytest.mark.parametrize("param, words", [
+    ("reset_cycles=99999999999999999999", "--param reset_cycles: must be an integer from"),
+    ("rx_fifo_depth=1000000", "--param rx_fifo_depth: must be an integer from 1 to 4,096"),
+    ("slots=100000", "--param slots: must be an integer from 1 to 64"),
+    ("wait_cycles=-99999999999", "--param wait_cycles: must be an integer from"),
+])
+def test_out_of_bounds_parameters_are_refused_before_the_build(tmp_path, capsys, param, words):
+    out = tmp_path / "v"
+    code = main(["hdl", "verilog", "--top", "spw_codec", "--param", param, "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and words in err[0]
+    assert not out.exists()
