@@ -112,6 +112,8 @@ class ExperimentConfig:
             cfg = replace(cfg, seed=_seed(seed, f"{field_prefix}seed"))
         if duration is not None:
             cfg = replace(cfg, duration=_duration(duration, f"{field_prefix}duration"))
+            check_duration_covers_periods(cfg.duration, cfg.timing.period_cycles,
+                                          f"{field_prefix}duration")
         return cfg
 
     def to_dict(self) -> dict:
@@ -183,12 +185,41 @@ def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
     gains = _gains(_table(data, "gains"))
     plant = _plant(_table(data, "plant"))
     timing = _timing(_table(data, "timing"))
+    check_duration_covers_periods(duration, timing.period_cycles, "experiment.duration")
     check_period_on_plant_grid(timing.period_cycles, plant,
                                "plant.dt" if plant.dt != PlantConfig().dt
                                else "timing.period_cycles")
     _gains_fit_the_nodes(robot, controllers, gains, timing.period_cycles)
     return ExperimentConfig(name, robot, controllers, backend, seed, duration, trajectory,
                             plant, gains, timing)
+
+
+#: The shortest run: one master period (half a period ran "clean" with the tip at rest, a
+#: tip speed of 0 and a ρ of 0/0). Short runs are useful (a few periods of the compiled
+#: gateware), so a run that ends before the motion shows is flagged in its table instead.
+MIN_PERIODS = 1
+
+#: The slowest current loop accepted, Hz: the nodes update the torque every microsecond and the
+#: master every millisecond; a current loop slower than this turns every controller into the
+#: same amplifier (1e-9 Hz gave three equal ρ), and real servo amplifiers close theirs at
+#: 1–5 kHz (docs/experiments.md "Plausibility").
+MIN_CURRENT_BANDWIDTH = 100.0
+
+#: The coarsest plant step, s: the plant samples the nodes' torque words (updated every 1 µs)
+#: once a step, and the loop's start-up (link up about 22 µs after reset) needs steps well
+#: inside a period; a 1 ms step failed at run time as 'start_cycle'.
+MAX_PLANT_DT = 1e-4
+
+
+def check_duration_covers_periods(duration: float, period_cycles: int, field: str) -> None:
+    """:class:`InputError` naming ``field`` when a run of ``duration`` seconds is shorter
+    than :data:`MIN_PERIODS` master period."""
+    from mrm_cosim.units import CLOCK_HZ
+
+    shortest = MIN_PERIODS * period_cycles / CLOCK_HZ
+    if duration < shortest:
+        raise InputError(field, f"{duration:g} s is shorter than the master's period "
+                         f"({shortest:g} s): no exchange completes in it")
 
 
 def _table(data: dict, name: str) -> dict:
@@ -291,14 +322,27 @@ def _plant(table: dict) -> PlantConfig:
     else:
         perturbation = require_finite(_number(pert, "plant.perturbation"), "plant.perturbation")
     bw = table.get("current_bandwidth")
+    dt = require_positive(_number(table.get("dt", d.dt), "plant.dt"), "plant.dt")
+    if dt > MAX_PLANT_DT:
+        raise InputError("plant.dt", f"{dt:g} s is too coarse a plant step: the plant samples "
+                         f"the nodes' torque once a step and the link comes up 22 µs after "
+                         f"reset (at most {MAX_PLANT_DT:g} s)")
     return PlantConfig(
-        dt=require_positive(_number(table.get("dt", d.dt), "plant.dt"), "plant.dt"),
+        dt=dt,
         perturbation=perturbation,
         friction=_bool(table.get("friction", d.friction), "plant.friction"),
         springs=_bool(table.get("springs", d.springs), "plant.springs"),
         current_loop=_bool(table.get("current_loop", d.current_loop), "plant.current_loop"),
-        current_bandwidth=None if bw is None else require_positive(
-            _number(bw, "plant.current_bandwidth"), "plant.current_bandwidth"))
+        current_bandwidth=None if bw is None else _current_bandwidth(bw))
+
+
+def _current_bandwidth(value) -> float:
+    x = require_positive(_number(value, "plant.current_bandwidth"), "plant.current_bandwidth")
+    if x < MIN_CURRENT_BANDWIDTH:
+        raise InputError("plant.current_bandwidth", f"{value!r} Hz cannot follow the torque "
+                         f"the controllers command (at least {MIN_CURRENT_BANDWIDTH:g} Hz; "
+                         "servo amplifiers close their current loop at 1–5 kHz)")
+    return x
 
 
 # Upper bounds keep every gain inside the node's fixed-point registers with margin.

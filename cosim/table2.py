@@ -350,7 +350,20 @@ def _ordering(runs: dict) -> dict:
     rho = {c: s["rho_s"] for c, (_, s) in runs.items()}
     order = sorted(rho, key=rho.get)
     paper = [c for c in ("vdc", "pid-fpga", "pid-1khz") if c in rho]
-    return {"best_to_worst": order, "as_paper": order == paper}
+    moved = all(s["max_tip_speed_m_s"] > MOVED_M_S for _, s in runs.values())
+    apart = all(rho[b] > (1.0 + RHO_MARGIN) * rho[a]
+                for a, b in zip(order, order[1:], strict=False))
+    return {"best_to_worst": order, "moved": moved, "apart": apart,
+            "as_paper": order == paper and moved and apart and len(paper) > 1}
+
+
+#: A run "moved" when its desired tip speed exceeded this (m/s); a run shorter than the
+#: motion's start has speed 0 and a ρ of 0/0.
+MOVED_M_S = 1e-3
+#: Two controllers' ρ are "apart" when the larger exceeds the smaller by this fraction: the
+#: spread of ρ over plant seeds is a few per cent (docs/experiments.md), so a closer pair is
+#: not an ordering.
+RHO_MARGIN = 0.10
 
 
 def table_markdown(summary: dict) -> str:
@@ -380,7 +393,13 @@ def table_markdown(summary: dict) -> str:
     order = summary["ordering"]
     lines += ["", "Ordering by ρ, best first: " + " < ".join(order["best_to_worst"])
               + (" — as in the paper." if order["as_paper"] else
-                 " — NOT the paper's order (vdc < pid-fpga < pid-1khz)."),
+                 " — NOT the paper's order (vdc < pid-fpga < pid-1khz)."
+                 if order.get("moved", True) and order.get("apart", True) else
+                 " — no ordering can be claimed: "
+                 + ("a run did not move (its duration ends before the motion starts)"
+                    if not order.get("moved", True) else
+                    f"two ρ are within {RHO_MARGIN:.0%} of each other")
+                 + "."),
               "", "ρ = max‖tip error‖ / max‖tip velocity‖ over the run (paper eq. 5 for this "
               "one trajectory); the tip velocity is the desired one. See docs/experiments.md.",
               ""]

@@ -89,6 +89,13 @@ def test_unknown_keys_are_rejected_by_name(text, field):
     ("[plant]\ndt = 1.5e-8", "plant.dt"),
     ("[plant]\nfriction = 1", "plant.friction"),
     ("[plant]\ncurrent_bandwidth = 0.0", "plant.current_bandwidth"),
+    # an amplifier that cannot follow the motion made the three controllers equal
+    ("[plant]\ncurrent_bandwidth = 1e-9", "plant.current_bandwidth"),
+    ("[plant]\ncurrent_bandwidth = 99.0", "plant.current_bandwidth"),
+    # half a period: nothing moved, and the table still looked clean
+    ("[experiment]\nduration = 0.0005", "experiment.duration"),
+    # a plant step of a whole period failed at run time as 'start_cycle'
+    ("[plant]\ndt = 1e-3", "plant.dt"),
     ("[plant]\nperturbation = 0.9", "plant.perturbation"),
     ("[plant.perturbation]\nlinks = 0.6", "plant.perturbation.links"),
     ("[plant.perturbation]\nfriction = 'lots'", "plant.perturbation.friction"),
@@ -232,3 +239,17 @@ def test_the_period_must_be_a_whole_number_of_the_configured_plant_steps():
         run_track("mrm3", "vdc", "model", duration=0.01, plant_config=PlantConfig(dt=2e-5),
                   timing=MasterTiming(period_cycles=25_500))
     assert exc.value.field == "plant.dt"
+
+
+def test_a_table_claims_the_papers_order_only_for_runs_that_moved_and_stand_apart():
+    from mrm_cosim.cosim.table2 import RHO_MARGIN, _ordering
+
+    def runs(rhos, speed=0.5):
+        return {c: (None, {"rho_s": r, "max_tip_speed_m_s": speed}) for c, r in rhos.items()}
+
+    paper = {"vdc": 2e-5, "pid-fpga": 3e-4, "pid-1khz": 3e-3}
+    assert _ordering(runs(paper))["as_paper"]
+    assert not _ordering(runs({**paper, "vdc": 5e-3}))["as_paper"]          # out of order
+    close = {**paper, "pid-fpga": paper["vdc"] * (1 + RHO_MARGIN / 2)}
+    assert not _ordering(runs(close))["as_paper"]                          # within the noise
+    assert not _ordering(runs(paper, speed=0.0))["as_paper"]                # nothing moved

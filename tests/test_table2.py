@@ -88,7 +88,7 @@ def test_three_controllers_same_plant_seed_gains_and_timing(done, config):
         assert s["version"] == __version__
     assert on_disk["seed"] == 5 and on_disk["version"] == __version__
     assert on_disk["ordering"] == {"best_to_worst": ["vdc", "pid-fpga", "pid-1khz"],
-                                   "as_paper": True}
+                                   "moved": True, "apart": True, "as_paper": True}
     assert ec.loads((out / "config.toml").read_text()) == config
     assert on_disk["config"] == config.to_dict()
 
@@ -127,7 +127,7 @@ def test_ordering_unlike_the_paper_is_said_plainly(done):
     runs = {c: (None, s) for c, s in summary["controllers"].items()}
     summary["ordering"] = table2._ordering(runs)
     assert summary["ordering"] == {"best_to_worst": ["pid-1khz", "vdc", "pid-fpga"],
-                                   "as_paper": False}
+                                   "moved": True, "apart": True, "as_paper": False}
     assert "NOT the paper's order" in table2.table_markdown(summary)
 
 
