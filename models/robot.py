@@ -496,7 +496,9 @@ def _module_type(name: str, table: dict, known: dict[str, ModuleType]) -> Module
     if "joint_limit" in table or "joint_limit_deg" in table:
         lim = _angle(table, "joint_limit", where)
         if not 0.0 < lim <= math.pi:
-            raise InputError(f"{where}.joint_limit", f"must be in (0, π] rad, not {lim!r}")
+            key = "joint_limit_deg" if "joint_limit_deg" in table else "joint_limit"
+            bound = "(0, 180]°" if key == "joint_limit_deg" else "(0, π] rad"
+            raise InputError(f"{where}.{key}", f"must be in {bound}, not {table[key]!r}")
         fields["joint_limit"] = lim
     for key in ("link_a", "link_b"):
         if key in table:

@@ -243,6 +243,10 @@ def _track(args) -> int:
     for f in faults:
         if f.node > robot.n:
             raise InputError("faults", f"the robot has {robot.n} nodes, not {f.node}")
+    if args.vcd is not None:        # refused before anything runs or prints
+        from mrm_cosim.cosim.backends import VcdWindow
+
+        VcdWindow.parse(args.vcd, Path(args.out) / "waves.vcd", signals=args.signals)
     tr = config.trajectory
     profile = paper_test_profile(robot, tr.amplitude, tr.duration)
     progress = None if args.quiet else Progress([args.controller], config.duration)
@@ -336,6 +340,10 @@ def _line(args) -> int:
     check_output_dir(args.out)
     config = load(args.config).with_overrides(backend=args.backend, seed=args.seed,
                                               field_prefix="")
+    if args.duration is not None:
+        from mrm_cosim.errors import require_positive
+
+        require_positive(args.duration, "duration")
     robot = load_robot(args.robot)
     check_robot_fits(robot, "robot")
     start, end, limits = load_line_file(args.file)

@@ -1,0 +1,254 @@
+"""The bad-input corpus (issue 15): one row a case, run by tests/test_bad_input.py.
+
+A case is ``(id, argv, files, field)``: ``argv`` is the ``mrm`` command line, in which
+``{robot}``, ``{config}``, ``{line}`` stand for files the case writes from ``files`` (their
+TOML text) and ``{out}`` for a result folder that must not appear; ``field`` is what the one
+line on stderr must name. Every case must be refused before anything is simulated.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+MRM3 = (ROOT / "models" / "robots" / "mrm3.toml").read_text()
+TABLE2 = (ROOT / "configs" / "table2.toml").read_text()
+LINE = (ROOT / "examples" / "line_mrm6.toml").read_text()
+
+_TYPE = '\n[module_types.X]\nlike = "I"\n'
+_TWO = 'name = "t"\n[[modules]]\ntype = "X"\n[[modules]]\ntype = "I"\ntwist_deg = 90.0\n'
+
+
+def _robot_with(type_lines: str) -> str:
+    return _TWO + _TYPE + type_lines + "\n"
+
+
+def _config_with(section: str, key: str, value: str) -> str:
+    """table2.toml with ``key`` of ``[section]`` set to ``value`` (added if absent)."""
+    lines = TABLE2.splitlines()
+    out, inside, done = [], False, False
+    for line in lines:
+        stripped = line.strip()
+        if stripped.startswith("["):
+            if inside and not done:
+                out.append(f"{key} = {value}")
+                done = True
+            inside = stripped.split("#")[0].strip() == f"[{section}]"
+        if inside and stripped.split("=")[0].strip() == key:
+            out.append(f"{key} = {value}")
+            done = True
+            continue
+        out.append(line)
+    if not done:
+        if not inside:
+            out.append(f"[{section}]")
+        out.append(f"{key} = {value}")
+    return "\n".join(out) + "\n"
+
+
+def _line_with(old: str, new: str) -> str:
+    assert old in LINE, old
+    return LINE.replace(old, new, 1)
+
+
+CASES: list[tuple[str, list[str], dict[str, str], str]] = []
+
+
+def case(id_, argv, field, **files):
+    CASES.append((id_, argv, files, field))
+
+
+# --- robot descriptions, through `mrm robot show` --------------------------------------
+ROBOT_FIELDS = {
+    "length_a": ["200", "-0.1", "0.0", "nan", "inf", '"0.2"', "1e300", "true", "[0.2]"],
+    "length_b": ["100", "-1", "nan", '"x"', "1e9"],
+    "max_speed": ["1e300", "-1", "0", "nan", "21"],
+    "peak_torque": ["-1", "0", "nan", '"11"', "1e9"],
+    "continuous_torque": ["-1", "nan", '"4"'],
+    "gear_ratio": ["0", "-100", "1.5", '"100"', "true", "80"],
+    "encoder_lines": ["0", "-1", "2.5", "1e22", '"2000"'],
+    "joint_limit_deg": ["0", "-10", "nan", "400"],
+    "joint_limit": ["0", "4"],
+    "actuator": ['"FHA-99"', "3", '""'],
+    "link_a": ["[1e-12, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1e-6, 1e-6, 1e-6]",
+               "[100, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1]",
+               "[1, 0, 0, 0, 0, 0, 0, 0, 0, 0, -1, 1, 1]",
+               "[1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 5]",
+               "[1, 2, 3]", '"heavy"'],
+}
+for key, values in ROBOT_FIELDS.items():
+    for i, value in enumerate(values):
+        field = f"module_types.X.{key}"
+        case(f"robot-{key}-{i}", ["robot", "show", "{robot}"], field,
+             robot=_robot_with(f"{key} = {value}"))
+case("robot-nm-links", ["robot", "show", "{robot}"], "module_types.X.length_a",
+     robot=_robot_with("length_a = 1e-9\nlength_b = 1e-9"))
+
+MODULE_ENTRY = {
+    "twist_deg": ["1e300", "nan", '"90"', "[90]"],
+    "type": ['"III"', '["I"]', "{ name = \"I\" }", "1"],
+    "spring": ['{ torque = 8.0 }'],
+    "colour": ['"red"'],
+}
+for key, values in MODULE_ENTRY.items():
+    for i, value in enumerate(values):
+        type_line = "" if key == "type" else 'type = "I"'
+        doc = f'name = "t"\n[[modules]]\n{type_line}\n{key} = {value}\n'
+        case(f"robot-module-{key}-{i}", ["robot", "show", "{robot}"], f"modules[0].{key}",
+             robot=doc)
+
+ROBOT_DOCS = {
+    "no-modules": ('name = "t"\n', "modules"),
+    "empty-modules": ('name = "t"\nmodules = []\n', "modules"),
+    "name-escape": ('name = "a\\u001b[31m"\n[[modules]]\ntype = "I"\n', "name"),
+    "name-newline": ('name = "a\\nb"\n[[modules]]\ntype = "I"\n', "name"),
+    "name-bidi": ('name = "a\\u202eb"\n[[modules]]\ntype = "I"\n', "name"),
+    "name-number": ('name = 3\n[[modules]]\ntype = "I"\n', "name"),
+    "tool-far": ('name = "t"\n[tool]\nxyz = [1e6, 0, 0]\n[[modules]]\ntype = "I"\n', "tool"),
+    "tool-string": ('name = "t"\n[tool]\nxyz = [0, 0, "0.3"]\n[[modules]]\ntype = "I"\n',
+                    "tool.xyz[2]"),
+    "base-far": ('name = "t"\n[base]\nxyz = [100, 0, 0]\n[[modules]]\ntype = "I"\n', "base"),
+    "base-nan": ('name = "t"\n[base]\nxyz = [nan, 0, 0]\n[[modules]]\ntype = "I"\n', "base"),
+    "home-range": ('name = "t"\nhome_deg = [400]\n[[modules]]\ntype = "I"\n', "home_deg[0]"),
+    "home-length": ('name = "t"\nhome_deg = [1, 2]\n[[modules]]\ntype = "I"\n', "home_deg"),
+    "home-both": ('name = "t"\nhome = [0]\nhome_deg = [0]\n[[modules]]\ntype = "I"\n', "home"),
+    "unknown-key": ('name = "t"\ncolour = 1\n[[modules]]\ntype = "I"\n', "colour"),
+    "redefine-I": ('name = "t"\n[module_types.I]\nlike = "II"\n[[modules]]\ntype = "I"\n',
+                   "module_types.I"),
+    "like-unknown": ('name = "t"\n[module_types.X]\nlike = "Z"\n[[modules]]\ntype = "X"\n',
+                     "module_types.X.like"),
+    "duplicate-key": ('name = "t"\nname = "u"\n[[modules]]\ntype = "I"\n', "name"),
+    "not-toml": ('name = [\n', "robot"),
+    "deep": ("a = " + "[" * 3000 + "]" * 3000 + "\n", "robot"),
+}
+for id_, (doc, field) in ROBOT_DOCS.items():
+    case(f"robot-doc-{id_}", ["robot", "show", "{robot}"], field, robot=doc)
+for cmd in (["robot", "urdf", "{robot}"], ["run", "preview", "--robot", "{robot}",
+                                            "--out", "{out}"]):
+    for id_ in ("no-modules", "tool-far", "name-bidi", "duplicate-key"):
+        doc, field = ROBOT_DOCS[id_]
+        case(f"{cmd[0]}-{cmd[1]}-{id_}", cmd, field, robot=doc)
+case("robot-unknown-name", ["robot", "show", "mrm99"], "robot")
+case("robot-missing-file", ["robot", "show", "/nonexistent/r.toml"], "robot")
+
+# --- experiment configurations, through `mrm run table2` and `mrm run track` --------------
+CONFIG_FIELDS = [
+    ("experiment", "duration", ["0.0005", "-1", "nan", '"1.2"', "61.0", "0"]),
+    ("experiment", "seed", ["-1", "1.5", '"0"']),
+    ("experiment", "controllers", ['["pid"]', "[]", '"vdc"']),
+    ("experiment", "backend", ['"fpga"', "1"]),
+    ("experiment", "robot", ['"mrm99"', "3"]),
+    ("experiment", "name", ['"a\\u001b[2J"', "3"]),
+    ("trajectory", "amplitude", ["0.0", "nan", '"0.1"']),
+    ("trajectory", "duration", ["-1.0", "0", "nan"]),
+    ("trajectory", "hold", ["-0.1", "nan"]),
+    ("plant", "dt", ["1e-3", "1.5e-8", "3e-5", '"1e-5"', "-1"]),
+    ("plant", "current_bandwidth", ["1e-9", "0.0", "99.0", "nan"]),
+    ("plant", "friction", ["1", '"yes"']),
+    ("plant", "perturbation", ["0.9", '"x"']),
+    ("gains", "lam", ["0", "-1", "1e6", "nan", '"200"']),
+    ("gains", "k_j", ["-1", "1e6"]),
+    ("gains", "K", ["-1", '"50"', "1e9"]),
+    ("gains", "adapt", ["-1", "1e9"]),
+    ("gains", "pid_fpga_hz", ["0", "1e6"]),
+    ("gains", "friction_comp", ["-1", "3"]),
+    ("timing", "period_cycles", ["0", "-50000", "1.5", "25250"]),
+]
+for section, key, values in CONFIG_FIELDS:
+    for i, value in enumerate(values):
+        field = f"{section}.{key}"
+        if (section, key, value) in (("plant", "dt", "3e-5"), ("timing", "period_cycles",
+                                                              "25250")):
+            field = "plant.dt" if key == "dt" else "timing.period_cycles"
+        case(f"config-{section}-{key}-{i}", ["run", "table2", "--config", "{config}",
+                                             "--out", "{out}"], field,
+             config=_config_with(section, key, value))
+for i, (section, key, value) in enumerate([("plant", "current_bandwidth", "1e-9"),
+                                           ("experiment", "duration", "0.0005"),
+                                           ("gains", "lam", "0")]):
+    case(f"track-config-{i}", ["run", "track", "--config", "{config}", "--out", "{out}"],
+         f"{section}.{key}", config=_config_with(section, key, value))
+case("config-unknown-section", ["run", "table2", "--config", "{config}", "--out", "{out}"],
+     "colour", config=TABLE2 + "\n[colour]\nred = 1\n")
+case("config-duplicate-key", ["run", "table2", "--config", "{config}", "--out", "{out}"],
+     "experiment.seed", config=TABLE2.replace("seed = 0 ", "seed = 0\nseed = 1 ", 1))
+case("config-not-utf8", ["run", "table2", "--config", "{config}", "--out", "{out}"],
+     "--config", config="name = 'M\udcfcller'\n")
+case("config-missing", ["run", "table2", "--config", "/nonexistent/c.toml", "--out", "{out}"],
+     "--config")
+
+# --- command-line flags of the run commands ----------------------------------------------
+FLAGS = [
+    (["run", "table2", "--duration", "0.0005"], "--duration"),
+    (["run", "table2", "--duration", "-1"], "--duration"),
+    (["run", "table2", "--duration", "nan"], "--duration"),
+    (["run", "table2", "--seed", "-1"], "--seed"),
+    (["run", "table2", "--seed", "x"], "--seed"),
+    (["run", "table2", "--jobs", "0"], "--jobs"),
+    (["run", "table2", "--backend", "fpga"], "--backend"),
+    (["run", "table2", "--seed", "1", "--seed", "2"], "--seed"),
+    (["run", "track", "--controller", "lqr"], "--controller"),
+    (["run", "track", "--duration", "0"], "--duration"),
+    (["run", "track", "--robot", "mrm99"], "--robot"),
+    (["run", "track", "--backend", "model", "--line-fault", "bit:up:1@1ms"], "--line-fault"),
+    (["run", "track", "--line-fault", "zap:up:1@1ms"], "--line-fault"),
+    (["run", "track", "--signals", "torque*"], "--signals"),
+    (["run", "track", "--vcd", "x:y", "--backend", "compiled"], "--vcd"),
+    (["run", "preview", "--duration", "0.001"], "--duration"),
+    (["run", "preview", "--duration", "-1"], "--duration"),
+    (["run", "preview", "--robot", "mrm99"], "--robot"),
+    (["run", "preview", "--uncertainty", "nan"], "--uncertainty"),
+    (["run", "line", "{line}", "--robot", "mrm3"], "--robot"),
+    (["run", "line", "{line}", "--profile", "fast"], "--profile"),
+    (["run", "line", "{line}", "--duration", "-1"], "--duration"),
+    (["run", "line", "/nonexistent/line.toml"], "FILE"),
+    (["bench", "--backend", "fpga"], "--backend"),
+    (["bench", "--robot", "mrm99"], "--robot"),
+]
+for i, (argv, field) in enumerate(FLAGS):
+    needs_out = argv[0] == "run"
+    case(f"flag-{argv[1]}-{i}", argv + (["--out", "{out}"] if needs_out else []), field,
+         **({"line": LINE} if "{line}" in argv else {}))
+
+# --- Cartesian lines, through `mrm plan line` and `mrm run line` ---------------------------
+LINE_EDITS = [
+    ("translation = { velocity = 0.2,", "translation = { velocity = -0.1,",
+     "limits.translation.velocity"),
+    ("translation = { velocity = 0.2,", 'translation = { velocity = "0.1",',
+     "limits.translation.velocity"),
+    ("translation = { velocity = 0.2,", "translation = { velocity = 0,",
+     "limits.translation.velocity"),
+    ("translation = { velocity = 0.2,", "translation = { velocity = nan,",
+     "limits.translation.velocity"),
+    ("translation = { velocity = 0.2,", "translation = { velocity = 1e-300,",
+     "limits.translation.velocity"),
+    ("[limits]", "[limit]", "limit"),
+    ("[end]", "[stop]", "stop"),
+]
+for i, (old, new, field) in enumerate(LINE_EDITS):
+    for cmd in (["plan", "line", "{line}"], ["run", "line", "{line}", "--out", "{out}"]):
+        case(f"line-{cmd[0]}-{i}", cmd, field, line=_line_with(old, new))
+case("line-duplicate", ["plan", "line", "{line}"], "limits",
+     line=LINE + "\n[limits]\nx = 1\n")
+case("line-quintic-tf", ["plan", "quintic", "--q0", "0", "--qf", "1", "--tf", "0"], "--tf")
+case("line-quintic-nan", ["plan", "quintic", "--q0", "nan", "--qf", "1", "--tf", "1"], "--q0")
+case("line-samples-dt", ["plan", "line", "{line}", "--samples", "{out}", "--dt", "-1"], "--dt",
+     line=LINE)
+
+# --- gateware generation --------------------------------------------------------------------
+HDL = [
+    (["--top", "cpu"], "--top"),
+    (["--top", "spw_codec", "--param", "slots"], "--param"),
+    (["--top", "spw_codec", "--param", "slots=x"], "--param slots"),
+    (["--top", "spw_codec", "--param", "slots=1", "--param", "slots=2"], "--param slots"),
+    (["--top", "spw_codec", "--param", "colour=1"], "--param"),
+    (["--top", "spw_codec", "--param", "reset_cycles=99999999999999999999"],
+     "--param reset_cycles"),
+    (["--top", "spw_codec", "--param", "rx_fifo_depth=1000000"], "--param rx_fifo_depth"),
+    (["--top", "spw_codec", "--param", "rx_fifo_depth=2"], "--param"),
+    (["--top", "system", "--param", "n_nodes=0"], "--param"),
+    (["--top", "system", "--param", "n_nodes=99"], "--param"),
+    (["--top", "node", "--param", "counts_per_rev=1"], "--param counts_per_rev"),
+]
+for i, (argv, field) in enumerate(HDL):
+    case(f"hdl-verilog-{i}", ["hdl", "verilog", *argv, "--out", "{out}"], field)
