@@ -505,6 +505,7 @@ def _module_type(name: str, table: dict, known: dict[str, ModuleType]) -> Module
             theta = _vector(table[key], 13, f"{where}.{key}")
             if theta[0] <= 0.0:
                 raise InputError(f"{where}.{key}[0]", f"mass must be positive, not {theta[0]!r}")
+            _check_second_moments(theta, f"{where}.{key}")
             link = LinkParams.from_table(theta)
             try:
                 link.check_physical(f"{where}.{key}")
@@ -614,6 +615,28 @@ TWIST_MAX = 2 * math.pi     # rad
 TOOL_MAX = 2.0              # m from the last module's tip interface
 TOOL_WARN = 0.5             # m
 BASE_MAX = 10.0             # m from the world origin
+
+
+#: How far a given m·rᵢ² may lie from (m rᵢ)²/m, the value its m and m rᵢ imply: 5 % (Table 1
+#: prints three significant figures, which move the product by well under 1 %) or
+#: :data:`SECOND_MOMENT_ATOL`, whichever is larger.
+SECOND_MOMENT_RTOL = 0.05
+SECOND_MOMENT_ATOL = 1e-6   # kg·m²
+
+
+def _check_second_moments(theta, field: str) -> None:
+    """The m·rᵢ² entries (θ₅…θ₇) are redundant: they follow from m and m rᵢ. A description
+    whose entries disagree beyond the tolerance is refused, naming the entry (the loader
+    recomputes them, so a disagreement would otherwise vanish silently; the built-in Type I's
+    Link b has one such misprint, docs/robot.md, and is not a user's description)."""
+    m = theta[0]
+    for i, axis in enumerate("xyz"):
+        implied = theta[1 + i] ** 2 / m
+        given = theta[4 + i]
+        if abs(given - implied) > max(SECOND_MOMENT_RTOL * abs(implied), SECOND_MOMENT_ATOL):
+            raise InputError(f"{field}[{4 + i}]", f"m·r{axis}² = {given:g} kg·m² disagrees "
+                             f"with m = {m:g} kg and m·r{axis} = {theta[1 + i]:g} kg·m, which "
+                             f"give {implied:.4g} (tolerance {SECOND_MOMENT_RTOL:.0%})")
 
 
 def _check_plausible(user_types: dict, known: dict, modules, base, tool) -> None:

@@ -74,7 +74,9 @@ ROBOT_FIELDS = {
                "[100, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1]",
                "[1, 0, 0, 0, 0, 0, 0, 0, 0, 0, -1, 1, 1]",
                "[1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 5]",
-               "[1, 2, 3]", '"heavy"'],
+               "[1, 2, 3]", '"heavy"',
+               # m·rx² = 0.5 disagrees with m = 1, m·rx = 0.1 (0.01)
+               "[1, 0.1, 0, 0, 0.5, 0, 0, 0, 0, 0, 0.01, 0.01, 0.01]"],
 }
 for key, values in ROBOT_FIELDS.items():
     for i, value in enumerate(values):

@@ -366,4 +366,4 @@ def asdict_type(name: str) -> dict:
     return {"actuator": t.actuator, "peak_torque": t.peak_torque,
             "continuous_torque": t.continuous_torque, "max_speed": t.max_speed,
             "length_a": t.length_a, "length_b": t.length_b,
-            "link_a": list(t.link_a.printed), "link_b": list(t.link_b.printed)}
+            "link_a": list(t.link_a.theta()), "link_b": list(t.link_b.theta())}
