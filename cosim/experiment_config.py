@@ -35,7 +35,7 @@ from mrm_cosim.errors import (
     require_positive,
 )
 from mrm_cosim.master.cycle import CONTROLLERS, MasterTiming
-from mrm_cosim.master.uploads import Gains
+from mrm_cosim.master.uploads import PID_DESIGN_HZ, Gains
 from mrm_cosim.models.plant import Perturbation, PlantConfig
 from mrm_cosim.tomlfile import parse_toml, read_toml
 
@@ -347,7 +347,7 @@ def _current_bandwidth(value) -> float:
 
 # Upper bounds keep every gain inside the node's fixed-point registers with margin.
 _GAIN_LIMITS = {"lam": (False, 1000.0), "k_j": (True, 500.0), "K": (True, 5000.0),
-                "adapt": (True, 100.0), "pid_fpga_hz": (False, 200.0),
+                "adapt": (True, 100.0), "pid_fpga_hz": (False, PID_DESIGN_HZ),
                 "pid_1khz_hz": (False, 100.0), "friction_comp": (True, 2.0)}
 
 

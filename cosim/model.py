@@ -57,7 +57,9 @@ from mrm_cosim.cosim.model_link import LINK_UP_CYCLE, LinkTiming
 from mrm_cosim.cosim.model_node import EncoderEvents, FastNode
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.protocol import packet as ref
+from mrm_cosim.hdl.node.joint_ref import JointModel
 from mrm_cosim.protocol.encoder import encoders_per_node
+from mrm_cosim.protocol.joint_program import JointParams, pid_shifts_per_node
 from mrm_cosim.protocol.fixed import FORCE
 from mrm_cosim.protocol.regs import Config
 
@@ -78,6 +80,8 @@ class ModelBackend(GatewareSide):
     encoder : EncoderParams or sequence of EncoderParams, optional
         The nodes' encoder interface: one for every node or one per node, as
         :class:`hdl.system.System` takes it (default: the gateware's default for every node).
+    pid_shift : int or sequence of int
+        The nodes' PID gain shifts, as :class:`hdl.system.System` takes them.
     strict : bool
         Raise :class:`ModelAssumptionError` at the first violated condition instead of
         recording it in :attr:`violations`.
@@ -97,8 +101,9 @@ class ModelBackend(GatewareSide):
 
     name = "model"
 
-    def __init__(self, encoder=None, strict: bool = False, lazy: bool = True):
+    def __init__(self, encoder=None, strict: bool = False, lazy: bool = True, pid_shift=0):
         self._encoder = encoder
+        self._pid_shift = pid_shift
         self.strict = strict
         self.lazy = bool(lazy)
         self._violations: list[str] = []
@@ -119,7 +124,9 @@ class ModelBackend(GatewareSide):
         counts = [int(c) for c in counts]
         self.n = len(counts)
         encs = encoders_per_node(self._encoder, self.n)
-        self.nodes = [FastNode(encoder=enc) for enc in encs]
+        self.nodes = [FastNode(encoder=enc, joint=JointModel(JointParams.zero(pid_shift=s)))
+                      for enc, s in zip(encs, pid_shifts_per_node(self._pid_shift, self.n),
+                                        strict=True)]
         self.encoders = [EncoderEvents(enc, c) for enc, c in zip(encs, counts, strict=True)]
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
             node.lazy = self.lazy

@@ -12,7 +12,7 @@ from mrm_cosim.cosim.experiment_config import MAX_DURATION, check_period_on_plan
 from mrm_cosim.cosim.preview import paper_test_profile
 from mrm_cosim.master.cycle import Master, MasterTiming
 from mrm_cosim.master.kinematics import jacobian
-from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
+from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains, pid_shifts
 from mrm_cosim.models.plant import Plant, PlantConfig
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.errors import InputError, require_positive
@@ -287,7 +287,7 @@ def loop_backend(robot, backend: str, record: bool = False, quiet: bool = True, 
         if record or vcd is not None:
             raise InputError("vcd" if vcd is not None else "record",
                              "the model backend has no signals; use pysim or compiled")
-        return ModelBackend(encoder=node_encoders(robot))
+        return ModelBackend(encoder=node_encoders(robot), pid_shift=pid_shifts(robot))
     if backend == "compiled":
         return CompiledBackend(lambda: loop_system(robot), loop_system_key(robot),
                                quiet=quiet, vcd=vcd, faults=faults, record=record)
@@ -298,20 +298,23 @@ def loop_backend(robot, backend: str, record: bool = False, quiet: bool = True, 
 
 def loop_system(robot):
     """The design every closed-loop run of ``robot`` simulates: :class:`hdl.system.System`
-    with a node per module, each built for its module's encoder (:func:`node_encoders`), and
-    the line-fault inputs (held at zero unless a run injects faults)."""
+    with a node per module, each built for its module's encoder (:func:`node_encoders`) and
+    PID gains (:func:`master.uploads.pid_shifts`), and the line-fault inputs (held at zero
+    unless a run injects faults)."""
     from mrm_cosim.hdl.system import System
 
-    return System(robot.n, encoder=node_encoders(robot), line_faults=True)
+    return System(robot.n, encoder=node_encoders(robot), pid_shift=pid_shifts(robot),
+                  line_faults=True)
 
 
 def loop_system_key(robot) -> str:
-    """The compiled-model cache key of :func:`loop_system`: the number of nodes and, where
-    they are not the gateware's default, the nodes' counts per revolution."""
+    """The compiled-model cache key of :func:`loop_system`: the number of nodes, the nodes'
+    PID gain shifts and, where they are not the gateware's default, their counts per
+    revolution."""
     from mrm_cosim.protocol.encoder import EncoderParams
 
     cprs = [e.counts_per_rev for e in node_encoders(robot)]
-    key = f"system{robot.n}-faults"
+    key = f"system{robot.n}-faults-pid" + "-".join(str(s) for s in pid_shifts(robot))
     if any(c != EncoderParams().counts_per_rev for c in cprs):
         key += "-cpr" + "-".join(str(c) for c in cprs)
     return key

@@ -17,6 +17,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
 from mrm_cosim.protocol.encoder import encoders_per_node
+from mrm_cosim.protocol.joint_program import pid_shifts_per_node
 from mrm_cosim.protocol.fixed import WORD
 from mrm_cosim.protocol.link import ERROR_CLASSES
 
@@ -51,6 +52,9 @@ class System(wiring.Component):
         Encoder interface parameters: one set for every node, or one per node (node 1 first;
         a robot's modules can have different encoders, and the node's velocity constant and
         angle scale are built for its counts per revolution).
+    pid_shift : int or sequence of int
+        PID gain shift of every node, or one per node
+        (:func:`~mrm_cosim.protocol.joint_program.pid_formats`).
 
     Attributes
     ----------
@@ -77,13 +81,14 @@ class System(wiring.Component):
     """
 
     def __init__(self, n_nodes: int, *, codec: dict | None = None, encoder=None,
-                 line_faults: bool = False):
+                 pid_shift=0, line_faults: bool = False):
         check_n_nodes(n_nodes)
         self.n_nodes = n_nodes
         self.line_faults = bool(line_faults)
         self.master = MasterPort(codec=codec)
-        self.nodes = [SlaveNode(codec=codec, encoder=e)
-                      for e in encoders_per_node(encoder, n_nodes)]
+        self.nodes = [SlaveNode(codec=codec, encoder=e, pid_shift=s)
+                      for e, s in zip(encoders_per_node(encoder, n_nodes),
+                                      pid_shifts_per_node(pid_shift, n_nodes), strict=True)]
         members = {
             "tx_valid":    In(1),
             "tx_char":     In(Char),

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from amaranth.back import verilog
 from amaranth.lib import wiring
 
+from mrm_cosim.protocol.joint_program import PID_SHIFT_MAX
 from mrm_cosim.errors import InputError
 
 from .link.node import link_node_top
@@ -67,9 +68,11 @@ TOPS: dict[str, Top] = {
     "link_node": Top(link_node_top, "daisy-chain endpoint: up/down codecs, router, packet layer "
                                     "(host beat streams), time-code capture"),
     "node": Top(slave_node_top, "slave node: link endpoint + compute core (VDC, joint control, "
-                                "encoder, watchdog); encoder lines in, torque word out"),
+                                "encoder, watchdog); encoder lines in, torque word out",
+                  bounds={"pid_shift": (0, PID_SHIFT_MAX)}),
     "node_core": Top(node_core_top, "node compute core alone (packet beat streams, encoder "
-                                    "lines, torque word)"),
+                                    "lines, torque word)",
+                      bounds={"pid_shift": (0, PID_SHIFT_MAX)}),
     "system": Top(_system, "the whole robot's gateware: master link port and n_nodes slave "
                            "nodes in a daisy chain (what the co-simulation runs)"),
 }

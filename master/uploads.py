@@ -20,7 +20,7 @@ from mrm_cosim.models.encoder import counts_per_rad, joint_counts
 from mrm_cosim.models.robot import Robot
 from mrm_cosim.protocol import packet as ref
 from mrm_cosim.protocol.fixed import FORCE
-from mrm_cosim.protocol.joint_program import JointParams
+from mrm_cosim.protocol.joint_program import PID_SHIFT_MAX, JointParams, pid_formats
 from mrm_cosim.protocol.regs import MODES, Config, config_payloads, joint_upload, vdc_upload
 from mrm_cosim.units import CLOCK_HZ
 
@@ -74,6 +74,34 @@ def pid_gains(robot: Robot, hz: float) -> dict:
     return {"kp": 3 * J * w * w, "ki": J * w**3, "kd": 3 * J * w}
 
 
+#: The closed-loop bandwidth the nodes' PID gain words are sized for (Hz): the largest triple
+#: pole an experiment may place (``gains.pid_fpga_hz``). Above it the node's PID would fight
+#: the harmonic drive's compliance (a first resonance at tens of Hz on arms of this size).
+PID_DESIGN_HZ = 200.0
+
+
+def pid_shifts(robot: Robot, tick_cycles: int = 50) -> list[int]:
+    """Each module's node's PID gain shift (:func:`~mrm_cosim.protocol.joint_program.pid_formats`),
+    a build parameter of the node: the smallest shift whose KP, KI and KD words hold the gains
+    :func:`pid_gains` gives for :data:`PID_DESIGN_HZ` on that joint (at most
+    :data:`~mrm_cosim.protocol.joint_program.PID_SHIFT_MAX`). Every run of a robot builds its
+    nodes with these, whatever its controller, and :func:`node_uploads` encodes the gains for
+    them; any pole up to :data:`PID_DESIGN_HZ` then fits, with 17 or more significant bits in
+    each gain word at 15 Hz."""
+    g = pid_gains(robot, PID_DESIGN_HZ)
+    tick = tick_cycles / CLOCK_HZ
+    out = []
+    for k, mod in enumerate(robot.modules):
+        rad = 2 * np.pi / mod.type.counts_per_rev
+        need = {"kp": g["kp"][k] * rad, "ki": g["ki"][k] * rad * tick, "kd": g["kd"][k]}
+        s = 0
+        while s < PID_SHIFT_MAX and any(abs(need[n]) > f.max
+                                        for n, f in pid_formats(s).items()):
+            s += 1
+        out.append(s)
+    return out
+
+
 def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int = 50,
                  timeout_cycles: int | None = None, period_cycles: int = 50_000,
                  commit_cycles: int | None = None,
@@ -108,12 +136,12 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
     out = [(k + 1, ref.PacketType.CONFIG, p) for k in range(robot.n) for p in config_payloads(
         {Config.PERIOD: period_cycles, Config.COMMIT: commit_cycles,
          Config.SYNC_WINDOW: sync_window})]
-    # The PID words only where the node runs its PID: they scale with the torque per count,
-    # and a robot with coarser encoders than mrm3's can need more than the KP word holds,
-    # which must not stop a run that never uses them.
+    # The PID words only where the node runs its PID: a gain a run never uses must not stop
+    # it (gains.pid_fpga_hz is bounded for the pid-fpga runs alone).
     pid = (pid_gains(robot, gains.pid_fpga_hz) if controller == "pid-fpga"
            else dict.fromkeys(("kp", "ki", "kd"), np.zeros(robot.n)))
     home_counts = joint_counts(robot.home, counts_per_rad(robot.counts_per_rev))
+    shifts = pid_shifts(robot, tick_cycles)
     for k, mod in enumerate(robot.modules):
         dest = k + 1
         peak = FORCE.encode(mod.type.peak_torque)
@@ -134,7 +162,7 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
             viscous=gains.friction_comp * spec.viscous_friction,
             coulomb=gains.friction_comp * spec.coulomb_friction,
             k_p=pid["kp"][k], k_i=pid["ki"][k], k_d=pid["kd"][k], i_max=0.05,
-            field=f"joint{dest}")
+            pid_shift=shifts[k], field=f"joint{dest}")
         out += [(dest, ref.PacketType.PARAM, p) for p in joint_upload(joint)]
         out += [(dest, ref.PacketType.CONFIG, p)
                 for p in config_payloads({Config.PRESET: int(home_counts[k])})]

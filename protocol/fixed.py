@@ -25,7 +25,7 @@ from mrm_cosim.errors import InputError, require_finite
 __all__ = ["WORD", "WORD_MIN", "WORD_MAX", "Fmt", "round_shift", "saturate", "wrap",
            "VEL", "ACC", "TRIG", "FORCE", "GAIN", "THETA", "RHOT", "SIG", "INVT", "POS",
            "TIME", "CNT", "TS", "CT", "ANG", "KC", "LAMC", "LAM", "IVS", "IVLC", "SGN", "IM",
-           "VISC", "KP", "KI", "IHI", "FORMATS", "theta_group"]
+           "VISC", "KP", "KI", "KD", "IHI", "FORMATS", "theta_group"]
 
 WORD = 24
 WORD_MIN = -(1 << (WORD - 1))
@@ -121,8 +121,11 @@ IVLC  = Fmt("IVLC",  -20, "1/count")           # ±8: IVS times LAMC
 SGN   = Fmt("SGN",   -23, "1")                 # [−1, 1): smooth sign, saturation is the clip
 IM    = Fmt("IM",    -20, "kg·m²")             # ±8: reflected rotor inertia estimate
 VISC  = Fmt("VISC",  -16, "N·m·s/rad")         # ±128: viscous friction estimate
+# PID gains at PID gain shift 0; a node built with shift s has them 2^s coarser
+# (joint_program.pid_formats).
 KP    = Fmt("KP",    -24, "N·m/count")         # ±0.5: PID proportional gain
 KI    = Fmt("KI",    -32, "N·m/(count·tick)")  # ±2e-3: PID integral gain
+KD    = Fmt("KD",    -12, "N·m·s/rad")         # ±2048: PID derivative gain
 IHI   = Fmt("IHI",   10,  "counts·ticks")      # ±8.6e9: coarse part of the PID integral
 
 # The 13 parameters in three groups of units: mass, first moments, second moments.
@@ -143,5 +146,5 @@ def theta_group(j: int) -> int:
 
 
 FORMATS = {f.name: f for f in (VEL, ACC, TRIG, FORCE, GAIN, SIG, INVT, POS, TIME, CNT, TS, CT,
-                               ANG, KC, LAMC, LAM, IVS, IVLC, SGN, IM, VISC, KP, KI, IHI, *THETA,
-                               *RHOT)}
+                               ANG, KC, LAMC, LAM, IVS, IVLC, SGN, IM, VISC, KP, KI, KD, IHI,
+                               *THETA, *RHOT)}

@@ -280,5 +280,5 @@ def vdc_upload(theta, K, rho, lower, upper, period: float = 1e-3) -> list[bytes]
 
 def joint_upload(params: JointParams) -> list[bytes]:
     """PARAM payloads for the joint engine."""
-    mc = joint_microcode()
+    mc = joint_microcode(params.pid_shift)
     return param_payloads(Bank.JOINT, {mc.addr(n): v for n, v in params.words().items()})

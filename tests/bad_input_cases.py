@@ -13,7 +13,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 MRM3 = (ROOT / "models" / "robots" / "mrm3.toml").read_text()
 TABLE2 = (ROOT / "configs" / "table2.toml").read_text()
-LINE = (ROOT / "examples" / "line_mrm6.toml").read_text()
+LINE = (ROOT / "examples" / "line.toml").read_text()
 
 _TYPE = '\n[module_types.X]\nlike = "I"\n'
 _TWO = 'name = "t"\n[[modules]]\ntype = "X"\n[[modules]]\ntype = "I"\ntwist_deg = 90.0\n'

@@ -19,7 +19,7 @@ from mrm_cosim.master.trig_planner import AxisLimits, LineLimits, plan_line
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.mrm.commands.plan import load_line_file
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "line_mrm6.toml"
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "line.toml"
 SLOW = LineLimits(AxisLimits(0.2, 0.8, 6.0), AxisLimits(2.0, 8.0, 60.0))
 
 
@@ -153,7 +153,7 @@ def test_joint_limits_are_refused_naming_joint_and_time(robot, plan):
         joint_reference(slow_robot, plan)
     assert exc.value.field.startswith("sample t = ")
     assert "joint 5" in exc.value.message and "max_speed" in exc.value.message
-    # …and a longer move of the same kind runs joint 6 past ±170° (docs: examples/line_mrm6)
+    # …and a longer move of the same kind runs joint 6 past ±170° (docs: examples/line.toml)
     start, end = np.array(plan.geometry.p_start), np.array(plan.geometry.p_end)
     T0, T1 = _pose(robot, robot.home), _pose(robot, robot.home)
     T1[:3, :3] = quat.to_matrix(plan.geometry.q_end)

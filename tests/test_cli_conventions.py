@@ -203,7 +203,7 @@ def _unchanged(tmp_path):
 
 @pytest.mark.parametrize("command", [
     ["plan", "quintic", "--q0", "0", "--qf", "1", "--tf", "1", "--samples"],
-    ["plan", "line", "examples/line.toml", "--samples"],
+    ["plan", "line", "examples/line_vertical.toml", "--samples"],
 ])
 def test_samples_to_a_fifo_or_a_link_are_refused(tmp_path, capsys, monkeypatch, command):
     monkeypatch.chdir(Path(__file__).parents[1])

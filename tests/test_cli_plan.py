@@ -10,7 +10,7 @@ import pytest
 import mrm_cosim.mrm.cli as cli
 from mrm_cosim.master import quaternion as quat
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "line.toml"
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "line_vertical.toml"
 
 GOOD = """
 [start]

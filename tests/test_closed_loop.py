@@ -7,7 +7,7 @@ import pytest
 from amaranth.hdl import Fragment
 
 from mrm_cosim.cosim.closed_loop import LineFault
-from mrm_cosim.cosim.track import link_errors_detail, run_loop, run_track
+from mrm_cosim.cosim.track import link_errors_detail, run_faults, run_loop, run_track
 from mrm_cosim.master.uploads import Gains, node_uploads
 from mrm_cosim.master.cycle import Master, MasterTiming
 from mrm_cosim.master.quintic import QuinticProfile
@@ -232,16 +232,17 @@ def test_a_module_encoder_the_node_cannot_hold_is_refused_naming_the_robot():
     assert e.value.field == "robot"
 
 
-def test_pid_words_only_limit_the_runs_that_use_the_nodes_pid():
-    """Every run uploaded the FPGA PID gains, so a robot with 1,700-line encoders (more torque
-    per count than the KP word holds) could not run VDC either: refused as joint1.kp. The gains
-    go only with ``pid-fpga`` now; VDC's trace is what it was (the PID words are unused)."""
+def test_the_fpga_pid_runs_where_its_gains_once_overflowed():
+    """A robot with 1,700-line encoders has more torque per count than mrm3 for the same PID
+    gain: with one KP format for every node its ``pid-fpga`` run was refused as joint1.kp.
+    The nodes are built with a PID gain shift per module (master.uploads.pid_shifts), so it
+    runs, clean, and tracks as a PID should (sub-mrad in its first 50 ms)."""
     robot = robot_from_dict(_encoder_robot(1700))
     _, summary = run_track(robot, "vdc", "model", duration=0.01)
     assert summary["overruns"] == 0
-    with pytest.raises(InputError) as e:
-        run_track(robot, "pid-fpga", "model", duration=0.01)
-    assert e.value.field == "joint1.kp"
+    _, summary = run_track(robot, "pid-fpga", "model", duration=0.05)
+    assert run_faults(summary) == []
+    assert summary["max_joint_error_rad"] < 1e-3
 
 
 def _home_robot(home_deg) -> dict:

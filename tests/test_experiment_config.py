@@ -102,7 +102,7 @@ def test_unknown_keys_are_rejected_by_name(text, field):
     ("[gains]\nlam = -5.0", "gains.lam"),
     ("[gains]\nk_j = inf", "gains.k_j"),
     ("[gains]\npid_1khz_hz = 0", "gains.pid_1khz_hz"),
-    ("[gains]\npid_fpga_hz = 150.0", "gains.pid_fpga_hz"),      # fits no KP word
+    ("[gains]\npid_fpga_hz = 250.0", "gains.pid_fpga_hz"),      # above the nodes' PID design
     ("[gains]\nlam = 1000.0", "gains.lam"),                     # fits no LAMC word
     ("[gains]\nadapt = 100.0", "gains.adapt"),
     ("[gains]\nK = 4000.0", "gains.K"),

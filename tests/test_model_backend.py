@@ -281,7 +281,7 @@ def _quintic_loop(controller, cycles, lazy, uploads=None, hook=None, start=50_00
     from mrm_cosim.cosim.model import ModelBackend
     from mrm_cosim.cosim.track import _trajectory
     from mrm_cosim.master.cycle import Master, MasterTiming
-    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains, pid_shifts
     from mrm_cosim.models.plant import Plant
     from mrm_cosim.models.robot import load_robot
 
@@ -299,8 +299,8 @@ def _quintic_loop(controller, cycles, lazy, uploads=None, hook=None, start=50_00
     master.on_packet = record
     plant = Plant(robot, seed=0)
     plant.reset(robot.home)
-    loop = ClosedLoop(robot, ModelBackend(lazy=lazy), master, plant, start,
-                      uploads or node_uploads(robot, controller, gains))
+    loop = ClosedLoop(robot, ModelBackend(lazy=lazy, pid_shift=pid_shifts(robot)), master, plant,
+                      start, uploads or node_uploads(robot, controller, gains))
     if hook is not None:
         hook(loop)
     return loop, loop.run(cycles), master
@@ -341,7 +341,7 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
     only where observed) is still the eager one."""
     from mrm_cosim.protocol import packet as ref
     from mrm_cosim.hdl.node.joint_ref import JointParams
-    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains, pid_shifts
     from mrm_cosim.models.actuators import ACTUATORS
     from mrm_cosim.models.robot import load_robot
     from mrm_cosim.protocol.regs import Config, config_payloads, joint_upload
@@ -349,6 +349,7 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
     robot = load_robot("mrm3")
     gains = Gains()
     pid = pid_gains(robot, gains.pid_fpga_hz)
+    shifts = pid_shifts(robot)
     arm = config_payloads({Config.ARM: 1})
     uploads = []
     for dest, ptype, payload in node_uploads(robot, "pid-fpga", gains):
@@ -358,7 +359,8 @@ def test_lazy_ticks_equal_the_eager_path_with_the_integral_clipped():
             joint = JointParams.from_float(
                 counts_per_rev=mod.type.counts_per_rev, lam=gains.lam, k_j=gains.k_j,
                 inertia=ACTUATORS[mod.type.actuator].output_inertia, k_p=pid["kp"][k],
-                k_i=pid["ki"][k], k_d=pid["kd"][k], i_max=2e-8, field=f"joint{dest}")
+                k_i=pid["ki"][k], k_d=pid["kd"][k], i_max=2e-8, pid_shift=shifts[k],
+                field=f"joint{dest}")
             assert 0 < joint.ihi <= 4
             uploads += [(dest, ref.PacketType.PARAM, p) for p in joint_upload(joint)]
         uploads.append((dest, ptype, payload))

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 from mrm_cosim.hdl.node.engine_ref import EngineModel
 from mrm_cosim.protocol.fixed import ACC, FORCE, POS, VEL, WORD_MAX, WORD_MIN
 from mrm_cosim.protocol.isa import IO_BASE
-from mrm_cosim.protocol.joint_program import MODES, JointParams, joint_microcode, joint_param_words
+from mrm_cosim.protocol.joint_program import (MODES, PID_SHIFT_MAX, JointParams, joint_microcode,
+                                              joint_param_words, pid_formats)
 from mrm_cosim.hdl.node.joint_ref import (JointInputs, JointModel, joint_input_words,
                                           joint_state_words)
 
@@ -43,7 +44,7 @@ def _inputs(rng, t_cycles, tick=50):
 
 
 def _engine(params, model):
-    mc = joint_microcode()
+    mc = joint_microcode(params.pid_shift)
     eng = EngineModel(mc)
     for n, v in {**joint_param_words(params), **joint_state_words(model)}.items():
         eng.write(mc.addr(n), v)
@@ -63,10 +64,11 @@ def test_tick_fits_one_microsecond():
         assert mc.cycles(mode) <= 49, mode
 
 
+@pytest.mark.parametrize("shift", [0, 5, PID_SHIFT_MAX])
 @pytest.mark.parametrize("mode", MODES)
-def test_program_equals_reference(mode):
+def test_program_equals_reference(mode, shift):
     rng = np.random.default_rng(MODES.index(mode))
-    params = _params()
+    params = _params(pid_shift=shift)
     model = JointModel(params)
     eng = _engine(params, model)
     for k in range(40):
@@ -85,9 +87,10 @@ word = st.integers(WORD_MIN, WORD_MAX)
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(ins=st.lists(word, min_size=7, max_size=7),
        prm=st.lists(word, min_size=17, max_size=17),
-       state=st.lists(word, min_size=4, max_size=4), mode=st.sampled_from(MODES))
-def test_program_equals_reference_on_any_words(ins, prm, state, mode):
-    params = JointParams(*prm)
+       state=st.lists(word, min_size=4, max_size=4), mode=st.sampled_from(MODES),
+       shift=st.integers(0, PID_SHIFT_MAX))
+def test_program_equals_reference_on_any_words(ins, prm, state, mode, shift):
+    params = JointParams(*prm, pid_shift=shift)
     model = JointModel(params, *state)
     eng = _engine(params, model)
     x = JointInputs(*ins)
@@ -97,11 +100,12 @@ def test_program_equals_reference_on_any_words(ins, prm, state, mode):
         assert _outputs(eng) == ref
 
 
-def test_rtl_equals_reference():
+@pytest.mark.parametrize("shift", [0, 8])
+def test_rtl_equals_reference(shift):
     rng = np.random.default_rng(9)
-    params = _params()
+    params = _params(pid_shift=shift)
     model = JointModel(params)
-    mc = joint_microcode()
+    mc = joint_microcode(shift)
     image = list(mc.init)
     for n, v in joint_param_words(params).items():
         image[mc.addr(n)] = v
@@ -113,7 +117,7 @@ def test_rtl_equals_reference():
         for n, v in joint_state_words(before).items():
             image[mc.addr(n)] = v
         mem, out, runs = run_engine(mc, [mode, mode], joint_input_words(x), mem=image,
-                                    name=f"joint_{mode}")
+                                    name=f"joint_{mode}_s{shift}")
         assert tuple(out[:3]) == ref2 and ref is not None
         for n, v in joint_state_words(model).items():
             assert mem[mc.addr(n)] == v, n
@@ -170,3 +174,43 @@ def test_rejects_gains_that_do_not_fit():
     from mrm_cosim.errors import InputError
     with pytest.raises(InputError, match="joint.kj"):
         JointParams.from_float(k_j=1e6)
+
+
+def test_the_pid_gain_shift_moves_only_the_pid_statements():
+    """A node's PID gain shift is a build parameter: the same registers at the same addresses,
+    the same cycles per mode (the model backend and the node's timing rely on it), and only
+    the PID torque's instructions differ (their product and output shifts)."""
+    base = joint_microcode(0)
+    for s in range(1, PID_SHIFT_MAX + 1):
+        mc = joint_microcode(s)
+        assert [mc.cycles(m) for m in MODES] == [base.cycles(m) for m in MODES]
+        assert all(mc.addr(n) == base.addr(n) for n in joint_param_words(_params()))
+        assert 0 < sum(a != b for a, b in zip(mc.words, base.words, strict=True)) <= 8
+    with pytest.raises(ValueError, match="pid_shift"):
+        pid_formats(PID_SHIFT_MAX + 1)
+
+
+@pytest.mark.parametrize("shift", [0, 3, 8])
+def test_shifted_gains_give_the_float_pid_torque(shift):
+    """The scaled gain words against the float PID law they stand for: with the same SI gains,
+    the torque of a node built with shift s equals k_p·e + k_i·I + k_d·ė (+ τ_D) to the
+    rounding of the gain words (relative 2^-23 of each format's range) and of the torque
+    word, and a gain 2^s times larger than shift 0 holds is refused at shift 0 only."""
+    k_p, k_i, k_d = 9_000.0 * 2**shift, 60_000.0 * 2**shift, 250.0 * 2**shift
+    params = _params(k_p=k_p, k_i=k_i, k_d=k_d, i_max=0.05, pid_shift=shift)
+    model = JointModel(params)
+    e_counts, qd = 37, 0.013
+    x = JointInputs(q=-e_counts, qd=VEL.encode(qd), tn=100, tau_D=FORCE.encode(0.25), qd0=0,
+                    vd0=0, ad0=0)
+    model.tick("pid", dataclasses.replace(x, qd=0))      # a first tick: q_des = 0, integral e
+    tau, _, _ = model.tick("pid", x)
+    tick = 50 / CLOCK
+    expected = 0.25 + k_p * e_counts * RAD + k_i * e_counts * RAD * tick - k_d * VEL.decode(x.qd)
+    f = pid_formats(shift)
+    slack = (FORCE.resolution + e_counts * f["kp"].resolution + e_counts * f["ki"].resolution
+             + abs(VEL.decode(x.qd)) * f["kd"].resolution)
+    assert abs(FORCE.decode(tau) - expected) <= slack
+    if shift >= 3:
+        from mrm_cosim.errors import InputError
+        with pytest.raises(InputError, match="joint.kp"):
+            _params(k_p=k_p, k_i=k_i, k_d=k_d, i_max=0.05, pid_shift=0)

@@ -13,7 +13,7 @@ from mrm_cosim.mrm.cli import main
 from mrm_cosim.mrm.commands.plan import load_line_file
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
-LINE = str(EXAMPLES / "line_mrm6.toml")
+LINE = str(EXAMPLES / "line.toml")
 
 
 def _plan(path=LINE):
@@ -65,8 +65,8 @@ def test_cli_runs_both_profiles_side_by_side(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv, field", [
-    # examples/line.toml keeps the tool axis vertical: on mrm6 only a singular posture does
-    (["examples/line.toml", "--robot", "mrm6"], "sample t = 0 s"),
+    # examples/line_vertical.toml's vertical tool axis: on mrm6 only a singular posture has it
+    (["examples/line_vertical.toml", "--robot", "mrm6"], "sample t = 0 s"),
     ([LINE, "--robot", "mrm3"], "--robot"),
     ([LINE, "--duration", "-1"], "--duration"),
 ])

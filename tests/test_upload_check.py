@@ -7,7 +7,7 @@ import numpy as np
 
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.master.cycle import Master, MasterTiming
-from mrm_cosim.master.uploads import Gains, node_uploads
+from mrm_cosim.master.uploads import Gains, node_uploads, pid_shifts
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.protocol.crc import crc16
 from mrm_cosim.protocol.packet import BROADCAST, PacketType
@@ -154,7 +154,8 @@ def test_model_backend_run_reports_a_lost_upload():
     m = Master(ROBOT, "pid-fpga", _trajectory(ROBOT), ROBOT.counts_per_rev, uploads=ups)
     plant = Plant(ROBOT, PlantConfig(), seed=0)
     plant.reset(ROBOT.home)
-    loop = ClosedLoop(ROBOT, ModelBackend(), m, plant, 50_000, ups[:lost] + ups[lost + 1:])
+    loop = ClosedLoop(ROBOT, ModelBackend(pid_shift=pid_shifts(ROBOT)), m, plant, 50_000,
+                      ups[:lost] + ups[lost + 1:])
     loop.run(3 * 50_000)
     assert m.upload_errors[1] == m.upload_errors[2] == 0
     assert m.upload_errors[3] == len(m.records) == 3

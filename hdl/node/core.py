@@ -70,6 +70,7 @@ from mrm_cosim.protocol.encoder import EncoderParams
 from mrm_cosim.protocol.fixed import WORD
 from mrm_cosim.protocol.isa import IO_BASE
 from mrm_cosim.protocol.joint_program import INPUTS as JOINT_INPUTS
+from mrm_cosim.protocol.joint_program import pid_formats
 from mrm_cosim.protocol.link import ERROR_CLASSES
 from mrm_cosim.protocol.regs import RX_DROPS, Bank
 from mrm_cosim.protocol.regs import NodeEvent as Ev
@@ -97,6 +98,9 @@ class NodeCore(wiring.Component):
     ----------
     encoder : EncoderParams
         Encoder interface parameters (resolution, clock, filter, windows).
+    pid_shift : int
+        PID gain shift of the joint program
+        (:func:`~mrm_cosim.protocol.joint_program.pid_formats`).
 
     Attributes
     ----------
@@ -146,8 +150,10 @@ class NodeCore(wiring.Component):
     dropped:      In(16)
     events:       Out(16)
 
-    def __init__(self, *, encoder: EncoderParams | None = None):
+    def __init__(self, *, encoder: EncoderParams | None = None, pid_shift: int = 0):
         self._enc = encoder or EncoderParams()
+        pid_formats(pid_shift)                  # validates
+        self._pid_shift = pid_shift
         super().__init__()
 
     @property
@@ -159,7 +165,7 @@ class NodeCore(wiring.Component):
         m.submodules.encoder  = enc   = QuadratureEncoder(self._enc)
         m.submodules.trig     = trig  = SinCos(counts_per_rev=self._enc.counts_per_rev)
         m.submodules.vdc      = vdc   = VdcUnit()
-        m.submodules.joint    = joint = JointUnit()
+        m.submodules.joint    = joint = JointUnit(self._pid_shift)
         m.submodules.watchdog = wd    = Watchdog()
         vmc, jmc = vdc.microcode, joint.microcode
         m.submodules.decoder  = dec   = PacketDecoder(vmc)

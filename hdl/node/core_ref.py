@@ -117,7 +117,7 @@ class NodeModel:
 
     encoder: EncoderParams = field(default_factory=EncoderParams)
     vdc: VdcModel = field(default_factory=_zero_vdc)
-    joint: JointModel = field(default_factory=lambda: JointModel(JointParams(*([0] * 17))))
+    joint: JointModel = field(default_factory=lambda: JointModel(JointParams.zero()))
     config: dict = field(default_factory=lambda: dict(CONFIG_DEFAULTS))
     d_words: list = field(default_factory=lambda: [0, 0, 0, 0])
     d_next: list = field(default_factory=lambda: [0, 0, 0, 0])
@@ -262,7 +262,7 @@ class NodeModel:
                         tau_D=self.d_words[0], qd0=self.d_words[1], vd0=self.d_words[2],
                         ad0=self.d_words[3])
         tau, _, _ = self.joint.tick(mode, x)
-        cycles = joint_microcode().cycles(mode)
+        cycles = joint_microcode(self.joint.params.pid_shift).cycles(mode)
         self._started = now
         self._busy_until = now + cycles + 1
         done = now + cycles
@@ -488,7 +488,7 @@ class NodeModel:
 
     def _param(self, bank: int, addr: int, w: int) -> None:
         if bank == Bank.JOINT:
-            mc = joint_microcode()
+            mc = joint_microcode(self.joint.params.pid_shift)
             names = {mc.addr(n): n for n in self.joint.params.words()}
             if addr in names:
                 setattr(self.joint.params, names[addr], w)

@@ -14,7 +14,9 @@ __all__ = ["JointUnit"]
 
 class JointUnit(MacEngine):
     """The engine loaded with the joint program
-    (:func:`~mrm_cosim.protocol.joint_program.joint_microcode`)."""
+    (:func:`~mrm_cosim.protocol.joint_program.joint_microcode`) of PID gain shift
+    ``pid_shift`` (:func:`~mrm_cosim.protocol.joint_program.pid_formats`)."""
 
-    def __init__(self):
-        super().__init__(joint_microcode())
+    def __init__(self, pid_shift: int = 0):
+        self.pid_shift = pid_shift
+        super().__init__(joint_microcode(pid_shift))

@@ -36,6 +36,7 @@ formats are in :mod:`mrm_cosim.protocol.fixed`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
 from mrm_cosim.protocol.fixed import (
     ACC,
@@ -49,8 +50,6 @@ from mrm_cosim.protocol.fixed import (
     IVLC,
     IVS,
     KC,
-    KI,
-    KP,
     LAM,
     LAMC,
     POS,
@@ -61,7 +60,7 @@ from mrm_cosim.protocol.fixed import (
     VISC,
     saturate,
 )
-from mrm_cosim.protocol.joint_program import MODES, JointParams
+from mrm_cosim.protocol.joint_program import MODES, JointParams, pid_formats
 
 from .vdc_ref import fx_point
 
@@ -98,8 +97,16 @@ _QDDR = fx_point(ACC, ACC.lsb, LAM.lsb + VEL.lsb)                       # q̈_d0
 _SG = fx_point(SGN, IVS.lsb + VEL.lsb, IVLC.lsb + POS.lsb)              # sgn_s(q̇_r)
 _TAU_VDC = fx_point(FORCE, FORCE.lsb, IM.lsb + ACC.lsb, VISC.lsb + VEL.lsb,
                     FORCE.lsb + SGN.lsb, GAIN.lsb + VEL.lsb)
-_TAU_PID = fx_point(FORCE, FORCE.lsb, KP.lsb + POS.lsb, KI.lsb + POS.lsb, KI.lsb + IHI.lsb,
-                    GAIN.lsb + VEL.lsb)
+
+
+@cache
+def _tau_pid(pid_shift: int):
+    """The PID torque's rounding point of a node built with PID gain shift ``pid_shift``."""
+    f = pid_formats(pid_shift)
+    return fx_point(FORCE, FORCE.lsb, f["kp"].lsb + POS.lsb, f["ki"].lsb + POS.lsb,
+                    f["ki"].lsb + IHI.lsb, f["kd"].lsb + VEL.lsb)
+
+
 _I_CARRY = fx_point(IHI, POS.lsb, POS.lsb, CNT.lsb)                     # c = round(I_lo + e)
 _I_LO = fx_point(POS, POS.lsb, POS.lsb, CNT.lsb, IHI.lsb)               # I_lo + e − c
 _I_HI = fx_point(IHI, IHI.lsb, IHI.lsb)                                 # I_hi + c
@@ -157,7 +164,7 @@ class JointModel:
             tau = _TAU_VDC(tau_D + p.th3, p.th0 * qddr, p.th1 * qdr, p.th2 * sg,
                            p.kj * (qdr - qd))
         elif mode == 1:                                                 # PID
-            tau = _TAU_PID(tau_D, p.kp * e, p.ki * self.i_lo, p.ki * self.i_hi,
+            tau = _tau_pid(p.pid_shift)(tau_D, p.kp * e, p.ki * self.i_lo, p.ki * self.i_hi,
                            p.kd * (self.v_des - qd))
             self.pid_integral(q)
         else:                                                           # torque

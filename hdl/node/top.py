@@ -52,10 +52,11 @@ class SlaveNode(wiring.Component):
         The core's observation port (:class:`~mrm_cosim.protocol.regs.NodeEvent` strobes).
     """
 
-    def __init__(self, *, codec: dict | None = None, encoder: EncoderParams | None = None):
+    def __init__(self, *, codec: dict | None = None, encoder: EncoderParams | None = None,
+                 pid_shift: int = 0):
         with rejecting(self):
             self._link = LinkNode(codec=codec)
-        self._core = NodeCore(encoder=encoder)
+        self._core = NodeCore(encoder=encoder, pid_shift=pid_shift)
         slots = self._link.up_codec.slots
         super().__init__({
             "address": In(8),
@@ -113,21 +114,25 @@ def slave_node_top(*, slots: int = 3, start_div: int | None = None, run_div: int
                    reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
                    rx_fifo_depth: int = 64, counts_per_rev: int = 800_000,
                    filter_cycles: int = 2, min_window: int = 2048,
-                   stop_cycles: int = 1 << 24) -> SlaveNode:
+                   stop_cycles: int = 1 << 24, pid_shift: int = 0) -> SlaveNode:
     """Factory for the ``node`` top: link parameters as ``link_node``, encoder parameters as
-    :class:`~mrm_cosim.protocol.encoder.EncoderParams` (50 MHz clock)."""
+    :class:`~mrm_cosim.protocol.encoder.EncoderParams` (50 MHz clock), the PID gain shift
+    (:func:`~mrm_cosim.protocol.joint_program.pid_formats`)."""
     return SlaveNode(codec=dict(slots=slots, start_div=start_div, run_div=run_div,
                                 reset_cycles=reset_cycles, wait_cycles=wait_cycles,
                                 disconnect_cycles=disconnect_cycles,
                                 rx_fifo_depth=rx_fifo_depth),
                      encoder=EncoderParams(counts_per_rev=counts_per_rev,
                                            filter_cycles=filter_cycles, min_window=min_window,
-                                           stop_cycles=stop_cycles))
+                                           stop_cycles=stop_cycles),
+                     pid_shift=pid_shift)
 
 
 def node_core_top(*, counts_per_rev: int = 800_000, filter_cycles: int = 2,
-                  min_window: int = 2048, stop_cycles: int = 1 << 24) -> NodeCore:
+                  min_window: int = 2048, stop_cycles: int = 1 << 24,
+                  pid_shift: int = 0) -> NodeCore:
     """Factory for the ``node_core`` top (the compute core without the link)."""
     return NodeCore(encoder=EncoderParams(counts_per_rev=counts_per_rev,
                                           filter_cycles=filter_cycles, min_window=min_window,
-                                          stop_cycles=stop_cycles))
+                                          stop_cycles=stop_cycles),
+                    pid_shift=pid_shift)

@@ -94,9 +94,9 @@ def register(subparsers) -> None:
     pl = sub.add_parser("line", help="a planned Cartesian line (trigonometric or Ruckig) "
                         "through IK into the closed loop on a six-joint arm; tool errors, "
                         "joint trajectories, torques, the tool's path in 3-D",
-                        epilog="example:\n  mrm run line examples/line_mrm6.toml --robot mrm6 "
+                        epilog="example:\n  mrm run line examples/line.toml --robot mrm6 "
                         "--controller vdc --out results/line\n  mrm run line "
-                        "examples/line_mrm6.toml --profile both --duration 0.5")
+                        "examples/line.toml --profile both --duration 0.5")
     pl.add_argument("file", metavar="FILE", help="the line: start and end poses and limits "
                     "(as for mrm plan line)")
     pl.add_argument("--robot", default="mrm6",
