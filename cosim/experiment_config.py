@@ -40,9 +40,12 @@ from mrm_cosim.models.plant import Perturbation, PlantConfig
 from mrm_cosim.tomlfile import parse_toml, read_toml
 
 __all__ = ["ExperimentConfig", "TrajectoryConfig", "load", "loads", "from_dict", "DEFAULT_CONFIG",
+           "LINE_CONFIG",
            "PAPER_AMPLITUDE", "PAPER_DURATION"]
 
 DEFAULT_CONFIG = Path(configs.__file__).resolve().parent / "table2.toml"
+#: What ``mrm run line`` reads by default: mrm6 and gains chosen for it.
+LINE_CONFIG = Path(configs.__file__).resolve().parent / "line.toml"
 PAPER_AMPLITUDE = 0.1571      # rad, p_f − p_0 of the MRM paper's eq. (4) (20,000 counts)
 PAPER_DURATION = 1.0          # s, t_f of eq. (4)
 MAX_DURATION = 60.0           # s of simulated time per controller

@@ -163,14 +163,14 @@ def plot_torques(path, t, torques: dict, title: str, peak=None):
     return fig
 
 
-def plot_tool_errors(path, t, errors: dict, title: str):
+def plot_tool_errors(path, errors: dict, title: str):
     """Cartesian errors of the tool over time, one line per run (a profile or controller).
 
     Parameters
     ----------
-    t : ndarray, shape (n_samples,), s
-    errors : dict of str -> master.cartesian.ToolErrors
-        On the grid ``t``.
+    errors : dict of str -> (ndarray, master.cartesian.ToolErrors)
+        Per run, its time grid (s) and its errors on that grid (runs may differ in length:
+        Ruckig's move is shorter than the trigonometric one).
 
     Returns
     -------
@@ -179,7 +179,7 @@ def plot_tool_errors(path, t, errors: dict, title: str):
         error ‖log(T_d⁻¹ T_a)‖.
     """
     fig, axes = _figure(3, 2.4)
-    for name, e in errors.items():
+    for name, (t, e) in errors.items():
         axes[0].plot(t, e.position_mm, lw=0.9, label=name)
         axes[1].plot(t, e.orientation_mrad, lw=0.9, label=name)
         axes[2].plot(t, e.se3, lw=0.9, label=name)

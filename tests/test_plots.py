@@ -176,3 +176,22 @@ def test_pick_period_prefers_the_requested_time_among_complete_ones():
     assert plots.pick_period(recs).index == 4           # 5th of the 9 complete ones
     with pytest.raises(ValueError):
         plots.pick_period([PeriodRecord(0, 0)])
+
+
+def test_tool_errors_of_runs_of_different_lengths(tmp_path):
+    """``run line --profile both`` without --duration: Ruckig's run is shorter than the
+    trigonometric one, and the figure took one time grid for both (a ValueError after both
+    runs had finished). Each run is drawn on its own grid."""
+    from mrm_cosim.master.cartesian import ToolErrors
+
+    def errors(k):
+        t = np.arange(k) * 1e-5
+        z = np.zeros((k, 3))
+        return t, ToolErrors(position_mm=t * 2, orientation_mrad=t, se3=t / 3,
+                             tool_desired=z, tool_actual=z)
+
+    fig = plots.plot_tool_errors(tmp_path / "e.png", {"trig": errors(300), "ruckig": errors(200)},
+                                 "two lengths")
+    lines = fig.axes[0].get_lines()
+    assert [len(line.get_xdata()) for line in lines] == [300, 200]
+    assert (tmp_path / "e.png").stat().st_size > 0

@@ -69,10 +69,12 @@ def test_cli_runs_both_profiles_side_by_side(tmp_path, capsys):
     (["examples/line_vertical.toml", "--robot", "mrm6"], "sample t = 0 s"),
     ([LINE, "--robot", "mrm3"], "--robot"),
     ([LINE, "--duration", "-1"], "--duration"),
+    # the config's robot is the default of --robot; a three-joint one is named as the config's
+    ([LINE, "--config", "configs/table2.toml"], "experiment.robot"),
 ])
 def test_cli_refuses_before_anything_is_written(tmp_path, capsys, argv, field):
-    argv = [str(Path(__file__).resolve().parents[1] / a) if a.startswith("examples/") else a
-            for a in argv]
+    argv = [str(Path(__file__).resolve().parents[1] / a)
+            if a.startswith(("examples/", "configs/")) else a for a in argv]
     out = tmp_path / "line"
     code = main(["run", "line", *argv, "--out", str(out), "-q"])
     err = capsys.readouterr().err.strip().splitlines()
@@ -80,3 +82,17 @@ def test_cli_refuses_before_anything_is_written(tmp_path, capsys, argv, field):
     assert len(err) == 1 and field in err[0]
     assert not out.exists()
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_default_config_is_the_six_module_arms(tmp_path):
+    """Without --config and --robot, ``mrm run line`` reads the package's configs/line.toml:
+    mrm6 and the VDC gains chosen for it on a held-out move (benchmarks/line_gains.py), not
+    table2.toml's mrm3 gains, which drove mrm6's torques to their limits at low speed."""
+    from mrm_cosim.cosim.experiment_config import LINE_CONFIG, load
+
+    out = tmp_path / "line"
+    assert main(["run", "line", LINE, "--duration", "0.01", "--out", str(out), "-q"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["robot"] == "mrm6"
+    used = load(out / "config.toml")
+    assert used.gains == load(LINE_CONFIG).gains != load().gains

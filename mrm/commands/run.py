@@ -99,17 +99,18 @@ def register(subparsers) -> None:
                         "examples/line.toml --profile both --duration 0.5")
     pl.add_argument("file", metavar="FILE", help="the line: start and end poses and limits "
                     "(as for mrm plan line)")
-    pl.add_argument("--robot", default="mrm6",
-                    help="six-joint robot: built-in name or assembly .toml")
+    pl.add_argument("--robot", default=None,
+                    help="six-joint robot: built-in name or assembly .toml (default: the "
+                    "config's robot, mrm6 in the package's configs/line.toml)")
     pl.add_argument("--controller", default="vdc", choices=["vdc", "pid-fpga", "pid-1khz"],
                     help="the controller to run")
     pl.add_argument("--profile", default="trig", choices=["trig", "ruckig", "both"],
                     help="the trigonometric jerk-continuous profile, Ruckig's time-optimal "
                     "one, or both side by side (line.md)")
     pl.add_argument("--config", default=None, metavar="FILE",
-                    help="experiment TOML for gains, timing, plant, seed and backend (default: "
-                    "the package's configs/table2.toml; its robot, trajectory and duration are "
-                    "not used)")
+                    help="experiment TOML for the robot, gains, timing, plant, seed and backend "
+                    "(default: the package's configs/line.toml; its trajectory and duration "
+                    "are not used)")
     pl.add_argument("--backend", default=None, choices=["compiled", "pysim", "model"],
                     help="override the config's backend")
     pl.add_argument("--duration", type=float, default=None,
@@ -328,7 +329,8 @@ def _phases_text(phases: dict) -> str:
 # --- line ----------------------------------------------------------------------------------
 @named_by_flags(RUN_LINE)
 def _line(args) -> int:
-    from mrm_cosim.cosim.experiment_config import load
+    from mrm_cosim.cosim.experiment_config import LINE_CONFIG, load
+    from mrm_cosim.errors import InputError
     from mrm_cosim.cosim.line import PROFILES, line_reference, run_line
     from mrm_cosim.cosim.table2 import Progress
     from mrm_cosim.cosim.track import check_robot_fits, run_faults
@@ -338,19 +340,24 @@ def _line(args) -> int:
     from mrm_cosim.results import atomic_output_dir, check_output_dir
 
     check_output_dir(args.out)
-    config = load(args.config).with_overrides(backend=args.backend, seed=args.seed,
-                                              field_prefix="")
+    config = load(args.config or LINE_CONFIG).with_overrides(backend=args.backend,
+                                                             seed=args.seed, field_prefix="")
     if args.duration is not None:
         from mrm_cosim.errors import require_positive
 
         require_positive(args.duration, "duration")
-    robot = load_robot(args.robot)
+    robot = load_robot(args.robot or config.robot)
     check_robot_fits(robot, "robot")
     start, end, limits = load_line_file(args.file)
     plan = plan_line(start, end, limits)
     profiles = PROFILES if args.profile == "both" else (args.profile,)
     # every reference is computed and checked (workspace, singularity, limits) before any run
-    references = {name: line_reference(robot, plan, name) for name in profiles}
+    try:
+        references = {name: line_reference(robot, plan, name) for name in profiles}
+    except InputError as exc:
+        if exc.field == "robot" and args.robot is None:     # the config's robot, not a flag
+            raise InputError("experiment.robot", exc.message) from None
+        raise
     progress = None if args.quiet else Progress(list(profiles), args.duration or max(
         r.duration for r in references.values()) + 0.2)
     runs = {}
@@ -390,9 +397,9 @@ def _write_line(tmp: Path, args, config, robot, runs, summary) -> None:
         f"# {robot.name}: Cartesian line ({Path(args.file).name}), {args.controller} on "
         f"{config.backend}, seed {config.seed}\n\n" + line_table(runs))
     first = next(iter(runs.values()))
-    t = first.result.t
     title = f"{robot.name}: line, {args.controller} on {config.backend}"
-    plot_tool_errors(tmp / "tool_errors.png", t, {n: r.errors for n, r in runs.items()}, title)
+    plot_tool_errors(tmp / "tool_errors.png", {n: (r.result.t, r.errors) for n, r in runs.items()},
+                     title)
     plot_tool_path(tmp / "tool_path.png", first.errors.tool_desired,
                    {n: r.errors.tool_actual for n, r in runs.items()}, title)
     for name, run in runs.items():
