@@ -69,6 +69,7 @@ class System(wiring.Component):
     torque1 … torqueN : Out(signed(24))
         Torque commands (FORCE words, N·m · 2^13).
     status1 … statusN : Out(16)
+        The nodes' :class:`~mrm_cosim.protocol.regs.Status` bits.
     count1 … countN : Out(signed(32))
         Live encoder counts of the nodes.
     fault_down1 … fault_downN, fault_up1 … fault_upN : In(line_fault_layout(slots))

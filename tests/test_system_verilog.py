@@ -5,7 +5,7 @@
 from mrm_cosim.mrm.cli import main
 
 from .lint_helpers import assert_lint_clean
-from .test_chain_verilog import NODE_WAIVERS, module_ports
+from .test_chain_verilog import module_ports
 from .test_verilog_codec import run_cli
 
 
@@ -17,7 +17,7 @@ def test_system_verilog_is_lint_clean(tmp_path):
     ports = module_ports(text, "system")
     assert {"enc_a", "enc_b", "torque1", "torque2", "tx_char", "rx_char", "tick_in"} <= ports
     assert "torque3" not in ports
-    assert_lint_clean(path, NODE_WAIVERS)
+    assert_lint_clean(path)
 
 
 def test_system_rejects_bad_node_count(tmp_path, capsys):

@@ -77,7 +77,10 @@ class Codec(wiring.Component):
     running : Out(1)
         The link is in Run.
     state : Out(LinkState)
+        The link state machine's state (§8.5.2), a :class:`LinkState` value.
     errors : Out(ErrorCounts)
+        Saturating 16-bit counters of the five error classes (disconnect, parity, escape,
+        credit, character sequence; :class:`ErrorCounts`, lowest bits first).
     tx_credit, rx_credit : Out(range(57))
         N-chars we may still send / the peer may still send us.
     d_in, s_in, d_out, s_out : In(slots), Out(slots)

@@ -1,7 +1,11 @@
 """``mrm hdl``: export gateware tops as Verilog.
 
-``mrm hdl verilog --top spw_codec --out DIR [--param slots=1 ...]`` writes ``DIR/<top>.v``
-atomically (a temporary file renamed into place), so a failed run leaves no partial file.
+``mrm hdl verilog --top spw_codec --out DIR [--param slots=1 ...]`` writes ``DIR/<top>.v`` and
+beside it what a hardware engineer needs with it (:mod:`hdl.export`): ``<top>.vlt`` (the
+Verilator lint waivers, each with its reason), ``<top>.sdc`` / ``.lpf`` / ``.ucf`` (the 50 MHz
+clock) and ``<top>.ports.md`` (every port, its direction, width and meaning). Each file is
+written atomically (a temporary file renamed into place) and a failed run removes what it
+wrote, so it leaves no partial set.
 ``mrm hdl tops`` lists the tops and their parameters. ``mrm hdl synth --top node --family xc2v
 --json`` reports LUTs, flip-flops, multipliers and block RAMs (:mod:`hdl.synth`).
 """
@@ -21,7 +25,9 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("hdl", help="export gateware tops as Verilog",
                               epilog="example:\n  mrm hdl verilog --top spw_codec --out build")
     sub = p.add_subparsers(dest="hdl_command", required=True)
-    p_verilog = sub.add_parser("verilog", help="write DIR/<top>.v for a gateware top",
+    p_verilog = sub.add_parser("verilog", help="write DIR/<top>.v for a gateware top, with its "
+                               "lint waivers (.vlt), clock constraints (.sdc, .lpf, .ucf) and "
+                               "port list (.ports.md)",
                                epilog="example:\n  mrm hdl verilog --top node --out build "
                                "--param counts_per_rev=2000")
     p_verilog.add_argument("--top", required=True, help="top name (see `mrm hdl tops`)")
@@ -60,8 +66,16 @@ def parse_params(items: list[str]) -> dict[str, int]:
     return params
 
 
+#: The files ``mrm hdl verilog`` writes for a top, beside ``<top>.v``: suffix -> what it is.
+COMPANIONS = {".vlt": "Verilator lint waivers", ".sdc": "clock constraint (SDC)",
+              ".lpf": "clock constraint (Lattice LPF)", ".ucf": "clock constraint (Xilinx UCF)",
+              ".ports.md": "port list"}
+
+
 def write_verilog(top: str, out: Path, params: dict[str, int]) -> Path:
-    """Generate ``top`` with ``params`` and write ``out/<top>.v`` atomically; return its path."""
+    """Generate ``top`` with ``params`` and write ``out/<top>.v`` and its
+    :data:`COMPANIONS` atomically; return the ``.v`` file's path."""
+    from mrm_cosim.hdl.export import clock_constraints, port_list, verilator_config
     from mrm_cosim.hdl.tops import TOPS, build_top, component_verilog, param_error
 
     if top not in TOPS:
@@ -76,24 +90,32 @@ def write_verilog(top: str, out: Path, params: dict[str, int]) -> Path:
         raise InputError("--out", f"{str(out)!r} exists and is not a folder")
     check_writable_folder(out, "--out")     # before the build: /proc/x, under a file
     path = out / f"{top}.v"
+    files = [path, *(out / f"{top}{suffix}" for suffix in COMPANIONS)]
     if out.is_dir():
-        check_output_file(path, "--out")    # DIR/<top>.v a link, a FIFO, a folder: refused
+        for f in files:                     # DIR/<top>.v a link, a FIFO, a folder: refused
+            check_output_file(f, "--out")
     try:
         component = build_top(top, **params)
     except ValueError as exc:
         raise param_error(exc, top) from None
-    text = component_verilog(component, top)
+    clocks = clock_constraints(top)
+    texts = [component_verilog(component, top), verilator_config(top), clocks["sdc"],
+             clocks["lpf"], clocks["ucf"], port_list(component, top)]
     made = make_folder(out, "--out")
+    written = []
     try:
-        atomic_write_text(path, text)
-    except InputError as exc:
+        for f, text in zip(files, texts, strict=True):
+            atomic_write_text(f, text)
+            written.append(f)
+    except BaseException as exc:
+        for f in written:
+            f.unlink(missing_ok=True)
         remove_empty(made)
-        raise InputError("--out", exc.message) from None
-    except OSError as exc:
-        remove_empty(made)
-        raise InputError("--out", f"cannot write {str(path)!r} ({exc.strerror or exc})") from None
-    except BaseException:
-        remove_empty(made)
+        if isinstance(exc, InputError):
+            raise InputError("--out", exc.message) from None
+        if isinstance(exc, OSError):
+            raise InputError("--out", f"cannot write into {str(out)!r} "
+                             f"({exc.strerror or exc})") from None
         raise
     return path
 
