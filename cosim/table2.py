@@ -22,8 +22,6 @@ from __future__ import annotations
 import csv
 import inspect
 import logging
-import os
-import signal
 import time
 from pathlib import Path
 
@@ -156,8 +154,10 @@ def run_table2(config: ExperimentConfig, out, *, progress: Progress | None = Non
     runner : callable, optional
         ``cosim.track.run_track`` (default) or a function with its signature.
     jobs : int
-        Controllers run side by side in forked processes (each run is independent: the
-        results are the same as one after the other, bit for bit; only the wall time differs).
+        Controllers run side by side on this machine's processes, the sweeps' executor
+        (:class:`cosim.executors.LocalExecutor`; each run is independent: the results are the
+        same as one after the other, bit for bit; only the wall time differs). ``runner``
+        must then be picklable (a module-level function or class instance).
 
     Returns
     -------
@@ -172,29 +172,21 @@ def run_table2(config: ExperimentConfig, out, *, progress: Progress | None = Non
     if runner is None:
         from mrm_cosim.cosim.track import run_track as runner
     robot = load_robot(config.robot)
-    extra = _run_kwargs(runner, config, robot)
+    _run_kwargs(runner, config, robot)          # refuses a trajectory it cannot run, up front
     profile = paper_test_profile(robot, config.trajectory.amplitude, config.trajectory.duration)
     t_start = time.perf_counter()
     runs = {}
     with atomic_output_dir(out, made_by="mrm run table2") as tmp:
-        def run_one(c, report):
-            result, summary = runner(robot, c, config.backend, config.duration, config.seed,
-                                     gains=config.gains, timing=config.timing,
-                                     plant_config=config.plant, progress=report, **extra)
-            summary = dict(summary, version=__version__)
-            _write_controller(tmp / c, robot, c, config, result, summary, profile)
-            return result, summary
-
         jobs = max(1, min(int(jobs), len(config.controllers)))
         if jobs == 1:
             for c in config.controllers:
                 if progress is not None:
                     progress.begin(c)
-                runs[c] = run_one(c, progress)
+                runs[c] = _controller_run((config, tmp, runner), c, progress)
                 if progress is not None:
                     progress.end(c, runs[c][1])
         else:
-            runs = _side_by_side(config.controllers, jobs, run_one, progress)
+            runs = _side_by_side(config, tmp, runner, jobs, progress)
         summary = {
             "experiment": config.name, "robot": robot.name, "backend": config.backend,
             "seed": config.seed, "duration_s": config.duration, "version": __version__,
@@ -219,131 +211,69 @@ class _Trace:
         self.t, self.q, self.tau = t, q, tau
 
 
-def _side_by_side(controllers, jobs: int, run_one, progress) -> dict:
-    """``run_one(c, report)`` for every controller, ``jobs`` forked processes at a time;
-    returns ``{c: (trace, summary)}`` in the order of ``controllers``. Progress, results and
-    errors come back through one queue; the parent does all the printing.
+def _controller_run(ctx, c: str, report) -> tuple:
+    """One controller's run, its folder written: ``(trace, summary)``. ``ctx`` is
+    ``(config, folder, runner)``; ``report(t_sim, t_total)`` its progress. A top-level function
+    so that a process executor can run it (:mod:`cosim.executors`)."""
+    from mrm_cosim import __version__
+    from mrm_cosim.cosim.preview import paper_test_profile
+    from mrm_cosim.models.robot import load_robot
 
-    No worker outlives the run: each leads a process group of its own (with whatever it
-    starts, e.g. Verilator), which the parent kills when it leaves, for whatever reason
-    (an error, Ctrl-C, SIGTERM); a parent killed outright takes them along (the kernel
-    sends each worker SIGTERM when its parent dies, :func:`_die_with_parent`).
-    """
-    import multiprocessing as mp
-    import queue as _queue
-    import traceback
+    config, folder, runner = ctx
+    if runner is None:
+        from mrm_cosim.cosim.track import run_track as runner
+    robot = load_robot(config.robot)
+    profile = paper_test_profile(robot, config.trajectory.amplitude, config.trajectory.duration)
+    result, summary = runner(robot, c, config.backend, config.duration, config.seed,
+                             gains=config.gains, timing=config.timing,
+                             plant_config=config.plant, progress=report,
+                             **_run_kwargs(runner, config, robot))
+    summary = dict(summary, version=__version__)
+    _write_controller(folder / c, robot, c, config, result, summary, profile)
+    return _Trace(result.t, result.q, result.tau), summary
 
-    ctx = mp.get_context("fork")
-    queue = ctx.Queue()
-    parent = os.getpid()
 
-    def child(c):
-        _worker_setup(parent)
+def _controller_point(ctx, c: str, report) -> tuple:
+    """:func:`_controller_run` with its progress sent as ``("progress", c, t_sim, t_total)``."""
+    return _controller_run(ctx, c, lambda t_sim, t_total=None: report("progress", c, t_sim,
+                                                                       t_total))
 
-        def report(t_sim, t_total=None):
-            queue.put(("progress", c, t_sim, t_total))
 
-        try:
-            result, summary = run_one(c, report)
-            queue.put(("done", c, summary, result.t, result.q, result.tau))
-        except InputError as e:
-            queue.put(("input", c, e.field, e.message))
-        except BaseException:
-            queue.put(("error", c, traceback.format_exc()))
+def _side_by_side(config, folder, runner, jobs: int, progress) -> dict:
+    """Every controller's run, ``jobs`` at a time on this machine's processes (the executor
+    seam of the sweeps, :class:`cosim.executors.LocalExecutor`); returns ``{c: (trace,
+    summary)}`` in the order of the controllers. Progress comes back as messages; the parent
+    does all the printing. The first run that fails stops the table (no worker outlives it)."""
+    from functools import partial
 
+    from mrm_cosim.cosim.executors import LocalExecutor
+
+    controllers = list(config.controllers)
     if progress is not None:
         progress.parallel = True
-    todo, running, runs = list(controllers), {}, {}
-    try:
-        while todo or running:
-            while todo and len(running) < jobs:
-                c = todo.pop(0)
-                if progress is not None:
-                    progress.begin(c)
-                proc = ctx.Process(target=child, args=(c,), daemon=True)
-                proc.start()
-                _set_group(proc.pid)
-                running[c] = proc
-            try:
-                msg = queue.get(timeout=1.0)
-            except _queue.Empty:
-                dead = [c for c, p in running.items() if p.exitcode not in (None, 0)]
-                if dead:
-                    raise RuntimeError(f"the {dead[0]} run's process died (exit code "
-                                       f"{running[dead[0]].exitcode})") from None
-                continue
-            kind, c = msg[0], msg[1]
-            if kind == "progress":
-                if progress is not None:
-                    progress.report(c, msg[2], msg[3])
-                continue
-            running.pop(c).join()
-            if kind == "input":
-                raise InputError(msg[2], msg[3])
-            if kind == "error":
-                raise RuntimeError(f"the {c} run failed in its process:\n{msg[2]}")
-            summary = msg[2]
-            runs[c] = (_Trace(*msg[3:]), summary)
+        for c in controllers[:jobs]:
+            progress.begin(c)
+
+    def on_message(kind, c, t_sim, t_total):
+        if progress is not None:
+            progress.report(c, t_sim, t_total)
+
+    runs, started = {}, jobs
+    with LocalExecutor(jobs) as ex:
+        for i, status, value in ex.run(partial(_controller_point, (config, folder, runner)),
+                                       controllers, on_message):
+            c = controllers[i]
+            if status == "input":
+                raise InputError(*value)
+            if status == "error":
+                raise RuntimeError(f"the {c} run failed in its process:\n{value}")
+            runs[c] = value
             if progress is not None:
-                progress.end(c, summary)
-    finally:
-        for proc in running.values():
-            _kill_group(proc.pid)
-            proc.join()
-        queue.close()
-        queue.cancel_join_thread()
+                progress.end(c, value[1])
+                if started < len(controllers):
+                    progress.begin(controllers[started])
+                    started += 1
     return {c: runs[c] for c in controllers}
-
-
-def _set_group(pid: int) -> None:
-    """Make ``pid`` the leader of its own process group (from the parent as well as in the
-    worker, whichever comes first: no window in which a kill of the group would miss it)."""
-    try:
-        os.setpgid(pid, pid)
-    except OSError:          # the worker did it first, or has already exited
-        pass
-
-
-def _kill_group(pid: int) -> None:
-    """SIGKILL the process group ``pid`` leads (the worker and everything it started)."""
-    try:
-        os.killpg(pid, signal.SIGKILL)
-    except OSError:          # gone already
-        pass
-
-
-def _worker_setup(parent: int) -> None:
-    """In a forked worker: lead a process group of its own; ignore Ctrl-C (the parent, which
-    the terminal's SIGINT reaches, stops the workers); on SIGTERM kill the whole group; die
-    with the parent (:func:`_die_with_parent`)."""
-    _set_group(0)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, lambda signum, frame: os.killpg(0, signal.SIGKILL))
-    _die_with_parent(parent)
-
-
-def _die_with_parent(parent: int) -> None:
-    """Ask the kernel (Linux ``prctl(PR_SET_PDEATHSIG)``) to send this process SIGTERM when
-    its parent dies, SIGKILL included; if the parent is already gone, exit now. Elsewhere, a
-    thread polls the parent's pid every half second."""
-    import ctypes
-    import ctypes.util
-    import threading
-
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
-        armed = libc.prctl(1, int(signal.SIGTERM), 0, 0, 0) == 0    # PR_SET_PDEATHSIG = 1
-    except (OSError, AttributeError):
-        armed = False
-    if os.getppid() != parent:
-        os.killpg(0, signal.SIGKILL)
-    if not armed:
-        def watch():
-            while os.getppid() == parent:
-                time.sleep(0.5)
-            os.killpg(0, signal.SIGKILL)
-
-        threading.Thread(target=watch, daemon=True).start()
 
 
 def _ordering(runs: dict) -> dict:

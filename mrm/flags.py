@@ -17,7 +17,7 @@ from mrm_cosim.errors import InputError
 
 __all__ = ["flag_name", "named_by_flags", "OUT", "RUN_PREVIEW", "RUN_TRACK", "RUN_TABLE2",
            "RUN_LINE",
-           "HDL", "PLAN_SAMPLES", "BENCH"]
+           "HDL", "PLAN_SAMPLES", "BENCH", "SWEEP"]
 
 #: API argument -> flag, per command.
 OUT = {"out": "--out"}
@@ -32,6 +32,7 @@ RUN_LINE = {**RUN_TRACK, "profile": "--profile", "file": "FILE"}
 HDL = {**OUT, "top": "--top", "family": "--family", "params": "--param"}
 PLAN_SAMPLES = {"out": "--samples"}
 BENCH = {"robot": "--robot", "backend": "--backend"}
+SWEEP = {**OUT, "workers": "--workers", "scheduler": "--scheduler", "SPEC": "SPEC"}
 
 
 def flag_name(field: str, flags: dict[str, str]) -> str:

@@ -1,6 +1,7 @@
 """``mrm run table2``: plumbing with a stand-in run_track, atomic output, and one real short run."""
 
 import io
+import os
 import json
 from dataclasses import replace
 from types import SimpleNamespace
@@ -230,24 +231,31 @@ def test_track_writes_its_gantt_timeline(tmp_path, capsys):
     assert any(p["complete"] for p in timeline)
 
 
+def _pid_runner(*args, **kwargs):
+    """run_track, saying which process ran it (module level: the process executor pickles
+    the runner)."""
+    result, summary = run_track(*args, **kwargs)
+    return result, dict(summary, pid=os.getpid())
+
+
+def _refuse(robot, controller, *args, **kwargs):
+    raise InputError("gains.k_j", "too large for the node's word")
+
+
 def test_side_by_side_runs_give_the_same_results_as_one_after_the_other(tmp_path):
-    """jobs=2 forks a process per controller: the gateware-in-the-loop results (trace hashes,
-    every summary figure but the wall time) and the table are those of the sequential run."""
+    """jobs=2 runs the controllers on two worker processes: the gateware-in-the-loop results
+    (trace hashes, every summary figure but the wall time) and the table are those of the
+    sequential run."""
     backend = "model" if "model" in BACKENDS else "compiled"
     cfg = ec.load().with_overrides(backend=backend, duration=0.003, seed=2)
-    import os
-
-    def runner(*args, **kwargs):                    # run_track, saying which process ran it
-        result, summary = run_track(*args, **kwargs)
-        return result, dict(summary, pid=os.getpid())
-
+    runner = _pid_runner
     stream = io.StringIO()
     progress = table2.Progress(cfg.controllers, cfg.duration, stream=stream, every=0.0)
     one = table2.run_table2(cfg, tmp_path / "one", runner=runner)
     two = table2.run_table2(cfg, tmp_path / "two", runner=runner, jobs=2, progress=progress)
     assert {s["pid"] for s in one["controllers"].values()} == {os.getpid()}
     pids = {s["pid"] for s in two["controllers"].values()}
-    assert os.getpid() not in pids and len(pids) == len(cfg.controllers)
+    assert os.getpid() not in pids and 1 <= len(pids) <= 2     # two workers, reused
     volatile = {"wall_s", "rtf", "pid"}
     for c in cfg.controllers:
         a, b = one["controllers"][c], two["controllers"][c]
@@ -272,11 +280,8 @@ def test_a_failure_in_a_side_by_side_run_leaves_no_folder(tmp_path, config):
         table2.run_table2(config, out, runner=FakeRunner(fail_on="pid-fpga"), jobs=2)
     assert not out.exists()
 
-    def refuse(robot, controller, *args, **kwargs):
-        raise InputError("gains.k_j", "too large for the node's word")
-
     with pytest.raises(InputError) as e:
-        table2.run_table2(config, out, runner=refuse, jobs=3)
+        table2.run_table2(config, out, runner=_refuse, jobs=3)
     assert e.value.field == "gains.k_j" and not out.exists()
 
 

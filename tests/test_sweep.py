@@ -1,0 +1,188 @@
+"""``mrm sweep``: points as pure functions, on every executor with the same results."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from functools import partial
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mrm_cosim.cosim import sweep
+from mrm_cosim.cosim.executors import LocalExecutor, SerialExecutor, make_executor
+from mrm_cosim.errors import InputError
+from mrm_cosim.mrm.cli import main
+
+TINY = """
+[sweep]
+name = "tiny"
+config = "table2"
+controllers = ["pid-fpga", "vdc"]
+backends = ["model"]
+seeds = [3, 4]
+duration = 0.004
+
+[[axis]]
+field = "gains.lam"
+values = [100.0, 200.0]
+"""
+
+
+def _spec(tmp_path, text=TINY, name="spec.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def _hashes(out: Path) -> dict:
+    rows = [json.loads(line) for line in (out / "points.jsonl").read_text().splitlines()]
+    return {r["id"]: r["trace_sha256"] for r in rows if r["status"] == "ok"}
+
+
+def test_the_same_points_give_the_same_traces_on_every_executor(tmp_path):
+    """Serial, the local process pool and a Dask LocalCluster: every point's trace hash is
+    the same (a point is a pure function of its config and seed)."""
+    spec = sweep.load_spec(_spec(tmp_path))
+    assert len(sweep.expand(spec)) == 8
+    hashes = {}
+    for name, scheduler, workers in (("serial", None, 1), ("local", None, 2),
+                                     ("dask", "local-dask", 2)):
+        with make_executor(workers, scheduler) as ex:
+            outcome = sweep.run_sweep(spec, tmp_path / name, ex)
+        assert outcome["failed"] == 0 and outcome["ran"] == 8, name
+        hashes[name] = _hashes(tmp_path / name)
+    assert hashes["serial"] == hashes["local"] == hashes["dask"]
+    # the seeds change every run, λ only VDC's (the node's PID does not use it): 2 + 4 traces
+    assert len(set(hashes["serial"].values())) == 6
+    out = tmp_path / "serial"
+    for pid in hashes["serial"]:
+        summary = json.loads((out / "points" / pid / "summary.json").read_text())
+        assert summary["trace_sha256"] == hashes["serial"][pid]
+    text = (out / "summary.md").read_text()
+    assert "## By controller" in text and "## By gains.lam" in text
+    assert (out / "rho_by_controller.png").stat().st_size > 0
+    assert (out / "rho_vs_gains_lam.png").stat().st_size > 0
+    assert "[[axis]]" in (out / "sweep.toml").read_text()
+
+
+def test_resume_runs_only_what_is_missing(tmp_path, capsys):
+    spec = _spec(tmp_path)
+    out = tmp_path / "out"
+    assert main(["sweep", str(spec), "--out", str(out), "--workers", "1", "-q"]) == 0
+    lines = (out / "points.jsonl").read_text().splitlines()
+    # a sweep killed after three points, the fourth cut mid-line
+    (out / "points.jsonl").write_text("\n".join(lines[:3]) + "\n" + lines[3][:40])
+    # without --resume a folder that holds a sweep is not touched
+    assert main(["sweep", str(spec), "--out", str(out), "-q"]) == 2
+    assert "--resume" in capsys.readouterr().err
+    assert main(["sweep", str(spec), "--out", str(out), "--workers", "1", "--resume",
+                 "--json"]) == 0
+    outcome = json.loads(capsys.readouterr().out)
+    assert (outcome["ran"], outcome["skipped"], outcome["failed"]) == (5, 3, 0)
+    rows = [json.loads(x) for x in (out / "points.jsonl").read_text().splitlines()
+            if x.startswith("{") and x.endswith("}")]
+    assert len({r["id"] for r in rows}) == 8
+
+
+@pytest.mark.parametrize("text, field", [
+    (TINY.replace('field = "gains.lam"', 'field = "gains.lamda"'), "axis[0].field"),
+    (TINY.replace("values = [100.0, 200.0]", "values = [100.0, -1.0]"), "axis[0].field"),
+    (TINY.replace('field = "gains.lam"', 'field = "experiment.seed"'), "axis[0].field"),
+    (TINY.replace("seeds = [3, 4]", "seeds = [3, 4]\nworkers = 2"), "sweep.workers"),
+    (TINY.replace('controllers = ["pid-fpga", "vdc"]', 'controllers = ["lqr"]'),
+     "sweep.controllers"),
+    (TINY.replace('config = "table2"', 'config = "nope"'), "sweep.config"),
+    (TINY + '\n[draws]\ncount = 4\nfields = { "gains.K" = [50.0, 10.0] }\n',
+     'draws.fields.gains.K'),
+    # each value fits alone; together the master's compute does not fit the 1 ms period
+    (TINY.replace('field = "gains.lam"\nvalues = [100.0, 200.0]',
+                  'field = "timing.kinematics_cycles"\nvalues = [1000, 30000]\n\n[[axis]]\n'
+                  'field = "timing.force_cycles"\nvalues = [1000, 25000]'),
+     "timing.kinematics_cycles"),
+])
+def test_bad_specs_are_refused_before_anything_runs(tmp_path, capsys, text, field):
+    out = tmp_path / "out"
+    assert main(["sweep", str(_spec(tmp_path, text)), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and field in err[0], err
+    assert not out.exists()
+
+
+def test_latin_hypercube_draws_fill_every_stratum():
+    draws = {"method": "lhs", "count": 16, "seed": 7,
+             "fields": {"gains.K": (0.0, 50.0), "gains.lam": (50.0, 250.0)}}
+    params = sweep._draw_params(draws)
+    assert len(params) == 16
+    for f, (lo, hi) in draws["fields"].items():
+        strata = sorted(int((p[f] - lo) / (hi - lo) * 16) for p in params)
+        assert strata == list(range(16)), f
+    assert sweep._draw_params(draws) == params                 # seeded
+
+
+def _flaky(item, report):
+    if item == "die":
+        os._exit(3)                          # a worker killed outright
+    if item == "raise":
+        raise ValueError("bad luck")
+    if item == "refuse":
+        raise InputError("gains.k_j", "too large")
+    report("progress", item)
+    return item * 2
+
+
+@pytest.mark.parametrize("executor", [SerialExecutor, partial(LocalExecutor, 2)])
+def test_a_failing_point_does_not_stop_the_others(executor):
+    items = ["a", "raise", "b", "refuse", "c"]
+    messages = []
+    with executor() as ex:
+        out = {i: (status, value) for i, status, value in
+               ex.run(_flaky, items, lambda *m: messages.append(m))}
+    assert {i: s for i, (s, _) in out.items()} == {0: "ok", 1: "error", 2: "ok", 3: "input",
+                                                  4: "ok"}
+    assert out[0][1] == "aa" and "bad luck" in out[1][1]
+    assert out[3][1] == ("gains.k_j", "too large")
+    assert sorted(m[1] for m in messages) == ["a", "b", "c"]
+
+
+def test_a_worker_that_dies_marks_its_point_failed_and_the_rest_run():
+    items = ["a", "die", "b", "c", "d"]
+    with LocalExecutor(1) as ex:
+        out = {i: status for i, status, _ in ex.run(_flaky, items)}
+    assert out[1] == "error"
+    assert out[0] == "ok" and out[4] == "ok" and len(out) == 5
+
+
+def test_ctrl_c_stops_every_worker_and_keeps_the_finished_points(tmp_path):
+    spec = _spec(tmp_path, TINY.replace("seeds = [3, 4]", "seeds = { start = 0, count = 40 }")
+                 .replace("duration = 0.004", "duration = 0.02"))
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "mrm_cosim.mrm.cli", "sweep", str(spec),
+                             "--out", str(out), "--workers", "2", "-q"],
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    jsonl = out / "points.jsonl"
+    deadline = time.time() + 120
+    while time.time() < deadline and not (jsonl.exists() and jsonl.read_text().count("\n") >= 2):
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    rows = [json.loads(x) for x in jsonl.read_text().splitlines()]
+    assert 2 <= len(rows) < 160 and all(r["status"] == "ok" for r in rows)
+    time.sleep(0.5)
+    left = subprocess.run(["pgrep", "-g", str(proc.pid)], capture_output=True, text=True)
+    assert left.stdout.strip() == "", "a worker outlived the sweep"
+
+
+def test_shipped_sweeps_are_valid():
+    root = Path(__file__).resolve().parents[1] / "configs" / "sweeps"
+    seeds = sweep.load_spec(root / "table2-seeds.toml")
+    assert seeds.controllers == ("pid-1khz", "pid-fpga", "vdc") and len(seeds.seeds) == 32
+    assert 0 not in seeds.seeds                              # the headline table's plant
+    assert len(sweep.expand(seeds)) == 96
+    gains = sweep.load_spec(root / "vdc-gains.toml")
+    assert len(sweep.expand(gains)) == 80
+    assert np.all(np.array(gains.seeds) >= 1000)
