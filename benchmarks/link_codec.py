@@ -98,7 +98,7 @@ def bench_recovery():
     import sys
     from pathlib import Path
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from tests.sim_helpers import PairBench
+    from mrm_cosim.testbench import PairBench
 
     rows = []
     for name, fault, duration in FAULTS:

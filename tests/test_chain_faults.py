@@ -25,7 +25,7 @@ from mrm_cosim.hdl.link.chain import (
 )
 from mrm_cosim.hdl.link.chars import LinkState
 
-from .sim_helpers import ERROR_CLASSES, run_simulation
+from mrm_cosim.testbench import ERROR_CLASSES, run_simulation
 
 SHORT = {"reset_cycles": 60, "wait_cycles": 150}
 STANDARD = {"reset_cycles": 320, "wait_cycles": 640}     # 6.4 µs, 12.8 µs

@@ -11,7 +11,7 @@ from amaranth.sim import Simulator
 from mrm_cosim.hdl.link.chars import CharKind, LinkState
 from mrm_cosim.hdl.link.codec_ref import char_value
 
-from .sim_helpers import PeerBench, run_simulation
+from mrm_cosim.testbench import PeerBench, run_simulation
 
 SHORT = {"reset_cycles": 60, "wait_cycles": 150}
 DATA, EOP, EEP = (k.value for k in CharKind)

@@ -10,7 +10,7 @@ import pytest
 from mrm_cosim.hdl.link.chars import CharKind, LinkState
 from mrm_cosim.hdl.link.codec_ref import char_value
 
-from .sim_helpers import PairBench
+from mrm_cosim.testbench import PairBench
 
 SHORT = {"reset_cycles": 60, "wait_cycles": 150}
 DATA, EOP, EEP = (k.value for k in CharKind)

@@ -11,7 +11,7 @@ from amaranth.sim import Simulator
 from mrm_cosim.hdl.link.chars import LinkState
 from mrm_cosim.hdl.link.codec import Codec
 
-from .sim_helpers import ERROR_CLASSES, CodecPair, LineMonitor, PeerBench, run_simulation
+from mrm_cosim.testbench import ERROR_CLASSES, CodecPair, LineMonitor, PeerBench, run_simulation
 
 ER, EW, READY, STARTED, CONNECTING, RUN = LinkState
 SHORT = {"reset_cycles": 60, "wait_cycles": 150}

@@ -8,7 +8,7 @@ from amaranth.sim import Simulator
 from mrm_cosim.hdl.link.codec_ref import CodecRef
 from mrm_cosim.hdl.link.chars import LinkState
 
-from .sim_helpers import (CodecPair, RandomHost, apply_line_faults, assert_outputs_equal,
+from mrm_cosim.testbench import (CodecPair, RandomHost, apply_line_faults, assert_outputs_equal,
                           drive_codec_inputs, read_codec_outputs, run_simulation)
 
 SHORT = {"reset_cycles": 60, "wait_cycles": 150}

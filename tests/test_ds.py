@@ -9,7 +9,7 @@ from amaranth.sim import Simulator
 
 from mrm_cosim.hdl.link.ds import DSReceiver, DSTransmitter
 
-from .sim_helpers import run_simulation
+from mrm_cosim.testbench import run_simulation
 
 
 def ds_line(bits):

@@ -25,7 +25,7 @@ from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.protocol.regs import LINK_HEALTH, RX_DROPS, parse_comm_a
 from mrm_cosim.errors import InputError
 
-from .sim_helpers import packet_ends, run_simulation
+from mrm_cosim.testbench import packet_ends, run_simulation
 from .test_node_core import ENC
 
 def test_saturating_sum_equals_its_reference():

@@ -23,7 +23,7 @@ from mrm_cosim.protocol.regs import (
 from mrm_cosim.models.encoder import counts_per_rad, quadrature_levels
 from mrm_cosim.models.robot import load_robot
 
-from .sim_helpers import packet_ends, run_simulation
+from mrm_cosim.testbench import packet_ends, run_simulation
 
 TICK = 50
 K_RAD = float(counts_per_rad(800_000))

@@ -13,7 +13,7 @@ from mrm_cosim.protocol.encoder import AGE_MAX, EncoderParams
 from mrm_cosim.protocol.fixed import VEL
 from mrm_cosim.models.encoder import counts_per_rad, quadrature_levels
 
-from .sim_helpers import run_simulation
+from mrm_cosim.testbench import run_simulation
 
 CYCLE = 20e-9
 K = float(counts_per_rad(800_000))

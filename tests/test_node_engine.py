@@ -15,7 +15,7 @@ from mrm_cosim.protocol.fixed import WORD_MAX, WORD_MIN, Fmt, round_shift, satur
 from mrm_cosim.protocol.isa import (IO_BASE, LATENCY, Instr, Op, Program, T, decode, encode,
                                     mem_depth)
 
-from .sim_helpers import run_simulation
+from mrm_cosim.testbench import run_simulation
 
 
 def run_engine(mc, entries, inputs=(), mem=None, host_writes=(), name="engine"):

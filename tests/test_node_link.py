@@ -20,7 +20,7 @@ from mrm_cosim.protocol.regs import (
 from mrm_cosim.hdl.node.top import SlaveNode
 from mrm_cosim.models.robot import load_robot
 
-from .sim_helpers import run_simulation
+from mrm_cosim.testbench import run_simulation
 
 SHORT = {"reset_cycles": 60, "wait_cycles": 150}
 ENC = EncoderParams(min_window=256)

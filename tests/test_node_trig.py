@@ -13,7 +13,7 @@ from mrm_cosim.protocol.fixed import TRIG
 from mrm_cosim.hdl.node.trig import LATENCY, SinCos
 from mrm_cosim.hdl.node.trig_ref import binary_angle, sin_cos
 
-from .sim_helpers import run_simulation
+from mrm_cosim.testbench import run_simulation
 
 CPR = 800_000
 

@@ -9,7 +9,7 @@ from mrm_cosim.protocol.fixed import WORD_MAX, WORD_MIN
 from mrm_cosim.hdl.node.watchdog import Watchdog
 from mrm_cosim.hdl.node.watchdog_ref import WatchdogModel
 
-from .sim_helpers import run_simulation
+from mrm_cosim.testbench import run_simulation
 
 PULSES = ("packet", "tick", "cmd_valid", "arm", "disarm")
 

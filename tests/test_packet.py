@@ -13,7 +13,7 @@ from mrm_cosim.hdl.link.chain import get_chars, get_packet, put_chars, put_packe
 from mrm_cosim.hdl.link.packet import Depacketizer, Packetizer
 from mrm_cosim.protocol import packet as proto
 from mrm_cosim.protocol.crc import crc16
-from .sim_helpers import run_simulation
+from mrm_cosim.testbench import run_simulation
 
 ADDRESS = 0x05
 

@@ -7,7 +7,7 @@ from mrm_cosim.hdl.link import packet_ref as ref
 from mrm_cosim.hdl.link.chain import char_int, char_value, get_chars, put_chars
 from mrm_cosim.hdl.link.router import Router
 from mrm_cosim.protocol import packet as proto
-from .sim_helpers import run_simulation
+from mrm_cosim.testbench import run_simulation
 
 ADDRESS = 2
 

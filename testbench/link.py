@@ -1,69 +1,36 @@
-"""Shared simulation helpers: stream BFMs, VCD-on-request runner, a faulty line, a codec pair.
+"""Bus-functional models of the SpaceWire-like link, for Amaranth testbenches.
 
-Start from the house example (after the Amaranth stream docs and Glasgow); the packet layer's
-tests import these too.
+* :class:`FaultyLine` — one direction of a data-strobe line with fault injection (cut, stuck,
+  bit flips), and :func:`apply_line_faults`, its Python twin;
+* :class:`CodecPair` — two codecs back to back through two faulty lines;
+  :class:`PairBench` drives one cycle by cycle from queues, with faults and a log;
+* :class:`LinePeer` — a scripted far end at line level (tokens → D/S bits, NULLs between,
+  any bit rate), independent of the gateware and of its reference; :func:`token_bits`;
+* :class:`LineMonitor` — decodes a D/S line into timestamped tokens, checking data-strobe
+  encoding and parity; counts parity errors, logs transmitter resets;
+* :class:`PeerBench` — one gateware codec against a :class:`LinePeer`, with the start-up
+  handshake (:meth:`PeerBench.bring_up`);
+* :class:`RandomHost`, :func:`drive_codec_inputs`, :func:`read_codec_outputs`,
+  :func:`assert_outputs_equal` — seeded random host traffic and the lock-step comparison of a
+  gateware codec with its bit-exact reference (:mod:`mrm_cosim.hdl.link.codec_ref`).
+
+ECSS-E-ST-50-12C is the standard behind the characters (§7) and the link states (§8.5).
+docs/testbenches.md shows them at work.
 """
-
-import contextlib
-import os
 
 from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.sim import Simulator
 
-from mrm_cosim.protocol.link import ERROR_CLASSES
 from mrm_cosim.hdl.link.codec import Codec
+from mrm_cosim.protocol.link import ERROR_CLASSES
 
-__all__ = [
-    "stream_put", "stream_get", "packet_ends", "run_simulation", "FaultyLine", "CodecPair",
-    "ERROR_CLASSES", "read_codec_outputs", "assert_outputs_equal", "apply_line_faults",
-    "RandomHost", "drive_codec_inputs", "token_bits", "LinePeer", "LineMonitor", "PeerBench",
-    "PairBench",
-]
+from .sim import run_simulation
 
-
-async def stream_put(ctx, stream, payload):
-    """Offer ``payload`` on ``stream`` until it is taken."""
-    ctx.set(stream.payload, payload)
-    ctx.set(stream.valid, 1)
-    await ctx.tick().until(stream.ready)
-    ctx.set(stream.valid, 0)
-
-
-async def stream_get(ctx, stream):
-    """Take one payload from ``stream``."""
-    ctx.set(stream.ready, 1)
-    payload, = await ctx.tick().sample(stream.payload).until(stream.valid)
-    ctx.set(stream.ready, 0)
-    return payload
-
-
-def packet_ends(stream, ends: list):
-    """A background testbench appending to ``ends`` the cycle (counted from 0) in which each
-    packet's last beat is taken on ``stream`` (a stream of :class:`~hdl.link.packet.Beat`)."""
-    async def monitor(ctx):
-        c = 0
-        while True:
-            _, _, valid, ready, last = await ctx.tick().sample(stream.valid, stream.ready,
-                                                                stream.p.last)
-            if valid and ready and last:
-                ends.append(c)
-            c += 1
-
-    return monitor
-
-
-def run_simulation(sim: Simulator, name: str):
-    """Run ``sim``; dump ``<name>.vcd`` into ``$SIM_VCD_DIR`` when that is set."""
-    vcd_dir = os.environ.get("SIM_VCD_DIR")
-    if vcd_dir:
-        os.makedirs(vcd_dir, exist_ok=True)
-        writer = sim.write_vcd(os.path.join(vcd_dir, f"{name}.vcd"))
-    else:
-        writer = contextlib.nullcontext()
-    with writer:
-        sim.run()
+__all__ = ["ERROR_CLASSES", "FaultyLine", "CodecPair", "read_codec_outputs",
+           "assert_outputs_equal", "apply_line_faults", "RandomHost", "drive_codec_inputs",
+           "token_bits", "LinePeer", "LineMonitor", "PeerBench", "PairBench"]
 
 
 class FaultyLine(wiring.Component):
