@@ -25,7 +25,7 @@ from mrm_cosim.cosim.experiment_config import load
 from mrm_cosim.cosim.line import run_line
 from mrm_cosim.master.trig_planner import plan_line
 from mrm_cosim.models.robot import load_robot
-from mrm_cosim.mrm.commands.plan import load_line_file
+from mrm_cosim.master.line_file import load_line_file
 
 #: (lam, k_j, K, friction_comp): table2's, the code's defaults, and steps between them.
 CANDIDATES = [(200.0, 60.0, 50.0, 1.0), (50.0, 30.0, 0.0, 0.0), (100.0, 30.0, 0.0, 0.0),

@@ -4,6 +4,7 @@ A sweep spec (TOML) names a base experiment config and the axes to vary::
 
     [sweep]
     name = "table2-seeds"
+    kind = "track"                      # "track" (the config's trajectory) or "line"
     config = "table2"                   # a package config (configs/<name>.toml) or a path
     controllers = ["pid-1khz", "pid-fpga", "vdc"]    # default: the config's
     backends = ["model"]                # default: the config's
@@ -19,6 +20,11 @@ A sweep spec (TOML) names a base experiment config and the axes to vary::
     count = 16
     seed = 0
     fields = { "gains.K" = [0.0, 50.0] }
+
+A sweep of ``kind = "line"`` runs a Cartesian line (``line = "path/to/line.toml"``, as for
+``mrm run line``; its config defaults to ``"line"``, the six-module arm) over ``profiles``
+(``["trig"]`` by default, ``"ruckig"`` too), and reports the tool's position and orientation
+errors instead of ρ.
 
 The points are the product of the grid axes, the draws, the controllers, the backends and the
 seeds (a seed is the plant's draw: repeated seeds are Monte Carlo over plants). A point is a
@@ -50,9 +56,17 @@ __all__ = ["SweepSpec", "load_spec", "expand", "run_point", "run_sweep", "FIGURE
 #: The figures of a point kept in points.jsonl (from :func:`cosim.track.run_track`'s summary).
 FIGURES = ("rho_s", "max_tip_error_m", "max_tip_speed_m_s", "max_joint_error_rad",
            "overruns", "link_errors", "upload_errors")
+#: A line's figures (its summary's ``line``), kept beside the common ones.
+LINE_FIGURES = ("max_position_error_mm", "max_orientation_error_mrad", "max_se3_error")
+#: The two figures summary.md and the plots show per kind: (key, label, scale to the label).
+SHOWN = {"track": (("rho_s", "ρ (s)", 1.0), ("max_tip_error_m", "tip error (mm)", 1e3)),
+         "line": (("max_position_error_mm", "tool position error (mm)", 1.0),
+                  ("max_orientation_error_mrad", "tool orientation error (mrad)", 1.0))}
+KINDS = tuple(SHOWN)
 
 _SPEC_KEYS = {"sweep", "axis", "draws"}
-_SWEEP_KEYS = {"name", "config", "controllers", "backends", "seeds", "duration"}
+_SWEEP_KEYS = {"name", "kind", "config", "controllers", "backends", "seeds", "duration", "line",
+               "profiles"}
 MAX_POINTS = 1_000_000
 
 
@@ -68,16 +82,22 @@ class SweepSpec:
     seeds: tuple[int, ...]
     axes: tuple[tuple[str, tuple], ...] = ()  # (field, values) grid axes
     draws: dict = field(default_factory=dict)  # {"method", "count", "seed", "fields"}
+    kind: str = "track"
+    line: dict | None = None                  # kind "line": the parsed line file
+    profiles: tuple[str, ...] = ("trig",)
+    line_duration: float | None = None        # kind "line": [sweep] duration, if set
 
     def to_toml(self) -> str:
         """The resolved spec as TOML: the sweep's keys, its axes (ranges as their values),
         its draws, and the base config as every point starts from it (``[base.*]``)."""
         from mrm_cosim.cosim.experiment_config import _dump_toml
 
-        text = _dump_toml({"sweep": {"name": self.name, "config": self.config_source,
-                                     "controllers": list(self.controllers),
-                                     "backends": list(self.backends),
-                                     "seeds": list(self.seeds)}})
+        keys = {"name": self.name, "kind": self.kind, "config": self.config_source,
+                "controllers": list(self.controllers), "backends": list(self.backends),
+                "seeds": list(self.seeds)}
+        if self.kind == "line":
+            keys["profiles"] = list(self.profiles)
+        text = _dump_toml({"sweep": keys})
         for f, values in self.axes:
             text += f"\n[[axis]]\nfield = {json.dumps(f)}\nvalues = {json.dumps(list(values))}\n"
         if self.draws:
@@ -86,7 +106,10 @@ class SweepSpec:
                      f"seed = {d['seed']}\n\n[draws.fields]\n")
             text += "".join(f"{json.dumps(k)} = {json.dumps(list(v))}\n"
                             for k, v in d["fields"].items())
-        return text + "\n" + _dump_toml({"base": self.config})
+        text += "\n" + _dump_toml({"base": self.config})
+        if self.line is not None:
+            text += "\n" + _dump_toml({"line": self.line})
+        return text
 
 
 def _config_path(name: str, base_dir: Path) -> Path:
@@ -192,7 +215,16 @@ def load_spec(path) -> SweepSpec:
         if key not in _SWEEP_KEYS:
             raise InputError(f"sweep.{key}",
                              f"unknown key; known: {', '.join(sorted(_SWEEP_KEYS))}")
-    source = sw.get("config", "table2")
+    kind = sw.get("kind", "track")
+    if kind not in KINDS:
+        raise InputError("sweep.kind", f"must be one of {', '.join(KINDS)}, not {kind!r}")
+    line, profiles = None, ("trig",)
+    if kind == "line":
+        line, profiles = _line_keys(sw, path.resolve().parent)
+    elif "line" in sw or "profiles" in sw:
+        raise InputError("sweep.line" if "line" in sw else "sweep.profiles",
+                         "only for kind = \"line\"")
+    source = sw.get("config", "line" if kind == "line" else "table2")
     if not isinstance(source, str) or not source:
         raise InputError("sweep.config", f"must be a config name or path, not {source!r}")
     base = load(_config_path(source, path.resolve().parent))
@@ -227,11 +259,34 @@ def load_spec(path) -> SweepSpec:
     if "draws" in data:
         draws = _draws(data["draws"], config)
     spec = SweepSpec(str(sw.get("name", path.stem)), config, source, controllers, backends,
-                     seeds, tuple(axes), draws)
+                     seeds, tuple(axes), draws, kind, line, profiles,
+                     base.duration if kind == "line" and "duration" in sw else None)
     n = _count(spec)
     if n > MAX_POINTS:
         raise InputError("SPEC", f"{n:,} points; at most {MAX_POINTS:,} in one sweep")
     return spec
+
+
+def _line_keys(sw: dict, base_dir: Path) -> tuple[dict, tuple[str, ...]]:
+    """The line file (parsed and checked) and the profiles of a sweep of kind ``line``."""
+    from mrm_cosim.cosim.line import PROFILES
+    from mrm_cosim.master.line_file import parse_line_spec
+
+    name = sw.get("line")
+    if not isinstance(name, str) or not name.endswith(".toml"):
+        raise InputError("sweep.line", f"must name the line's .toml file, not {name!r}")
+    path = Path(name) if Path(name).is_absolute() else base_dir / name
+    doc = read_toml(path, "sweep.line")
+    try:
+        parse_line_spec(doc)
+    except InputError as exc:
+        raise InputError(f"sweep.line: {exc.field}", exc.message) from None
+    profiles = tuple(sw.get("profiles", ["trig"]))
+    for p in profiles:
+        if p not in PROFILES:
+            raise InputError("sweep.profiles", f"unknown profile {p!r}; known: "
+                             f"{', '.join(PROFILES)}")
+    return doc, profiles
 
 
 def _draws(d, config) -> dict:
@@ -280,13 +335,14 @@ def _draw_params(draws: dict) -> list[dict]:
 def _count(spec: SweepSpec) -> int:
     grid = math.prod(len(v) for _, v in spec.axes)
     return (grid * max(1, spec.draws.get("count", 1)) * len(spec.controllers)
-            * len(spec.backends) * len(spec.seeds))
+            * len(spec.backends) * len(spec.seeds) * len(spec.profiles))
 
 
-def point_id(config: dict, controller: str) -> str:
-    """A point's name: the hash of its resolved config (seed and backend included) and its
-    controller."""
-    text = json.dumps({"config": config, "controller": controller}, sort_keys=True)
+def point_id(config: dict, controller: str, task: dict | None = None) -> str:
+    """A point's name: the hash of its resolved config (seed and backend included), its
+    controller and, for a line, the line and its profile (``task``)."""
+    text = json.dumps({"config": config, "controller": controller, **(task or {})},
+                      sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -299,8 +355,9 @@ def expand(spec: SweepSpec) -> list[dict]:
     grid = [dict(zip([f for f, _ in spec.axes], combo, strict=True))
             for combo in itertools.product(*(v for _, v in spec.axes))]
     points, seen = [], set()
-    for g, d, c, b, s in itertools.product(grid, _draw_params(spec.draws), spec.controllers,
-                                           spec.backends, spec.seeds):
+    for g, d, c, b, s, prof in itertools.product(grid, _draw_params(spec.draws),
+                                                 spec.controllers, spec.backends, spec.seeds,
+                                                 spec.profiles):
         params = {**g, **d}
         cfg = spec.config
         for f, v in params.items():
@@ -312,12 +369,16 @@ def expand(spec: SweepSpec) -> list[dict]:
         except InputError as exc:
             raise InputError(f"point {params or ''} {c} seed {s}: {exc.field}".replace("  ", " "),
                              exc.message) from None
-        pid = point_id(cfg, c)
+        # a line runs the move and its hold unless the sweep sets a duration
+        task = ({"kind": "line", "line": spec.line, "profile": prof,
+                 "duration": spec.line_duration} if spec.kind == "line" else None)
+        pid = point_id(cfg, c, task)
         if pid in seen:
             continue
         seen.add(pid)
         points.append({"id": pid, "params": params, "seed": s, "controller": c, "backend": b,
-                       "config": cfg})
+                       "kind": spec.kind, "profile": prof if spec.kind == "line" else None,
+                       "line": spec.line, "line_duration": spec.line_duration, "config": cfg})
     return points
 
 
@@ -335,10 +396,25 @@ def run_point(point: dict, report=None) -> dict:
     config = from_dict(point["config"])
     robot = load_robot(config.robot)
     t0 = time.perf_counter()
-    _, summary = run_track(robot, point["controller"], config.backend, config.duration,
-                           config.seed, gains=config.gains, timing=config.timing,
-                           plant_config=config.plant, **_run_kwargs(run_track, config, robot))
-    figures = {k: summary[k] for k in FIGURES}
+    if point.get("kind", "track") == "line":
+        from mrm_cosim.cosim.line import run_line
+        from mrm_cosim.master.line_file import parse_line_spec
+        from mrm_cosim.master.trig_planner import plan_line
+
+        plan = plan_line(*parse_line_spec(point["line"]))
+        summary = run_line(robot, plan, profile=point["profile"],
+                           controller=point["controller"], backend=config.backend,
+                           seed=config.seed, gains=config.gains, timing=config.timing,
+                           plant_config=config.plant,
+                           duration=point.get("line_duration")).summary
+        figures = {k: summary[k] for k in FIGURES if k != "rho_s"}
+        figures.update({k: summary["line"][k] for k in LINE_FIGURES})
+    else:
+        _, summary = run_track(robot, point["controller"], config.backend, config.duration,
+                               config.seed, gains=config.gains, timing=config.timing,
+                               plant_config=config.plant,
+                               **_run_kwargs(run_track, config, robot))
+        figures = {k: summary[k] for k in FIGURES}
     out = {"figures": figures, "faults": run_faults(summary),
            "trace_sha256": summary["trace_sha256"], "wall_s": time.perf_counter() - t0}
     if point.get("folder"):
@@ -367,14 +443,17 @@ def summary_markdown(spec: SweepSpec, rows: list[dict]) -> str:
     failed = [r for r in rows if r["status"] != "ok"]
     if failed:
         lines += [f"**{len(failed)} point(s) failed** (points.jsonl has the errors).", ""]
+    (k1, l1, _), (k2, l2, _) = SHOWN[spec.kind]
     axes = ["controller"] + (["backend"] if len(spec.backends) > 1 else []) + \
+        (["profile"] if len(spec.profiles) > 1 else []) + \
         [f for f, _ in spec.axes] + list(spec.draws.get("fields", {}))
     for axis in axes:
         lines += [f"## By {axis}", "",
-                  "| " + axis + " | points | ρ mean (s) | ρ median | ρ 5–95 % | tip error "
-                  "median (mm) | tip error 5–95 % (mm) |", "|---|---|---|---|---|---|---|"]
+                  f"| {axis} | points | {l1}: mean | median | 5–95 % | {l2}: median | "
+                  "5–95 % |", "|---|---|---|---|---|---|---|"]
         def key(r, axis=axis):
-            return r[axis] if axis in ("controller", "backend") else r["params"].get(axis)
+            return (r.get(axis) if axis in ("controller", "backend", "profile")
+                    else r["params"].get(axis))
 
         values = sorted({key(r) for r in ok}, key=lambda v: (str(type(v)), v))
         if axis in spec.draws.get("fields", {}):
@@ -384,17 +463,18 @@ def summary_markdown(spec: SweepSpec, rows: list[dict]) -> str:
             for a, b in zip(edges[:-1], edges[1:], strict=True):
                 sel = [r for r in ok if a <= r["params"][axis] <= b]
                 if sel:
-                    lines.append(_row(f"{a:.4g}–{b:.4g}", sel))
+                    lines.append(_row(f"{a:.4g}–{b:.4g}", sel, spec.kind))
         for v in values:
             sel = [r for r in ok if key(r) == v]
-            lines.append(_row(v, sel))
+            lines.append(_row(v, sel, spec.kind))
         lines.append("")
     return "\n".join(lines)
 
 
-def _row(label, sel) -> str:
-    rho = _stats([r["figures"]["rho_s"] for r in sel])
-    err = _stats([1e3 * r["figures"]["max_tip_error_m"] for r in sel])
+def _row(label, sel, kind: str = "track") -> str:
+    (k1, _, s1), (k2, _, s2) = SHOWN[kind]
+    rho = _stats([s1 * r["figures"][k1] for r in sel])
+    err = _stats([s2 * r["figures"][k2] for r in sel])
     return (f"| {label} | {rho['n']} | {rho['mean']:.4g} | {rho['median']:.4g} | "
             f"{rho['p5']:.4g} – {rho['p95']:.4g} | {err['median']:.4g} | "
             f"{err['p5']:.4g} – {err['p95']:.4g} |")
@@ -409,31 +489,38 @@ def _plots(out: Path, spec: SweepSpec, rows: list[dict]) -> None:
     ok = [r for r in rows if r["status"] == "ok"]
     if not ok:
         return
+    (key, label, scale), _ = SHOWN[spec.kind]
     fig, ax = plt.subplots(figsize=(6.5, 3.5))
-    data = [[r["figures"]["rho_s"] for r in ok if r["controller"] == c] for c in spec.controllers]
+    data = [[scale * r["figures"][key] for r in ok if r["controller"] == c]
+            for c in spec.controllers]
     ax.boxplot([d if d else [np.nan] for d in data], tick_labels=list(spec.controllers))
     ax.set_yscale("log")
-    ax.set_ylabel("ρ (s)")
-    ax.set_title(f"{spec.name}: ρ per controller ({len(ok)} points)")
+    ax.set_ylabel(label)
+    ax.set_title(f"{spec.name}: {label} per controller ({len(ok)} points)")
     ax.grid(True, lw=0.3)
     fig.tight_layout()
-    fig.savefig(out / "rho_by_controller.png", dpi=110)
+    fig.savefig(out / f"{_stem(key)}_by_controller.png", dpi=110)
     plt.close(fig)
     fields = [f for f, _ in spec.axes] + list(spec.draws.get("fields", {}))
     for f in fields:
         fig, ax = plt.subplots(figsize=(6.5, 3.5))
         for c in spec.controllers:
             sel = [r for r in ok if r["controller"] == c]
-            ax.plot([r["params"][f] for r in sel], [r["figures"]["rho_s"] for r in sel], "o",
+            ax.plot([r["params"][f] for r in sel], [scale * r["figures"][key] for r in sel], "o",
                     ms=3, label=c)
         ax.set_yscale("log")
         ax.set_xlabel(f)
-        ax.set_ylabel("ρ (s)")
+        ax.set_ylabel(label)
         ax.legend(fontsize=7)
         ax.grid(True, lw=0.3)
         fig.tight_layout()
-        fig.savefig(out / f"rho_vs_{f.replace('.', '_')}.png", dpi=110)
+        fig.savefig(out / f"{_stem(key)}_vs_{f.replace('.', '_')}.png", dpi=110)
         plt.close(fig)
+
+
+def _stem(key: str) -> str:
+    """File-name stem of a figure: ``rho`` for ρ, ``position_error`` for a line's."""
+    return {"rho_s": "rho", "max_position_error_mm": "position_error"}.get(key, key)
 
 
 def _finished(path: Path) -> dict[str, dict]:
@@ -477,6 +564,8 @@ def run_sweep(spec: SweepSpec, out, executor, *, resume: bool = False, progress=
             p = todo[i]
             row = {"id": p["id"], "params": p["params"], "seed": p["seed"],
                    "controller": p["controller"], "backend": p["backend"], "status": status}
+            if p.get("profile"):
+                row["profile"] = p["profile"]
             if status == "ok":
                 row.update(value)
             else:

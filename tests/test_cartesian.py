@@ -17,7 +17,7 @@ from mrm_cosim.master.cartesian import (
 from mrm_cosim.master.ruckig_profile import plan_line_ruckig
 from mrm_cosim.master.trig_planner import AxisLimits, LineLimits, plan_line
 from mrm_cosim.models.robot import load_robot
-from mrm_cosim.mrm.commands.plan import load_line_file
+from mrm_cosim.master.line_file import load_line_file
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "line.toml"
 SLOW = LineLimits(AxisLimits(0.2, 0.8, 6.0), AxisLimits(2.0, 8.0, 60.0))

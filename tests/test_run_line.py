@@ -10,7 +10,7 @@ from mrm_cosim.cosim.line import line_reference, robot_at, run_line
 from mrm_cosim.master.trig_planner import plan_line
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.mrm.cli import main
-from mrm_cosim.mrm.commands.plan import load_line_file
+from mrm_cosim.master.line_file import load_line_file
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 LINE = str(EXAMPLES / "line.toml")

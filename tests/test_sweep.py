@@ -186,3 +186,48 @@ def test_shipped_sweeps_are_valid():
     gains = sweep.load_spec(root / "vdc-gains.toml")
     assert len(sweep.expand(gains)) == 80
     assert np.all(np.array(gains.seeds) >= 1000)
+
+
+def test_a_sweep_of_the_cartesian_line(tmp_path):
+    """kind = "line": the six-module arm's line (configs/line.toml by default) over profiles;
+    the tool's errors are the figures; the same points give the same traces serially and on
+    the process pool."""
+    line = Path(__file__).resolve().parents[1] / "examples" / "line.toml"
+    spec_path = _spec(tmp_path, f"""
+[sweep]
+name = "line-profiles"
+kind = "line"
+line = "{line}"
+profiles = ["trig", "ruckig"]
+controllers = ["vdc"]
+seeds = [1, 2]
+duration = 0.004
+""")
+    spec = sweep.load_spec(spec_path)
+    assert spec.config["experiment"]["robot"] == "mrm6" and len(sweep.expand(spec)) == 4
+    with SerialExecutor() as ex:
+        outcome = sweep.run_sweep(spec, tmp_path / "a", ex)
+    assert outcome["failed"] == 0
+    rows = outcome["rows"]
+    assert {r["profile"] for r in rows} == {"trig", "ruckig"}
+    assert all(0 < r["figures"]["max_position_error_mm"] < 1 for r in rows)
+    with LocalExecutor(2) as ex:
+        sweep.run_sweep(spec, tmp_path / "b", ex)
+    assert _hashes(tmp_path / "a") == _hashes(tmp_path / "b")
+    text = (tmp_path / "a" / "summary.md").read_text()
+    assert "## By profile" in text and "tool position error (mm)" in text
+    assert (tmp_path / "a" / "position_error_by_controller.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("extra, field", [
+    ('kind = "line"\nline = "nope.toml"', "sweep.line"),
+    ('kind = "line"\nline = "{line}"\nprofiles = ["fast"]', "sweep.profiles"),
+    ('profiles = ["trig"]', "sweep.profiles"),
+    ('kind = "dmp"', "sweep.kind"),
+])
+def test_bad_line_sweeps(tmp_path, capsys, extra, field):
+    line = Path(__file__).resolve().parents[1] / "examples" / "line.toml"
+    text = f'[sweep]\nname = "x"\n{extra.format(line=line)}\nseeds = [1]\n'
+    assert main(["sweep", str(_spec(tmp_path, text)), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and field in err[0], err

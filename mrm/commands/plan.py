@@ -14,9 +14,8 @@ import numpy as np
 
 from mrm_cosim.errors import InputError, require_finite, require_positive
 from mrm_cosim.results import atomic_write_text, check_output_file
-from mrm_cosim.tomlfile import read_toml
+from mrm_cosim.master.line_file import load_line_file
 
-LIMIT_KEYS = ("velocity", "acceleration", "jerk")
 
 
 def register(subparsers) -> None:
@@ -148,51 +147,6 @@ def _quintic(args) -> int:
 
 
 # ---------------------------------------------------------------------------------- line
-
-
-def _check_keys(table, allowed: tuple[str, ...], field: str) -> None:
-    if not isinstance(table, dict):
-        raise InputError(field, f"must be a table, not {table!r}")
-    for key in table:
-        if key not in allowed:
-            raise InputError(f"{field}.{key}" if field else key,
-                             f"unknown key (expected {', '.join(allowed)})")
-    for key in allowed:
-        if key not in table:
-            raise InputError(f"{field}.{key}" if field else key, "missing")
-
-
-def parse_line_spec(doc: dict):
-    """Validate a parsed ``FILE.toml`` and return ``(start, end, LineLimits)``.
-
-    ``start`` and ``end`` are 4×4 lists (validated further by
-    :func:`master.trig_planner.pose_from_matrix`); every problem raises :class:`InputError`
-    naming its dotted field.
-    """
-    from mrm_cosim.master.trig_planner import AxisLimits, LineLimits
-
-    _check_keys(doc, ("start", "end", "limits"), "")
-    _check_keys(doc["start"], ("pose",), "start")
-    _check_keys(doc["end"], ("pose",), "end")
-    _check_keys(doc["limits"], ("translation", "rotation"), "limits")
-    axes = {}
-    for part in ("translation", "rotation"):
-        table = doc["limits"][part]
-        _check_keys(table, LIMIT_KEYS, f"limits.{part}")
-        values = {}
-        for key in LIMIT_KEYS:
-            name = f"limits.{part}.{key}"
-            value = table[key]
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise InputError(name, f"must be a number, not {value!r}")
-            values[key] = require_positive(value, name)
-        axes[part] = AxisLimits(**values)
-    return doc["start"]["pose"], doc["end"]["pose"], LineLimits(**axes)
-
-
-def load_line_file(path: str):
-    """Read and validate ``FILE.toml``; returns ``(start, end, LineLimits)``."""
-    return parse_line_spec(read_toml(path, "FILE"))
 
 
 def _line(args) -> int:

@@ -336,7 +336,7 @@ def _line(args) -> int:
     from mrm_cosim.cosim.track import check_robot_fits, run_faults
     from mrm_cosim.master.trig_planner import plan_line
     from mrm_cosim.models.robot import load_robot
-    from mrm_cosim.mrm.commands.plan import load_line_file
+    from mrm_cosim.master.line_file import load_line_file
     from mrm_cosim.results import atomic_output_dir, check_output_dir
 
     check_output_dir(args.out)
