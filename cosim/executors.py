@@ -26,7 +26,6 @@ same points on all three and compare trace hashes).
 from __future__ import annotations
 
 import os
-import queue as _queue
 import signal
 import time
 import traceback
@@ -123,22 +122,25 @@ class LocalExecutor(Executor):
         if self.workers < 1:
             raise InputError("workers", f"must be a whole number ≥ 1, not {workers!r}")
         self._ctx = mp.get_context("fork")
-        self._reports = self._ctx.Queue()
+        self._reports = None
         self._pool = None
         self._pids: set[int] = set()
 
     def _new_pool(self):
         from concurrent.futures import ProcessPoolExecutor
 
+        # A SimpleQueue's put writes into the pipe before it returns, so a run's last progress
+        # message is there before its result is (a Queue's feeder thread could lag behind).
+        # A fresh one per pool: a worker killed inside a put would leave the old one locked.
+        if self._reports is not None:
+            self._reports.close()
+        self._reports = self._ctx.SimpleQueue()
         return ProcessPoolExecutor(self.workers, mp_context=self._ctx, initializer=_worker_init,
                                    initargs=(os.getpid(), self._reports))
 
     def _drain(self, on_message) -> None:
-        while True:
-            try:
-                message = self._reports.get_nowait()
-            except (_queue.Empty, OSError, ValueError):
-                return
+        while self._reports is not None and not self._reports.empty():
+            message = self._reports.get()
             if on_message is not None:
                 on_message(*message)
 
@@ -185,8 +187,9 @@ class LocalExecutor(Executor):
 
     def close(self) -> None:
         self._kill_pool()
-        self._reports.close()
-        self._reports.cancel_join_thread()
+        if self._reports is not None:
+            self._reports.close()
+            self._reports = None
 
 
 # --- Dask --------------------------------------------------------------------------------
