@@ -231,3 +231,24 @@ def test_bad_line_sweeps(tmp_path, capsys, extra, field):
     assert main(["sweep", str(_spec(tmp_path, text)), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and field in err[0], err
+
+
+def test_a_point_is_the_run_of_table2_with_its_configuration(tmp_path):
+    """A sweep point of Table 2's configuration (one controller, its seed) gives the trace hash
+    of that controller's row in mrm run table2: the same function of the same config.
+    (The test is the other sweep implementation's, branch `sweep`, 342177b.)"""
+    from dataclasses import replace
+
+    from mrm_cosim.cosim import experiment_config as ec
+    from mrm_cosim.cosim.table2 import run_table2
+
+    config = replace(ec.load().with_overrides(backend="model", duration=0.01, seed=4),
+                     controllers=("pid-fpga", "vdc"))
+    table = run_table2(config, tmp_path / "t2")
+    (tmp_path / "base.toml").write_text(config.to_toml())
+    spec = sweep.load_spec(_spec(tmp_path, '[sweep]\nconfig = "base.toml"\n'))
+    points = sweep.expand(spec)
+    assert [p["controller"] for p in points] == list(config.controllers)
+    for p in points:
+        assert sweep.run_point(p)["trace_sha256"] == \
+            table["controllers"][p["controller"]]["trace_sha256"], p["controller"]
