@@ -34,7 +34,7 @@ from collections.abc import Callable, Iterator
 from mrm_cosim.errors import InputError
 
 __all__ = ["Executor", "SerialExecutor", "LocalExecutor", "DaskExecutor", "make_executor",
-           "default_workers"]
+           "check_executor_args", "default_workers"]
 
 
 def default_workers() -> int:
@@ -243,17 +243,24 @@ class DaskExecutor(Executor):
             self._cluster.close()
 
 
+def check_executor_args(workers: int | None = None, scheduler: str | None = None) -> None:
+    """Refuse (naming the argument) what :func:`make_executor` cannot make, before anything
+    else happens."""
+    if scheduler is not None and not (scheduler == "local-dask"
+                                      or scheduler.startswith(("tcp://", "tls://"))):
+        raise InputError("scheduler", f"must be 'local-dask' or a Dask scheduler address "
+                         f"like tcp://HOST:8786, not {scheduler!r}")
+    if workers is not None and (isinstance(workers, bool) or int(workers) < 1):
+        raise InputError("workers", f"must be a whole number ≥ 1, not {workers!r}")
+
+
 def make_executor(workers: int | None = None, scheduler: str | None = None) -> Executor:
     """The executor for ``--workers`` / ``--scheduler``: Dask when a scheduler is named,
     else this machine's processes (``workers`` of them, default all cores; 1: in this
     process)."""
+    check_executor_args(workers, scheduler)
     if scheduler is not None:
-        if not (scheduler == "local-dask" or scheduler.startswith(("tcp://", "tls://"))):
-            raise InputError("scheduler", f"must be 'local-dask' or a Dask scheduler address "
-                             f"like tcp://HOST:8786, not {scheduler!r}")
         return DaskExecutor(scheduler, workers)
-    if workers is not None and (isinstance(workers, bool) or int(workers) < 1):
-        raise InputError("workers", f"must be a whole number ≥ 1, not {workers!r}")
     if workers == 1:
         return SerialExecutor()
     return LocalExecutor(workers)

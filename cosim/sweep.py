@@ -50,8 +50,8 @@ import numpy as np
 from mrm_cosim.errors import InputError
 from mrm_cosim.tomlfile import read_toml
 
-__all__ = ["SweepSpec", "load_spec", "expand", "run_point", "run_sweep", "FIGURES",
-           "summary_markdown"]
+__all__ = ["SweepSpec", "load_spec", "expand", "run_point", "run_sweep", "check_out",
+           "FIGURES", "summary_markdown"]
 
 #: The figures of a point kept in points.jsonl (from :func:`cosim.track.run_track`'s summary).
 FIGURES = ("rho_s", "max_tip_error_m", "max_tip_speed_m_s", "max_joint_error_rad",
@@ -165,7 +165,11 @@ def _grid_values(axis: dict, where: str) -> tuple:
         raise InputError(where, "needs exactly one of 'values' (a list) or 'range' "
                          "({ start, stop, num })")
     if "values" in axis:
-        return _numbers(axis["values"], f"{where}.values")
+        values = _numbers(axis["values"], f"{where}.values")
+        for k, v in enumerate(values):
+            if values.index(v) != k:        # a repeated value would run the same points twice
+                raise InputError(f"{where}.values", f"{v!r} is given twice")
+        return values
     r = axis["range"]
     if not isinstance(r, dict) or set(r) - {"start", "stop", "num", "log"} or \
             not {"start", "stop", "num"} <= set(r):
@@ -227,7 +231,12 @@ def load_spec(path) -> SweepSpec:
     source = sw.get("config", "line" if kind == "line" else "table2")
     if not isinstance(source, str) or not source:
         raise InputError("sweep.config", f"must be a config name or path, not {source!r}")
-    base = load(_config_path(source, path.resolve().parent))
+    try:
+        base = load(_config_path(source, path.resolve().parent))
+    except InputError as exc:
+        if exc.field != "config":           # a field of the named config: its own name
+            raise
+        raise InputError("sweep.config", exc.message) from None
     if "duration" in sw:
         base = base.with_overrides(duration=sw["duration"], field_prefix="sweep.")
     config = base.to_dict()
@@ -539,17 +548,24 @@ def _point_task(point: dict, report) -> dict:
     return run_point(point, report)
 
 
+def check_out(out, resume: bool = False) -> Path:
+    """The result folder of a sweep, or ``InputError`` naming ``out``: not a file, and not a
+    folder that already holds a sweep unless ``resume``."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError("out", f"{str(out)!r} exists and is not a folder")
+    if (out / "points.jsonl").exists() and not resume:
+        raise InputError("out", f"{str(out)!r} holds a sweep already: --resume it or choose "
+                         "another folder")
+    return out
+
+
 def run_sweep(spec: SweepSpec, out, executor, *, resume: bool = False, progress=None) -> dict:
     """Run every point of ``spec`` not yet finished in ``out`` on ``executor``; append each
     result to ``out/points.jsonl`` as it arrives; then write ``summary.md`` and the plots.
     Returns ``{"total", "ran", "skipped", "failed", "rows"}``."""
-    out = Path(out)
+    out = check_out(out, resume)
     jsonl = out / "points.jsonl"
-    if out.exists() and not out.is_dir():
-        raise InputError("out", f"{str(out)!r} exists and is not a folder")
-    if jsonl.exists() and not resume:
-        raise InputError("out", f"{str(out)!r} holds a sweep already: --resume it or choose "
-                         "another folder")
     points = expand(spec)
     done = {k: v for k, v in _finished(jsonl).items() if v.get("status") == "ok"}
     todo = [dict(p, folder=str(out / "points" / p["id"])) for p in points if p["id"] not in done]

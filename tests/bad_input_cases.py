@@ -254,3 +254,46 @@ HDL = [
 ]
 for i, (argv, field) in enumerate(HDL):
     case(f"hdl-verilog-{i}", ["hdl", "verilog", *argv, "--out", "{out}"], field)
+
+
+# --- sweep specifications, through `mrm sweep` (issue 19; cases after the other sweep
+# implementation's, branch `sweep`, in this spec's format) ------------------------------
+_AXIS = '[[axis]]\nfield = "{}"\n{}\n'
+SWEEPS = [
+    (_AXIS.format("gains.lamda", "values = [1.0, 2.0]"), "axis[0].field"),
+    (_AXIS.format("gains.K", "values = [50.0, 6000.0]"), "axis[0].field"),
+    (_AXIS.format("experiment.seed", "values = [1, 2]"), "axis[0].field"),
+    (_AXIS.format("gains.lam", "values = [100.0, 100.0]"), "axis[0].values"),
+    (_AXIS.format("gains.lam", "range = { start = 100.0, stop = 200.0, num = 0 }"),
+     "axis[0].range.num"),
+    (_AXIS.format("plant.dt", "range = { start = 0.0, stop = 1e-5, num = 3, log = true }"),
+     "axis[0].range"),
+    (_AXIS.format("gains.lam", 'values = [1.0]\nrange = { start = 1.0, stop = 2.0, num = 2 }'),
+     "axis[0]"),
+    ('[sweep]\nseeds = [-1, 2]\n', "sweep.seeds"),
+    ('[sweep]\nseeds = { start = 5, count = 0 }\n', "sweep.seeds.count"),
+    ('[sweep]\ncontrollers = ["vdc", "pid-2khz"]\n', "sweep.controllers"),
+    ('[sweep]\nbackends = ["verilator"]\n', "sweep.backends"),
+    ('[sweep]\nkind = "dmp"\n', "sweep.kind"),
+    ('[sweep]\nruns = 3\n', "sweep.runs"),
+    ('[sweep]\nconfig = "/nonexistent/e.toml"\n', "sweep.config"),
+    ('[sweep]\nduration = -1.0\n', "sweep.duration"),
+    ('[draws]\nmethod = "sobol"\ncount = 4\nfields = { "gains.lam" = [1.0, 2.0] }\n',
+     "draws.method"),
+    ('[draws]\nmethod = "lhs"\ncount = 4\nfields = { "gains.lam" = [2.0, 1.0] }\n',
+     "draws.fields.gains.lam"),
+    ('[draws]\nmethod = "lhs"\ncount = 4\nfields = { "plant.friction" = [0, 1] }\n',
+     "draws.fields.plant.friction"),
+    ('[draws]\nmethod = "random"\ncount = 0\nfields = { "gains.K" = [1.0, 2.0] }\n',
+     "draws.count"),
+    ('[axes]\n"gains.lam" = [1.0]\n', "axes"),
+]
+for i, (text, field) in enumerate(SWEEPS):
+    case(f"sweep-spec-{i}", ["sweep", "{spec}", "--out", "{out}"], field, spec=text)
+for i, (flags, field) in enumerate([(["--workers", "0"], "--workers"),
+                                    (["--scheduler", "http://host:8786"], "--scheduler")]):
+    case(f"sweep-flag-{i}", ["sweep", "{spec}", "--out", "{out}", *flags], field,
+         spec='[sweep]\nduration = 0.01\n')
+case("sweep-missing-spec", ["sweep", "/nonexistent/s.toml", "--out", "{out}"], "SPEC")
+case("sweep-out-is-a-file", ["sweep", "{spec}", "--out", "{spec}"], "--out",
+     spec='[sweep]\nduration = 0.01\n')

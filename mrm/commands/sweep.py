@@ -32,9 +32,11 @@ def register(subparsers) -> None:
 
 @named_by_flags(SWEEP)
 def _sweep(args) -> int:
-    from mrm_cosim.cosim.executors import make_executor
-    from mrm_cosim.cosim.sweep import expand, load_spec, print_progress, run_sweep
+    from mrm_cosim.cosim.executors import check_executor_args, make_executor
+    from mrm_cosim.cosim.sweep import check_out, expand, load_spec, print_progress, run_sweep
 
+    check_executor_args(args.workers, args.scheduler)
+    check_out(args.out, args.resume)
     spec = load_spec(args.spec)
     points = expand(spec)                   # every point validated before anything runs
     if not args.quiet:
