@@ -7,7 +7,8 @@ The project's own tests are written with it.
 """
 
 from .link import (ERROR_CLASSES, CodecPair, FaultyLine, LineMonitor, LinePeer, PairBench,
-                   PeerBench, RandomHost, apply_line_faults, assert_outputs_equal,
+                   PeerBench, RandomHost, apply_line_faults, assert_error_counts,
+                   assert_link_state, assert_outputs_equal,
                    drive_codec_inputs, read_codec_outputs, token_bits)
 from .sim import run_simulation
 from .streams import packet_ends, stream_get, stream_put
@@ -15,4 +16,5 @@ from .streams import packet_ends, stream_get, stream_put
 __all__ = ["stream_put", "stream_get", "packet_ends", "run_simulation", "FaultyLine",
            "CodecPair", "ERROR_CLASSES", "read_codec_outputs", "assert_outputs_equal",
            "apply_line_faults", "RandomHost", "drive_codec_inputs", "token_bits", "LinePeer",
-           "LineMonitor", "PeerBench", "PairBench"]
+           "LineMonitor", "PeerBench", "PairBench", "assert_link_state",
+           "assert_error_counts"]

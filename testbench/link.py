@@ -502,3 +502,26 @@ class PairBench:
         sim.add_clock(20e-9)
         sim.add_testbench(testbench)
         run_simulation(sim, name)
+
+
+def assert_link_state(ctx, codec, expected):
+    """Fail unless ``codec``'s link state machine is in ``expected`` (a ``LinkState`` member
+    or its name, e.g. ``"RUN"``); the message names both states."""
+    from mrm_cosim.hdl.link.chars import LinkState
+    want = LinkState[expected] if isinstance(expected, str) else LinkState(expected)
+    got = LinkState(ctx.get(codec.state))
+    if got != want:
+        raise AssertionError(f"link state is {got.name}, expected {want.name}")
+
+
+def assert_error_counts(ctx, codec, **expected):
+    """Fail unless ``codec``'s saturating error counters match ``expected`` (by class name:
+    ``disconnect``, ``parity``, ``escape``, ...); classes not named must be zero."""
+    unknown = set(expected) - set(ERROR_CLASSES)
+    if unknown:
+        raise ValueError(f"unknown error classes {sorted(unknown)}; known: {ERROR_CLASSES}")
+    counts = ctx.get(codec.errors)
+    got = {name: int(getattr(counts, name)) for name in ERROR_CLASSES}
+    want = {name: expected.get(name, 0) for name in ERROR_CLASSES}
+    if got != want:
+        raise AssertionError(f"error counters are {got}, expected {want}")

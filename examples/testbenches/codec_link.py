@@ -15,7 +15,8 @@ from amaranth.sim import Simulator
 
 from mrm_cosim.hdl.link.chars import CharKind
 from mrm_cosim.hdl.link.codec_ref import char_value
-from mrm_cosim.testbench import PeerBench, run_simulation
+from mrm_cosim.testbench import (PeerBench, assert_error_counts, assert_link_state,
+                                 run_simulation)
 
 DATA, EOP, EEP = (k.value for k in CharKind)
 
@@ -28,6 +29,8 @@ def main(vcd_dir=None) -> dict:
     async def testbench(ctx):
         # 1. Start-up (§8.5.2): ErrorReset → ErrorWait → Ready → Started → Connecting → Run.
         await bench.bring_up(ctx)
+        assert_link_state(ctx, dut, "RUN")
+        assert_error_counts(ctx, dut)                        # a clean start-up: all zero
         out["running_after_cycles"] = bench.cycles
 
         # 2. A packet from the peer: three data bytes and an end of packet.
@@ -52,11 +55,13 @@ def main(vcd_dir=None) -> dict:
         bench.peer.send(("DATA", 0x77, "corrupt"), ("DATA", 0x00))
         await bench.until(ctx, lambda: not ctx.get(dut.running), limit=400)
         out["errors"] = bench.errors(ctx)
+        assert_error_counts(ctx, dut, parity=1)
         bench.peer.bits.clear()
         bench.peer.silent = True
         bench.peer.div = dut.start_div
         bench.monitor.tokens.clear()
         await bench.bring_up(ctx)
+        assert_link_state(ctx, dut, "RUN")
         out["running_again"] = bool(ctx.get(dut.running))
 
     sim = Simulator(dut)
