@@ -29,7 +29,7 @@ COMM_D   m→s    ``τ_D`` FORCE (τ_Lr in VDC mode, feedforward in PID mode, th
                 run) · ``q_d0`` POS · ``q̇_d0`` VEL · ``q̈_d0`` ACC (references at the period
                 start) · zeros
 CONFIG   m→s    up to 8 records ``id`` u8 · ``value`` int32 (:class:`Config`)
-PARAM    m→s    ``bank`` u8 (0 VDC, 1 joint) · ``address`` u16 · up to 12 words (24-bit)
+PARAM    m→s    ``bank`` u8 (0 VDC, 1 joint, 2 DMP) · ``address`` u16 · up to 12 words (24-bit)
 ======== =====  ==============================================================================
 """
 
@@ -93,6 +93,7 @@ CONFIG_DEFAULTS = {Config.MODE: 0, Config.TICK: 50, Config.TIMEOUT: 100_000, Con
 class Bank(enum.IntEnum):
     VDC = 0
     JOINT = 1
+    DMP = 2     # the DMP generator (protocol/dmp.py)
 
 
 class Status(enum.IntFlag):

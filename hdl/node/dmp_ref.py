@@ -1,0 +1,206 @@
+"""Bit-exact reference of the joint-side DMP generator (:mod:`.dmp`), one call per step.
+
+The recurrence, formats and register map are in :mod:`mrm_cosim.protocol.dmp`. A step's
+computation (started by ``start`` for step 0, by each committing ``step`` for the next) does,
+with ``rs(v, n) = floor(v/2^n + 1/2)`` (round half up, :func:`round_shift`) and ``sat_n`` the
+signed ``n``-bit clamp:
+
+1. Latch ``g`` and ``1/τ`` (``IT``) from their registers: a goal or τ write while running is
+   one word, effective from this step on.
+2. ``k = rs(DT · IT, 12)`` (K_LSB 2^-38); ``dφ = rs(k · PHASE_RATE, 14)`` (φ's LSB 2^-40).
+3. Phase ``s = rs(E(φ), 6)`` (PHASE, 2^-22), ``E`` the exp unit below.
+4. Per basis ``i < n``: ``t = rs((s − c_i) · R_i, 10)`` (2^-24); if ``|t| ≥ 2^27`` (8: ψ
+   would be below 2^-64) the Gaussian is cut, ``ψ_i = 0``; else ``u = rs(t², 8)`` (2^-40,
+   octaves, < 64) and ``ψ_i = E(u)`` (2^-28). ``num = Σ ψ_i w_i`` (2^-39), ``den = Σ ψ_i`` (2^-28),
+   exact.
+5. Division: ``q = floor(|num| · 2^10 / den)``, ``f = ±((q + 1) >> 1)`` with the sign of
+   ``num`` (rounded half away from zero, 2^-20); ``f = 0`` when ``den = 0`` (every Gaussian
+   cut, or n = 0).
+6. Forcing: ``sf = rs(s · f, 22)`` (2^-20); ``F = rs(sf · A, 20)`` (counts, 2^-4) with
+   ``A = g − x0`` (goal scaling) or the AMPLITUDE word.
+7. ``e = rs((g << 12) − x, 8)`` (2^-8); ``v̇ = sat35(rs(e · AB, 12) − rs(v · α, 20) + F)``
+   (counts, 2^-4).
+8. Outputs (pending): ``a1 = sat35(rs(v̇ · IT, 20))``, ``a2 = sat35(rs(a1 · IT, 20))``
+   (counts/s², 2^-4), ``q̈_d0 = sat24(rs(a2 · RADC, 26))`` (ACC);
+   ``vt = sat35(rs(v · IT, 22))`` (counts/s, 2^-8), ``q̇_d0 = sat24(rs(vt · RADC, 25))`` (VEL);
+   ``q_d0 = sat24(rs(x, 12))`` (POS).
+9. State: ``v ← sat35(v + rs(k · v̇, 32))`` (2^-10), then ``x ← sat40(x + rs(k · v, 32))``
+   (2^-16, with the new ``v``), ``φ ← clamp(φ + dφ, 0, PHI_MAX)``.
+
+The exp unit ``E(φ) ≈ 2^(−φ)`` (φ unsigned, 2^-40; result 2^-28): ``n = φ >> 40``,
+``j`` the next 8 bits, ``r`` the 24 below them; ``y = T[j] − rs((T[j] − T[j+1]) · r, 24)``
+(linear interpolation in the table ``T[j] = round(2^30 · 2^(−j/256))``, error ≤ 9.2e-7
+relative), ``E = ((y >> (n + 1)) + 1) >> 1`` = ``rs(y, n + 2)``, zero for ``n ≥ 31``.
+
+Start: ``x = X0 << 12``, ``v = V0 << 6``, ``φ = 0``, then the computation of step 0.
+A computation takes :func:`step_cycles` clock cycles (``71 + 16 n``) from the strobe to
+``ready``.
+"""
+
+from __future__ import annotations
+
+from mrm_cosim.protocol.dmp import (EXP_BITS, EXP_TABLE, FLAG_GOAL_SCALING, MAX_BASIS,
+                                    N_SCALARS, PHI_FRAC, PHI_MAX, Reg, addr_width,
+                                    check_max_basis)
+from mrm_cosim.protocol.fixed import round_shift as rs
+from mrm_cosim.protocol.fixed import saturate, wrap
+
+__all__ = ["DmpGeneratorModel", "exp2neg", "step_cycles", "CYCLES_FIXED", "CYCLES_PER_BASIS"]
+
+#: Cycles of a step's computation: CYCLES_FIXED + CYCLES_PER_BASIS · n_basis.
+CYCLES_FIXED = 71
+CYCLES_PER_BASIS = 16
+
+
+def step_cycles(n_basis: int) -> int:
+    """Clock cycles from a ``start`` or committing ``step`` strobe to ``ready``."""
+    return CYCLES_FIXED + CYCLES_PER_BASIS * n_basis
+
+
+def exp2neg(phi: int) -> int:
+    """``2^(−φ)`` with 28 fraction bits of ``φ`` unsigned with 40 (see the module docstring)."""
+    n = phi >> PHI_FRAC
+    frac = phi & ((1 << PHI_FRAC) - 1)
+    j = frac >> (PHI_FRAC - EXP_BITS)
+    r = (frac >> (PHI_FRAC - EXP_BITS - 24)) & ((1 << 24) - 1)
+    t0, t1 = EXP_TABLE[j], EXP_TABLE[j + 1]
+    y = t0 - rs((t0 - t1) * r, 24)
+    if n >= 31:
+        return 0
+    return ((y >> (n + 1)) + 1) >> 1
+
+
+class DmpGeneratorModel:
+    """The generator's registers, state and outputs; pure Python integers.
+
+    Parameters
+    ----------
+    max_basis : int
+        Build parameter: Gaussians the parameter memory holds.
+
+    Attributes
+    ----------
+    qd0, vd0, ad0 : int
+        Output words (POS, VEL, ACC), as the gateware's ports after the last commit.
+    pending : tuple of int or None
+        The precomputed next step's outputs (None: not ready).
+    active : bool
+    overruns : int
+    """
+
+    def __init__(self, max_basis: int = MAX_BASIS):
+        self.max_basis = check_max_basis(max_basis)
+        self.regs = {int(r): 0 for r in Reg}
+        self.mem = [0] * (3 * max_basis)
+        self.x = self.v = self.phi = 0
+        self.qd0 = self.vd0 = self.ad0 = 0
+        self.pending: tuple[int, int, int] | None = None
+        self.active = False
+        self.overruns = 0
+
+    # -- host port -------------------------------------------------------------------------
+
+    def write(self, addr: int, word: int) -> None:
+        """Host write of a 24-bit word (any time; G and INVTAU are used from the next step's
+        computation, other words written while a computation runs are undefined)."""
+        addr &= (1 << addr_width(self.max_basis)) - 1
+        word = wrap(word)
+        if addr >= N_SCALARS:
+            if addr - N_SCALARS < len(self.mem):
+                self.mem[addr - N_SCALARS] = word
+        elif addr == Reg.N_BASIS:
+            self.regs[addr] = min(max(word, 0), self.max_basis)
+        elif addr in self.regs:
+            self.regs[addr] = word
+
+    def read(self, addr: int) -> int:
+        """The word at ``addr`` (0 for an unused address)."""
+        if addr >= N_SCALARS:
+            return self.mem[addr - N_SCALARS] if addr - N_SCALARS < len(self.mem) else 0
+        return self.regs.get(addr, 0)
+
+    @property
+    def n_basis(self) -> int:
+        return self.regs[Reg.N_BASIS]
+
+    @property
+    def cycles(self) -> int:
+        """Cycles the gateware takes for one step's computation with the current n_basis."""
+        return step_cycles(self.n_basis)
+
+    # -- control strobes ---------------------------------------------------------------------
+
+    def start(self) -> tuple[int, int, int]:
+        """Initialise from X0, V0, φ = 0 and compute step 0's outputs (pending, returned)."""
+        self.x = self.regs[Reg.X0] << 12
+        self.v = self.regs[Reg.V0] << 6
+        self.phi = 0
+        self.active = True
+        self.pending = self._compute()
+        return self.pending
+
+    def stop(self) -> None:
+        """Stop: position held, velocity and acceleration zero, nothing pending."""
+        self.active = False
+        self.pending = None
+        self.vd0 = self.ad0 = 0
+
+    def step(self) -> tuple[int, int, int] | None:
+        """The step strobe: commit the pending outputs and compute the next step.
+
+        Returns the committed ``(qd0, vd0, ad0)``, or None if nothing was pending (an overrun
+        while active, counted; ignored while stopped)."""
+        if not self.active:
+            return None
+        if self.pending is None:
+            self.overruns = min(self.overruns + 1, 0xFFFF)
+            return None
+        self.qd0, self.vd0, self.ad0 = out = self.pending
+        self.pending = self._compute()
+        return out
+
+    # -- one step's computation ----------------------------------------------------------------
+
+    def _forcing_ratio(self, s: int) -> int:
+        n = self.n_basis
+        num = den = 0
+        for i in range(n):
+            w = self.mem[i]
+            c = self.mem[self.max_basis + i]
+            r = self.mem[2 * self.max_basis + i]
+            t = rs((s - c) * r, 10)
+            if abs(t) >= 1 << 27:
+                continue                                   # cut: ψ_i = 0
+            psi = exp2neg(rs(t * t, 8))
+            num += psi * w
+            den += psi
+        if den == 0:
+            return 0
+        q = (abs(num) << 10) // den
+        f = (q + 1) >> 1
+        return -f if num < 0 else f
+
+    def _compute(self) -> tuple[int, int, int]:
+        g, it = self.regs[Reg.GOAL], self.regs[Reg.INVTAU]
+        k = rs(self.regs[Reg.DT] * it, 12)
+        dphi = rs(k * self.regs[Reg.PHASE_RATE], 14)
+        s = rs(exp2neg(self.phi), 6)
+        f = self._forcing_ratio(s)
+        sf = rs(s * f, 22)
+        gs = self.regs[Reg.FLAGS] & FLAG_GOAL_SCALING
+        amp = g - self.regs[Reg.X0] if gs else self.regs[Reg.AMPLITUDE]
+        force = rs(sf * amp, 20)
+        e = rs((g << 12) - self.x, 8)
+        vdot = saturate(rs(e * self.regs[Reg.ALPHA_BETA], 12)
+                        - rs(self.v * self.regs[Reg.ALPHA], 20) + force, 35)
+        radc = self.regs[Reg.RADC]
+        a1 = saturate(rs(vdot * it, 20), 35)
+        a2 = saturate(rs(a1 * it, 20), 35)
+        ad0 = saturate(rs(a2 * radc, 26))
+        vt = saturate(rs(self.v * it, 22), 35)
+        vd0 = saturate(rs(vt * radc, 25))
+        qd0 = saturate(rs(self.x, 12))
+        self.v = saturate(self.v + rs(k * vdot, 32), 35)
+        self.x = saturate(self.x + rs(k * self.v, 32), 40)
+        self.phi = min(max(self.phi + dphi, 0), PHI_MAX)
+        return qd0, vd0, ad0
