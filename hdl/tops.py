@@ -48,6 +48,11 @@ def _spw_codec(*, slots: int = 3, start_div: int | None = None, run_div: int = 1
                  rx_fifo_depth=rx_fifo_depth)
 
 
+def _dmp_generator(*, max_basis: int = 32) -> wiring.Component:
+    from .node.dmp import DmpGenerator
+    return DmpGenerator(max_basis=max_basis)
+
+
 def _system(*, n_nodes: int = 3) -> wiring.Component:
     from .system import System, check_n_nodes
     check_n_nodes(n_nodes)  # before construction: a half-built component would be "unused"
@@ -73,6 +78,10 @@ TOPS: dict[str, Top] = {
     "node_core": Top(node_core_top, "node compute core alone (packet beat streams, encoder "
                                     "lines, torque word)",
                       bounds={"pid_shift": (0, PID_SHIFT_MAX)}),
+    "dmp_generator": Top(_dmp_generator, "joint-side DMP generator alone (host parameter "
+                                         "writes, start/stop/step strobes, q_d0/q̇_d0/q̈_d0 "
+                                         "references)",
+                         bounds={"max_basis": (1, 256)}),
     "system": Top(_system, "the whole robot's gateware: master link port and n_nodes slave "
                            "nodes in a daisy chain (what the co-simulation runs)"),
 }

@@ -125,7 +125,8 @@ class DmpGenerator(wiring.Component):
         for name, shape in (("gl", signed(WORD)), ("itl", signed(WORD)), ("k", signed(35)),
                             ("dphi", signed(48)), ("phi", unsigned(PHI_WIDTH)),
                             ("x", signed(40)), ("v", signed(35)), ("s", signed(WORD)),
-                            ("cc", signed(WORD)), ("wl", signed(WORD)), ("cut", 1),
+                            ("cc", signed(WORD)), ("wl", signed(WORD)), ("pass2", 1),
+                            ("umin", unsigned(2 * MUL_WIDTH)),
                             ("psi", unsigned(29)), ("num", signed(den_w + 25)),
                             ("den", unsigned(den_w)), ("rem", unsigned(den_w + 1)),
                             ("nlow", unsigned(QBITS)), ("q", unsigned(QBITS)), ("neg", 1),
@@ -202,7 +203,8 @@ class DmpGenerator(wiring.Component):
             m.d.sync += [d.dphi.eq(_rs(d.p, 14)), d.ein.eq(d.phi), d.ret.eq(0)]
             m.next = "Exp-Table"
         with self._state(m, "Phase"):
-            m.d.sync += [d.s.eq(_rs(d.eout, 6)), d.i.eq(0), d.num.eq(0), d.den.eq(0)]
+            m.d.sync += [d.s.eq(_rs(d.eout, 6)), d.i.eq(0), d.num.eq(0), d.den.eq(0),
+                         d.umin.eq(-1), d.pass2.eq(0)]
             with m.If(d.n == 0):
                 m.next = "Div-Init"
             with m.Else():
@@ -252,18 +254,24 @@ class DmpGenerator(wiring.Component):
             m.d.sync += d.wl.eq(d.rd.data)
             m.next = "Basis-Square"
         with self._state(m, "Basis-Square"):
-            t = _rs(d.p, 10)
-            m.d.sync += d.cut.eq((t >= (1 << 27)) | (t <= -(1 << 27)))
+            t = _rs(d.p, 14)
             self._mul(m, d, t, t)
             m.next = "Basis-Square-Wait"
         self._wait(m, "Basis-Square-Wait", "Basis-Exp")
         with self._state(m, "Basis-Exp"):
-            m.d.sync += [d.ein.eq(_rs(d.p, 8)), d.ret.eq(1)]
-            m.next = "Exp-Table"
+            u = d.p.as_unsigned()
+            with m.If(d.pass2):
+                diff = u - d.umin
+                m.d.sync += [d.ein.eq(Mux(diff > PHI_MAX, PHI_MAX, diff)), d.ret.eq(1)]
+                m.next = "Exp-Table"
+            with m.Else():
+                m.d.sync += [d.umin.eq(Mux(u < d.umin, u, d.umin)), d.i.eq(d.i + 1)]
+                with m.If(d.i == d.n - 1):
+                    m.d.sync += [d.i.eq(0), d.pass2.eq(1)]
+                m.next = "Basis-Centre"
         with self._state(m, "Basis-Psi"):
-            psi = Mux(d.cut, 0, d.eout)
-            m.d.sync += d.psi.eq(psi)
-            self._mul(m, d, psi, d.wl)
+            m.d.sync += d.psi.eq(d.eout)
+            self._mul(m, d, d.eout, d.wl)
             m.next = "Basis-Psi-Wait"
         with self._state(m, "Basis-Psi-Wait"):
             m.d.sync += d.den.eq(d.den + d.psi)
@@ -291,7 +299,7 @@ class DmpGenerator(wiring.Component):
                 m.next = "Div-Round"
         with self._state(m, "Div-Round"):
             half = ((d.q + 1) >> 1).as_signed()
-            m.d.sync += d.f.eq(Mux(d.den == 0, 0, Mux(d.neg, -half, half)))
+            m.d.sync += d.f.eq(Mux(d.den == 0, 0, Mux(d.neg, -half, half)))  # den = 0: n = 0
             m.next = "Force-Gate"
 
     def _forcing(self, m, d):

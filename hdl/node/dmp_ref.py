@@ -9,13 +9,15 @@ signed ``n``-bit clamp:
    one word, effective from this step on.
 2. ``k = rs(DT · IT, 12)`` (K_LSB 2^-38); ``dφ = rs(k · PHASE_RATE, 14)`` (φ's LSB 2^-40).
 3. Phase ``s = rs(E(φ), 6)`` (PHASE, 2^-22), ``E`` the exp unit below.
-4. Per basis ``i < n``: ``t = rs((s − c_i) · R_i, 10)`` (2^-24); if ``|t| ≥ 2^27`` (8: ψ
-   would be below 2^-64) the Gaussian is cut, ``ψ_i = 0``; else ``u = rs(t², 8)`` (2^-40,
-   octaves, < 64) and ``ψ_i = E(u)`` (2^-28). ``num = Σ ψ_i w_i`` (2^-39), ``den = Σ ψ_i`` (2^-28),
-   exact.
+4. Per basis ``i < n``, first pass: ``t_i = rs((s − c_i) · R_i, 14)`` (2^-20) and
+   ``u_i = t_i²`` (2^-40, octaves, exact) and their minimum ``u_min``; second pass (``t_i``,
+   ``u_i`` recomputed): ``ψ_i = E(min(u_i − u_min, PHI_MAX))`` (2^-28),
+   ``num = Σ ψ_i w_i`` (2^-39), ``den = Σ ψ_i`` (2^-28), exact. Scaling every ψ by
+   ``2^(u_min)`` leaves ``f = Σψw/Σψ`` unchanged and keeps the nearest Gaussian at 1, so
+   nothing underflows however far the phase is from the centres (past the last one, ``f``
+   tends to its weight, as in float; a fixed ψ format would give 0/0).
 5. Division: ``q = floor(|num| · 2^10 / den)``, ``f = ±((q + 1) >> 1)`` with the sign of
-   ``num`` (rounded half away from zero, 2^-20); ``f = 0`` when ``den = 0`` (every Gaussian
-   cut, or n = 0).
+   ``num`` (rounded half away from zero, 2^-20); ``f = 0`` when n = 0.
 6. Forcing: ``sf = rs(s · f, 22)`` (2^-20); ``F = rs(sf · A, 20)`` (counts, 2^-4) with
    ``A = g − x0`` (goal scaling) or the AMPLITUDE word.
 7. ``e = rs((g << 12) − x, 8)`` (2^-8); ``v̇ = sat35(rs(e · AB, 12) − rs(v · α, 20) + F)``
@@ -33,8 +35,8 @@ The exp unit ``E(φ) ≈ 2^(−φ)`` (φ unsigned, 2^-40; result 2^-28): ``n = �
 relative), ``E = ((y >> (n + 1)) + 1) >> 1`` = ``rs(y, n + 2)``, zero for ``n ≥ 31``.
 
 Start: ``x = X0 << 12``, ``v = V0 << 6``, ``φ = 0``, then the computation of step 0.
-A computation takes :func:`step_cycles` clock cycles (``71 + 16 n``) from the strobe to
-``ready``.
+A computation takes :func:`step_cycles` clock cycles (``71 + 23 n``) from the cycle after
+its strobe: a strobe in cycle ``c`` has ``ready`` high from cycle ``c + 1 + cycles`` on.
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ __all__ = ["DmpGeneratorModel", "exp2neg", "step_cycles", "CYCLES_FIXED", "CYCLE
 
 #: Cycles of a step's computation: CYCLES_FIXED + CYCLES_PER_BASIS · n_basis.
 CYCLES_FIXED = 71
-CYCLES_PER_BASIS = 16
+CYCLES_PER_BASIS = 23
 
 
 def step_cycles(n_basis: int) -> int:
@@ -95,6 +97,7 @@ class DmpGeneratorModel:
         self.x = self.v = self.phi = 0
         self.qd0 = self.vd0 = self.ad0 = 0
         self.pending: tuple[int, int, int] | None = None
+        self._ready_at: int | None = None
         self.active = False
         self.overruns = 0
 
@@ -130,8 +133,11 @@ class DmpGeneratorModel:
 
     # -- control strobes ---------------------------------------------------------------------
 
-    def start(self) -> tuple[int, int, int]:
-        """Initialise from X0, V0, φ = 0 and compute step 0's outputs (pending, returned)."""
+    def start(self, cycle: int | None = None) -> tuple[int, int, int]:
+        """Initialise from X0, V0, φ = 0 and compute step 0's outputs (pending, returned).
+
+        ``cycle``: the clock cycle of the strobe, for a timed caller (see :meth:`step`)."""
+        self._ready_at = None if cycle is None else cycle + 1 + self.cycles
         self.x = self.regs[Reg.X0] << 12
         self.v = self.regs[Reg.V0] << 6
         self.phi = 0
@@ -145,37 +151,47 @@ class DmpGeneratorModel:
         self.pending = None
         self.vd0 = self.ad0 = 0
 
-    def step(self) -> tuple[int, int, int] | None:
+    def step(self, cycle: int | None = None) -> tuple[int, int, int] | None:
         """The step strobe: commit the pending outputs and compute the next step.
 
         Returns the committed ``(qd0, vd0, ad0)``, or None if nothing was pending (an overrun
-        while active, counted; ignored while stopped)."""
+        while active, counted; ignored while stopped). With ``cycle`` (the strobe's clock
+        cycle, as for :meth:`start`) the pending step counts only from ``cycles + 1`` cycles
+        after the strobe that started its computation, when the gateware's ``ready`` rises."""
         if not self.active:
             return None
-        if self.pending is None:
+        if self.pending is None or (cycle is not None and self._ready_at is not None
+                                    and cycle < self._ready_at):
             self.overruns = min(self.overruns + 1, 0xFFFF)
             return None
         self.qd0, self.vd0, self.ad0 = out = self.pending
+        self._ready_at = None if cycle is None else cycle + 1 + self.cycles
         self.pending = self._compute()
         return out
+
+    def ready(self, cycle: int | None = None) -> bool:
+        """Whether a step strobe in ``cycle`` would commit (``ready``)."""
+        return self.active and self.pending is not None and (
+            cycle is None or self._ready_at is None or cycle >= self._ready_at)
 
     # -- one step's computation ----------------------------------------------------------------
 
     def _forcing_ratio(self, s: int) -> int:
         n = self.n_basis
-        num = den = 0
+        u = []
         for i in range(n):
-            w = self.mem[i]
             c = self.mem[self.max_basis + i]
             r = self.mem[2 * self.max_basis + i]
-            t = rs((s - c) * r, 10)
-            if abs(t) >= 1 << 27:
-                continue                                   # cut: ψ_i = 0
-            psi = exp2neg(rs(t * t, 8))
-            num += psi * w
-            den += psi
-        if den == 0:
+            t = rs((s - c) * r, 14)
+            u.append(t * t)
+        if not u:
             return 0
+        umin = min(u)
+        num = den = 0
+        for i in range(n):
+            psi = exp2neg(min(u[i] - umin, PHI_MAX))
+            num += psi * self.mem[i]
+            den += psi
         q = (abs(num) << 10) // den
         f = (q + 1) >> 1
         return -f if num < 0 else f
