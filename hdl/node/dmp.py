@@ -118,8 +118,9 @@ class DmpGenerator(wiring.Component):
 
         d.a = Signal(signed(MUL_WIDTH))
         d.b = Signal(signed(MUL_WIDTH))
+        d.rc = Signal(unsigned(32))          # rounding constant of the product's one use
         d.p = Signal(signed(2 * MUL_WIDTH))
-        m.d.sync += d.p.eq(d.a * d.b)
+        m.d.sync += d.p.eq(d.a * d.b + d.rc)
 
         den_w = 29 + bits_for(mb)
         for name, shape in (("gl", signed(WORD)), ("itl", signed(WORD)), ("k", signed(35)),
@@ -178,8 +179,10 @@ class DmpGenerator(wiring.Component):
         with self._state(m, name):
             m.next = nxt
 
-    def _mul(self, m, d, a, b):
-        m.d.sync += [d.a.eq(a), d.b.eq(b)]
+    def _mul(self, m, d, a, b, shift=0):
+        """Issue ``a·b``; ``d.p >> shift`` two cycles later is ``rs(a·b, shift)`` (the half-LSB
+        is added in the multiplier, so each rounding point costs no adder)."""
+        m.d.sync += [d.a.eq(a), d.b.eq(b), d.rc.eq((1 << (shift - 1)) if shift else 0)]
 
     def _prologue(self, m, d):
         with self._state(m, "Idle"):
@@ -190,17 +193,17 @@ class DmpGenerator(wiring.Component):
                 m.next = "Latch"
         with self._state(m, "Latch"):
             m.d.sync += [d.gl.eq(d.reg[Reg.GOAL]), d.itl.eq(d.reg[Reg.INVTAU])]
-            self._mul(m, d, d.reg[Reg.DT], d.reg[Reg.INVTAU])
+            self._mul(m, d, d.reg[Reg.DT], d.reg[Reg.INVTAU], 12)
             m.next = "K-Wait"
         self._wait(m, "K-Wait", "K")
         with self._state(m, "K"):
-            k = _rs(d.p, 12)
+            k = d.p >> 12
             m.d.sync += d.k.eq(k)
-            self._mul(m, d, k, d.reg[Reg.PHASE_RATE])
+            self._mul(m, d, k, d.reg[Reg.PHASE_RATE], 14)
             m.next = "Dphi-Wait"
         self._wait(m, "Dphi-Wait", "Dphi")
         with self._state(m, "Dphi"):
-            m.d.sync += [d.dphi.eq(_rs(d.p, 14)), d.ein.eq(d.phi), d.ret.eq(0)]
+            m.d.sync += [d.dphi.eq(d.p >> 14), d.ein.eq(d.phi), d.ret.eq(0)]
             m.next = "Exp-Table"
         with self._state(m, "Phase"):
             m.d.sync += [d.s.eq(_rs(d.eout, 6)), d.i.eq(0), d.num.eq(0), d.den.eq(0),
@@ -223,11 +226,11 @@ class DmpGenerator(wiring.Component):
             m.d.sync += d.t0.eq(d.trd.data)
             m.next = "Exp-Slope"
         with self._state(m, "Exp-Slope"):
-            self._mul(m, d, d.t0 - d.trd.data, r)
+            self._mul(m, d, d.t0 - d.trd.data, r, 24)
             m.next = "Exp-Wait"
         self._wait(m, "Exp-Wait", "Exp-Interp")
         with self._state(m, "Exp-Interp"):
-            m.d.sync += d.y.eq(d.t0 - _rs(d.p, 24))
+            m.d.sync += d.y.eq(d.t0 - (d.p >> 24))
             m.next = "Exp-Shift"
         with self._state(m, "Exp-Shift"):
             shifted = (d.y >> (n + 1)) + 1
@@ -248,13 +251,13 @@ class DmpGenerator(wiring.Component):
             m.next = "Basis-Diff"
         with self._state(m, "Basis-Diff"):
             m.d.comb += d.rd.addr.eq(d.i)
-            self._mul(m, d, d.s - d.cc, d.rd.data)
+            self._mul(m, d, d.s - d.cc, d.rd.data, 14)
             m.next = "Basis-Weight"
         with self._state(m, "Basis-Weight"):
             m.d.sync += d.wl.eq(d.rd.data)
             m.next = "Basis-Square"
         with self._state(m, "Basis-Square"):
-            t = _rs(d.p, 14)
+            t = d.p >> 14
             self._mul(m, d, t, t)
             m.next = "Basis-Square-Wait"
         self._wait(m, "Basis-Square-Wait", "Basis-Exp")
@@ -307,27 +310,27 @@ class DmpGenerator(wiring.Component):
         gs = (d.reg[Reg.FLAGS] & FLAG_GOAL_SCALING) != 0
         amp = Mux(gs, d.gl - d.reg[Reg.X0], d.reg[Reg.AMPLITUDE])
         with self._state(m, "Force-Gate"):
-            self._mul(m, d, d.s, d.f)
+            self._mul(m, d, d.s, d.f, 22)
             m.next = "Force-Gate-Wait"
         self._wait(m, "Force-Gate-Wait", "Force-Scale")
         with self._state(m, "Force-Scale"):
-            self._mul(m, d, _rs(d.p, 22), amp)
+            self._mul(m, d, (d.p >> 22), amp, 20)
             m.next = "Force-Scale-Wait"
         self._wait(m, "Force-Scale-Wait", "Spring")
         with self._state(m, "Spring"):
-            m.d.sync += d.force.eq(_rs(d.p, 20))
-            self._mul(m, d, _rs((d.gl << 12) - d.x, 8), d.reg[Reg.ALPHA_BETA])
+            m.d.sync += d.force.eq(d.p >> 20)
+            self._mul(m, d, _rs((d.gl << 12) - d.x, 8), d.reg[Reg.ALPHA_BETA], 12)
             m.next = "Spring-Wait"
         self._wait(m, "Spring-Wait", "Damper")
         with self._state(m, "Damper"):
-            m.d.sync += d.t1.eq(_rs(d.p, 12))
-            self._mul(m, d, d.v, d.reg[Reg.ALPHA])
+            m.d.sync += d.t1.eq(d.p >> 12)
+            self._mul(m, d, d.v, d.reg[Reg.ALPHA], 20)
             m.next = "Damper-Wait"
         self._wait(m, "Damper-Wait", "Accel")
         with self._state(m, "Accel"):
-            vdot = _sat(d.t1 - _rs(d.p, 20) + d.force, 35)
+            vdot = _sat(d.t1 - (d.p >> 20) + d.force, 35)
             m.d.sync += d.vdot.eq(vdot)
-            self._mul(m, d, vdot, d.itl)
+            self._mul(m, d, vdot, d.itl, 20)
             m.next = "Accel-Wait"
         self._wait(m, "Accel-Wait", "Accel-Tau2")
 
@@ -335,37 +338,37 @@ class DmpGenerator(wiring.Component):
         """Pending outputs from (x, v, v̇), then the state update."""
         radc = d.reg[Reg.RADC]
         with self._state(m, "Accel-Tau2"):
-            self._mul(m, d, _sat(_rs(d.p, 20), 35), d.itl)
+            self._mul(m, d, _sat(d.p >> 20, 35), d.itl, 20)
             m.next = "Accel-Tau2-Wait"
         self._wait(m, "Accel-Tau2-Wait", "Accel-Out")
         with self._state(m, "Accel-Out"):
-            self._mul(m, d, _sat(_rs(d.p, 20), 35), radc)
+            self._mul(m, d, _sat(d.p >> 20, 35), radc, 26)
             m.next = "Accel-Out-Wait"
         self._wait(m, "Accel-Out-Wait", "Vel-Tau")
         with self._state(m, "Vel-Tau"):
-            m.d.sync += d.pad.eq(_sat(_rs(d.p, 26), WORD))
-            self._mul(m, d, d.v, d.itl)
+            m.d.sync += d.pad.eq(_sat(d.p >> 26, WORD))
+            self._mul(m, d, d.v, d.itl, 22)
             m.next = "Vel-Tau-Wait"
         self._wait(m, "Vel-Tau-Wait", "Vel-Out")
         with self._state(m, "Vel-Out"):
-            self._mul(m, d, _sat(_rs(d.p, 22), 35), radc)
+            self._mul(m, d, _sat(d.p >> 22, 35), radc, 25)
             m.next = "Vel-Out-Wait"
         self._wait(m, "Vel-Out-Wait", "Update-V")
         with self._state(m, "Update-V"):
-            m.d.sync += [d.pvd.eq(_sat(_rs(d.p, 25), WORD)),
+            m.d.sync += [d.pvd.eq(_sat(d.p >> 25, WORD)),
                          d.pqd.eq(_sat(_rs(d.x, 12), WORD))]
-            self._mul(m, d, d.k, d.vdot)
+            self._mul(m, d, d.k, d.vdot, 32)
             m.next = "Update-V-Wait"
         self._wait(m, "Update-V-Wait", "Update-X")
         with self._state(m, "Update-X"):
-            v = _sat(d.v + _rs(d.p, 32), 35)
+            v = _sat(d.v + (d.p >> 32), 35)
             m.d.sync += d.v.eq(v)
-            self._mul(m, d, d.k, v)
+            self._mul(m, d, d.k, v, 32)
             m.next = "Update-X-Wait"
         self._wait(m, "Update-X-Wait", "Update-Phase")
         with self._state(m, "Update-Phase"):
             phi = d.phi + d.dphi
-            m.d.sync += [d.x.eq(_sat(d.x + _rs(d.p, 32), 40)),
+            m.d.sync += [d.x.eq(_sat(d.x + (d.p >> 32), 40)),
                          d.phi.eq(Mux(phi < 0, 0, Mux(phi > PHI_MAX, PHI_MAX, phi)))]
             m.next = "Ready"
 
