@@ -103,6 +103,8 @@ class FastNode(NodeModel):
                     special = commit
             if self.arm_pending and self._pre_seen != nb and nb - 1 < special:
                 special = nb - 1
+            if self.dmp_running and self._dmp_due < special:
+                special = self._dmp_due                # a step of the generator
             lim = special if special < until else until
             if dead is not None:
                 step = cfg[_TICK]

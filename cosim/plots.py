@@ -434,3 +434,58 @@ def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
     ax.set_title(title)
     _save(fig, path)
     return fig
+
+
+def plot_dmp_paths(path, results: dict, period_ms: int, title: str):
+    """The tool's paths of the motion-primitive comparison, one panel per path: desired,
+    traditional and modularized at master period ``period_ms``, in the paths' plane
+    (coordinates along its ``e1, e2`` from the start, mm)."""
+    from matplotlib.figure import Figure
+
+    n = len(results)
+    cols = min(n, 2)
+    rows = -(-n // cols)
+    fig = Figure(figsize=(5.0 * cols, 4.2 * rows), layout="constrained")
+    for i, (name, res) in enumerate(results.items()):
+        ax = fig.add_subplot(rows, cols, i + 1)
+        runs = res.runs
+        first = next(iter(runs.values()))
+        origin = first.tool_desired[0]
+        plane = np.stack([res.plane_e1, res.plane_e2])
+
+        def uv(p, plane=plane, origin=origin):
+            return 1e3 * (p - origin) @ plane.T
+
+        d = uv(first.tool_desired)
+        ax.plot(d[:, 0], d[:, 1], "k-", lw=2.0, label="desired")
+        for arch, style in (("traditional", "C3--"), ("modularized", "C0-")):
+            run = runs.get((arch, period_ms))
+            if run is not None:
+                a = uv(run.tool_actual)
+                ax.plot(a[:, 0], a[:, 1], style, lw=1.0, label=f"{arch}, {period_ms} ms")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("e1 (mm)")
+        ax.set_ylabel("e2 (mm)")
+        ax.set_title(name)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.suptitle(title)
+    _save(fig, path)
+
+
+def plot_dmp_errors(path, results: dict, title: str):
+    """Eq. (10)'s error and the tool position error over time, one row per path, every run
+    (architecture and master period) as a line."""
+    fig, axes = _figure(len(results), height=2.4, width=11.0)
+    axes = np.atleast_1d(axes)
+    for ax_row, (name, res) in zip(axes, results.items(), strict=True):
+        for (arch, period), run in res.runs.items():
+            style = {"traditional": "--", "modularized": "-", "reference": ":"}[arch]
+            ax_row.semilogy(run.t, np.maximum(run.position_mm, 1e-6), style, lw=0.9,
+                            label=f"{arch} {period} ms")
+        ax_row.set_ylabel(f"{name}\nposition error (mm)")
+        ax_row.grid(alpha=0.3)
+        ax_row.legend(fontsize=7, ncol=3)
+    axes[-1].set_xlabel("time from the motion's start (s)")
+    axes[0].set_title(title)
+    _save(axes[0].figure, path)

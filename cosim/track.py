@@ -84,7 +84,9 @@ def node_encoders(robot) -> list:
 def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: float = 1.5,
               seed: int = 0, gains: Gains | None = None, timing: MasterTiming | None = None,
               plant_config: PlantConfig | None = None, progress=None, profile=None,
-              vcd: str | None = None, signals: str | None = None, vcd_path=None, faults=()):
+              vcd: str | None = None, signals: str | None = None, vcd_path=None, faults=(),
+              references: str = "full", dmp=None, dmp_step_cycles: int = 50_000,
+              commit_cycles: int | None = None):
     """Run the quintic test (q_i = i·q_d, 0.1571 rad in 1 s, then hold) in closed loop.
 
     Parameters
@@ -101,6 +103,15 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     faults : sequence of cosim.closed_loop.LineFault
         Line faults to inject (pysim and compiled); the summary's ``link_errors`` and
         ``link_error_detail`` say where they were counted.
+    references : str
+        What the master's Comm D references are (:data:`master.cycle.REFERENCES`).
+    dmp : master.dmp.Dmp, optional
+        With ``references="dmp"``: one primitive per joint, deployed to the nodes with the
+        uploads (:func:`master.uploads.dmp_uploads`) and started by the master at period 0;
+        the joints generate their references from period 1's boundary on, one step every
+        ``dmp_step_cycles``.
+    commit_cycles : int, optional
+        Comm D's commit phase (default: a fifth of the period, :func:`node_uploads`).
 
     Returns
     -------
@@ -122,10 +133,18 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
                          f"not {duration!r}")
     profile = profile or paper_test_profile(robot)
     trajectory = _trajectory(robot, profile)
-    uploads = node_uploads(robot, controller, gains, period_cycles=timing.period_cycles)
+    uploads = node_uploads(robot, controller, gains, period_cycles=timing.period_cycles,
+                           commit_cycles=commit_cycles)
+    if references == "dmp":
+        from mrm_cosim.master.uploads import dmp_uploads
+
+        if dmp is None:
+            raise InputError("dmp", "references 'dmp' needs a primitive per joint")
+        uploads += dmp_uploads(robot, dmp, dmp_step_cycles, timing.period_cycles)
     # the master checks every Comm A against the uploads (CRC and count per node)
     master = Master(robot, controller, trajectory, robot.counts_per_rev, timing, lam=gains.lam,
-                    pid=pid_gains(robot, gains.pid_1khz_hz), uploads=uploads)
+                    pid=pid_gains(robot, gains.pid_1khz_hz), uploads=uploads,
+                    references=references)
     plant = Plant(robot, plant_config or PlantConfig(), seed=seed)
     plant.reset(robot.home)
     duration_cycles = int(round(duration * CLOCK_HZ))
@@ -170,6 +189,8 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         "upload_errors": master.upload_error_total(),
         "upload_errors_per_node": [master.upload_errors[k] for k in range(1, robot.n + 1)],
         "tripped_nodes": sorted(master.tripped),
+        "references": references,
+        "dmp_errors": int(sum(master.dmp_errors.values())),
         "node_counters": master.node_totals(),
         "model_violations": list(getattr(result, "violations", [])),
         "link_errors": link_total,
@@ -185,7 +206,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
 #: What each node counter of a summary's ``node_counters`` counts (Comm A, docs/node.md).
 NODE_COUNTER_NAMES = {"overruns": "skipped control ticks", "sync_errors": "time-codes out of "
                       "the sync window", "late_d": "late Comm D", "errors": "illegal encoder "
-                      "steps"}
+                      "steps", "dmp_overruns": "primitive steps not ready"}
 
 
 def run_faults(summary: dict) -> list[str]:
@@ -196,6 +217,7 @@ def run_faults(summary: dict) -> list[str]:
     for key, text in (("overruns", "periods overrun"), ("missing_replies", "missing replies"),
                       ("unexpected_replies", "unexpected replies"),
                       ("late_replies", "late replies"), ("upload_errors", "upload errors"),
+                      ("dmp_errors", "primitive errors (deploy not confirmed, or not running)"),
                       ("link_errors", "link errors")):
         if summary.get(key):
             out.append(f"{summary[key]} {text}")

@@ -56,11 +56,18 @@ from mrm_cosim.master.vdc import propagate_forces, propagate_velocities
 from mrm_cosim.models.robot import Robot
 from mrm_cosim.units import CLOCK_HZ
 
-__all__ = ["Send", "Master", "MasterTiming", "PeriodRecord", "CONTROLLERS", "NODE_COUNTERS"]
+__all__ = ["Send", "Master", "MasterTiming", "PeriodRecord", "CONTROLLERS", "NODE_COUNTERS",
+           "REFERENCES"]
 
 CONTROLLERS = ("vdc", "pid-fpga", "pid-1khz")
+#: What Comm D's references are (docs/dmp.md "The master"): ``full`` — ``q_d, q̇_d, q̈_d`` at
+#: the period start (the joint interpolates to the next); ``hold`` — ``q_d`` only, held by the
+#: joint for the period (the traditional architecture of the motion-primitive paper);
+#: ``dmp`` — the joints generate their references from primitives deployed before the run
+#: and started by the master at period 0 (Comm D's references then only stand until the start).
+REFERENCES = ("full", "hold", "dmp")
 #: Comm A fields that count problems in a node (cumulative since its reset)
-NODE_COUNTERS = ("overruns", "sync_errors", "late_d", "errors")
+NODE_COUNTERS = ("overruns", "sync_errors", "late_d", "errors", "dmp_overruns")
 
 
 @dataclass(frozen=True)
@@ -130,13 +137,31 @@ class Master:
     clock_hz : float
     uploads : list of (dest, type, payload), optional
         The packets sent to the nodes before the run (:meth:`expect_uploads`).
+    references : str
+        What Comm D's references are (:data:`REFERENCES`). With ``"dmp"`` the uploads must
+        have deployed a primitive to every node; the master starts them once period 0's
+        Comm A has confirmed every node's uploads (CONFIG DMP = START to every node: their
+        primitives take over at period 1's boundary), or, if any node's upload check failed,
+        starts none and counts the nodes in :attr:`dmp_errors` — before any motion, since the
+        trajectory of a primitive run starts at period 1. From period 2 every Comm A must
+        report the generator selected (``Status.DMP``); one that does not is counted too.
     """
 
     def __init__(self, robot: Robot, controller: str, trajectory, counts_per_rev,
                  timing: MasterTiming | None = None, lam: float = 50.0, pid=None,
-                 clock_hz: float = float(CLOCK_HZ), uploads=None):
+                 clock_hz: float = float(CLOCK_HZ), uploads=None, references: str = "full"):
         if controller not in CONTROLLERS:
             raise ValueError(f"controller must be one of {CONTROLLERS}, not {controller!r}")
+        if references not in REFERENCES:
+            raise ValueError(f"references must be one of {REFERENCES}, not {references!r}")
+        if references == "dmp" and uploads is None:
+            raise ValueError("references 'dmp' needs the uploads that deployed the primitives")
+        self.references = references
+        #: node -> problems with its primitive: the deploy's read-back failed (no start), or a
+        #: Comm A after the start without the generator selected
+        self.dmp_errors: dict[int, int] = {k: 0 for k in range(1, robot.n + 1)}
+        self.dmp_started = False
+        self._uploads = list(uploads) if uploads is not None else None
         self.robot = robot
         self.n = robot.n
         self.controller = controller
@@ -345,11 +370,44 @@ class Master:
         rec.arrivals[("A", src)] = now
         if len(self._a) == self.n:
             rec.events["A_done"] = now
+            if self.references == "dmp":
+                self._dmp_check(now)
             self._after_a(now)
 
     def _references(self, t: float):
         q_d, qd_d, qdd_d = self.trajectory(t)
-        return np.asarray(q_d, float), np.asarray(qd_d, float), np.asarray(qdd_d, float)
+        q_d, qd_d, qdd_d = (np.asarray(x, float) for x in (q_d, qd_d, qdd_d))
+        if self.references == "hold":
+            return q_d, np.zeros_like(qd_d), np.zeros_like(qdd_d)
+        return q_d, qd_d, qdd_d
+
+    def _dmp_check(self, now: int) -> None:
+        """Primitives: start them after period 0's Comm A confirmed every node's uploads;
+        from period 2 every node must report its generator selected."""
+        from mrm_cosim.protocol.regs import Config, DmpControl, config_payloads
+
+        rec = self._rec
+        if rec.index == 0 and not self.dmp_started:
+            exp = self.expected_uploads
+            bad = [k for k, a in self._a.items()
+                   if exp is None or (a["upload_crc"], a["upload_count"]) != exp[k]]
+            for k in bad:
+                self.dmp_errors[k] += 1
+            if bad:
+                return
+            start = config_payloads({Config.DMP: DmpControl.START})
+            sends = [self._packet(k, PacketType.CONFIG, p)
+                     for k in range(1, self.n + 1) for p in start]
+            self._later(now, sends)
+            self._uploads += [(s.dest, PacketType.CONFIG, s.payload) for s in sends]
+            errors = dict(self.upload_errors)
+            self.expect_uploads(self._uploads)
+            self.upload_errors = errors
+            self.dmp_started = True
+        elif rec.index >= 2 and self.dmp_started:
+            for k, a in self._a.items():
+                if not a["status"] & Status.DMP:
+                    self.dmp_errors[k] += 1
 
     def _after_a(self, now: int) -> None:
         rec = self._rec

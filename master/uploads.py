@@ -24,7 +24,8 @@ from mrm_cosim.protocol.joint_program import PID_SHIFT_MAX, JointParams, pid_for
 from mrm_cosim.protocol.regs import MODES, Config, config_payloads, joint_upload, vdc_upload
 from mrm_cosim.units import CLOCK_HZ
 
-__all__ = ["Gains", "pid_gains", "node_uploads", "check_node_period", "startup_sends"]
+__all__ = ["Gains", "pid_gains", "node_uploads", "check_node_period", "startup_sends",
+           "dmp_uploads"]
 
 
 @dataclass(frozen=True)
@@ -197,3 +198,52 @@ def startup_sends(uploads, master: Master, q0, seq: int) -> tuple[list[Send], in
         seq = (seq + 1) & 0xFF
         sends.append(Send("packet", dest, int(ptype), payload, seq))
     return sends + list(master.initial_packets(q0)), seq
+
+
+def dmp_uploads(robot: Robot, dmp, step_cycles: int = 50_000,
+                period_cycles: int = 50_000) -> list[tuple[int, int, bytes]]:
+    """``(dest, type, payload)`` packets that deploy one primitive per joint (docs/dmp.md):
+    each node's generator words (PARAM, bank DMP) and its step (CONFIG DMP_STEP). The master
+    starts them (:class:`master.cycle.Master` with ``references="dmp"``); the node's upload
+    check (Comm A's CRC and count) reads the deployment back.
+
+    Everything is checked before anything is sent, each failure an :class:`InputError`
+    naming the field: one primitive per joint, a step the generator's recurrence is stable
+    at (``dmp.tau``), that divides the period (``dmp.step_cycles``), start and goal inside the
+    joint's limits (``dmp.x0[k]``, ``dmp.g[k]``), every word fitting its format
+    (``dmp.joint<k>.<word>``, :meth:`protocol.dmp.DmpParams.from_float`).
+    """
+    from mrm_cosim.protocol.dmp import DmpParams, dmp_param_payloads
+
+    if dmp.n_dof != robot.n:
+        raise InputError("dmp", f"has {dmp.n_dof} degrees of freedom; {robot.name} has "
+                                f"{robot.n} joints")
+    if (isinstance(step_cycles, bool) or not isinstance(step_cycles, int)
+            or not 2 <= step_cycles < (1 << 24)):
+        raise InputError("dmp.step_cycles", f"must be an integer 2..2^24-1, not "
+                                            f"{step_cycles!r}")
+    if period_cycles % step_cycles:
+        raise InputError("dmp.step_cycles", f"{step_cycles} does not divide the period "
+                                            f"({period_cycles} cycles): the generator steps "
+                                            "on the period grid")
+    try:
+        dmp.check_step(step_cycles / CLOCK_HZ)
+    except InputError as exc:
+        raise InputError("dmp.tau", f"{dmp.tau!r} s: {exc.message}") from None
+    lim = robot.joint_limits
+    for name, values in (("x0", dmp.x0), ("g", dmp.g)):
+        for k, v in enumerate(values):
+            if not abs(v) <= lim[k]:
+                raise InputError(f"dmp.{name}[{k}]", f"{v!r} rad is outside joint {k + 1}'s "
+                                 f"limits (±{lim[k]:.4g} rad)")
+    out = []
+    for k, mod in enumerate(robot.modules):
+        params = DmpParams.from_float(
+            dmp.weights[k], dmp.centers, dmp.widths, dmp.alpha, dmp.beta, dmp.alpha_s,
+            dmp.tau, float(dmp.x0[k]), float(dmp.g[k]), float(dmp.xd0[k]),
+            bool(dmp.goal_scaling[k]), counts_per_rev=mod.type.counts_per_rev,
+            step_cycles=step_cycles, field=f"dmp.joint{k + 1}")
+        out += [(k + 1, ref.PacketType.PARAM, p) for p in dmp_param_payloads(params)]
+        out += [(k + 1, ref.PacketType.CONFIG, p)
+                for p in config_payloads({Config.DMP_STEP: step_cycles})]
+    return out

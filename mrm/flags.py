@@ -16,7 +16,7 @@ import functools
 from mrm_cosim.errors import InputError
 
 __all__ = ["flag_name", "named_by_flags", "OUT", "RUN_PREVIEW", "RUN_TRACK", "RUN_TABLE2",
-           "RUN_LINE",
+           "RUN_LINE", "RUN_DMP_TABLE2",
            "HDL", "PLAN_SAMPLES", "BENCH", "SWEEP"]
 
 #: API argument -> flag, per command.
@@ -29,6 +29,8 @@ RUN_TRACK = {**OUT, "robot": "--robot", "duration": "--duration", "seed": "--see
 RUN_TABLE2 = {**OUT, "backend": "--backend", "duration": "--duration", "seed": "--seed",
               "config": "--config", "jobs": "--jobs"}
 RUN_LINE = {**RUN_TRACK, "profile": "--profile", "file": "FILE"}
+RUN_DMP_TABLE2 = {**OUT, "robot": "--robot", "backend": "--backend", "seed": "--seed",
+                  "config": "--config", "path": "--path"}
 HDL = {**OUT, "top": "--top", "family": "--family", "params": "--param"}
 PLAN_SAMPLES = {"out": "--samples"}
 BENCH = {"robot": "--robot", "backend": "--backend"}

@@ -19,7 +19,9 @@ COMM_A   m→s    request (any payload); the node answers with a COMM_A packet, 
                 ``up_link_errors``, ``down_link_errors`` u16 (the upstream and downstream
                 codecs' error counters, five classes summed) · ``rx_dropped`` u16 (frames
                 the depacketizer dropped: CRC, length, EEP) · ``router_dropped`` u16
-                (packets the router discarded) · zeros
+                (packets the router discarded) · ``dmp_overruns`` u16 (steps of the
+                primitive generator that found their references not ready; taken with the
+                request) · zeros
 COMM_B   m→s    ``q̇_r`` · ``V_C[6]`` · ``V_rC[6]`` (13 VEL words, 39 bytes) · flags u8 (bit 0:
                 restart the derivative history)
 COMM_C   m→s    request; the node answers once its VDC run for the last Comm B has its forces:
@@ -29,7 +31,8 @@ COMM_D   m→s    ``τ_D`` FORCE (τ_Lr in VDC mode, feedforward in PID mode, th
                 run) · ``q_d0`` POS · ``q̇_d0`` VEL · ``q̈_d0`` ACC (references at the period
                 start) · zeros
 CONFIG   m→s    up to 8 records ``id`` u8 · ``value`` int32 (:class:`Config`)
-PARAM    m→s    ``bank`` u8 (0 VDC, 1 joint, 2 DMP) · ``address`` u16 · up to 12 words (24-bit)
+PARAM    m→s    ``bank`` u8 (0 VDC, 1 joint, 2 primitive generator) · ``address`` u16 · up to
+                12 words (24-bit)
 ======== =====  ==============================================================================
 """
 
@@ -52,7 +55,7 @@ from .vdc_program import LINKS, VdcParams, theta_words, vdc_microcode, vdc_param
 __all__ = ["PAYLOAD", "COMM_B_WORDS", "COMM_D_WORDS", "Config", "Bank", "Status", "MODES",
            "pack_words", "unpack_words", "pack_comm_b", "pack_comm_d", "parse_comm_a",
            "parse_comm_c", "config_payloads", "param_payloads", "vdc_upload", "joint_upload",
-           "CONFIG_DEFAULTS", "upload_check", "RX_DROPS", "LINK_HEALTH", "NodeEvent"]
+           "CONFIG_DEFAULTS", "DmpControl", "upload_check", "RX_DROPS", "LINK_HEALTH", "NodeEvent"]
 
 PAYLOAD = DATA_PAYLOAD
 #: The depacketizer's counters of frames it dropped (:class:`~mrm_cosim.hdl.link.packet.RxStats`),
@@ -83,17 +86,35 @@ class Config(enum.IntEnum):
     PERIOD     = 10  # cycles per period of the node's timer (a multiple of TICK)
     SYNC_WINDOW = 11  # a time-code arriving at phase >= this re-synchronises the timer
     COMMIT     = 12  # phase at which an armed node commits the last Comm D
+    DMP        = 13  # joint-side motion primitive (:class:`DmpControl`): off, start, stop
+    DMP_STEP   = 14  # cycles per step of the primitive generator (PERIOD a multiple of it)
 
 
 CONFIG_DEFAULTS = {Config.MODE: 0, Config.TICK: 50, Config.TIMEOUT: 100_000, Config.RAMP: 0,
                    Config.TAU_MIN: 0, Config.TAU_MAX: 0, Config.PERIOD: 50_000,
-                   Config.SYNC_WINDOW: 2_500, Config.COMMIT: 10_000}
+                   Config.SYNC_WINDOW: 2_500, Config.COMMIT: 10_000, Config.DMP: 0,
+                   Config.DMP_STEP: 50_000}
+
+
+class DmpControl(enum.IntEnum):
+    """Values of CONFIG DMP (docs/dmp.md "In the node").
+
+    ``OFF``: the joint takes Comm D's references (the generator stops). ``START``: the
+    generator starts from the primitive's start at once (its first step is computed) and its
+    references replace Comm D's at the next period boundary, where its steps begin (every
+    DMP_STEP cycles from each boundary). ``STOP``: the generator stops; the joint holds its last
+    position reference with zero velocity and acceleration. Comm D's ``τ_D`` is used in every
+    case."""
+
+    OFF = 0
+    START = 1
+    STOP = 2
 
 
 class Bank(enum.IntEnum):
     VDC = 0
     JOINT = 1
-    DMP = 2     # the DMP generator (protocol/dmp.py)
+    DMP = 2     # the primitive generator (protocol/dmp.py)
 
 
 class Status(enum.IntFlag):
@@ -106,6 +127,7 @@ class Status(enum.IntFlag):
     PRIME   = 1 << 4   # next VDC run restarts its derivative history
     MODE0   = 1 << 5   # mode, 2 bits
     MODE1   = 1 << 6
+    DMP     = 1 << 7   # the joint takes its references from the primitive generator
 
 
 class NodeEvent(enum.IntFlag):
@@ -127,6 +149,7 @@ class NodeEvent(enum.IntFlag):
     TX_A      = 1 << 10   # the reply FSM leaves Idle with a Comm A reply
     TX_C      = 1 << 11   # the reply FSM leaves Idle with a Comm C reply
     COMMIT    = 1 << 12   # Comm D's words take effect (commit phase, or arrival disarmed)
+    DMP_STEP  = 1 << 13   # the primitive generator's references take effect (a step)
 
 
 def pack_words(words) -> bytes:
@@ -178,7 +201,8 @@ def parse_comm_a(data: bytes) -> dict:
             "upload_crc": int.from_bytes(data[21:23], "little"),
             "upload_count": int.from_bytes(data[23:25], "little"),
             **{k: int.from_bytes(data[25 + 2 * i:27 + 2 * i], "little")
-               for i, k in enumerate(LINK_HEALTH)}}
+               for i, k in enumerate(LINK_HEALTH)},
+            "dmp_overruns": int.from_bytes(data[33:35], "little")}
 
 
 def upload_check(payloads) -> tuple[int, int]:

@@ -2,8 +2,10 @@
 
 A CONFIG record (:class:`~protocol.regs.Config` id, int32 value; docs/node.md "Packets")
 writes one register at its last byte; a value out of a register's range is ignored (MODE
-≥ 3, TICK 0 or ≥ 2^16, PERIOD < 2 or ≥ 2^24, SYNC_WINDOW and COMMIT ≥ 2^24). PRESET and PRIME
-are strobes to the encoder and the VDC sequencer. Every register starts at
+≥ 3, TICK 0 or ≥ 2^16, PERIOD and DMP_STEP < 2 or ≥ 2^24, SYNC_WINDOW and COMMIT ≥ 2^24,
+DMP not a :class:`~protocol.regs.DmpControl` value). PRESET and PRIME are strobes to the
+encoder and the VDC sequencer; DMP is one of three strobes to the primitive generator's
+timing (:class:`~hdl.node.dmp_seq.DmpTiming`). Every register starts at
 :data:`~protocol.regs.CONFIG_DEFAULTS`.
 
 ARM = 0 disarms at once (safety first). ARM ≠ 0 takes effect at the next period boundary, so
@@ -18,7 +20,7 @@ from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from mrm_cosim.protocol.fixed import WORD
-from mrm_cosim.protocol.regs import CONFIG_DEFAULTS, MODES, Config
+from mrm_cosim.protocol.regs import CONFIG_DEFAULTS, MODES, Config, DmpControl
 
 from .decoder import ConfigRecord
 
@@ -52,6 +54,10 @@ class NodeConfig(wiring.Component):
         Strobes to the watchdog: ARM taking effect (at a boundary); ARM = 0 (at once).
     clear_lo, clear_hi : Out(1)
         Strobes: write zero into the joint program's ``ilo_s`` / ``ihi_s`` (the PID integral).
+    dmp_step : Out(24)
+        CONFIG DMP_STEP: cycles per step of the primitive generator.
+    dmp_off, dmp_start, dmp_stop : Out(1)
+        Strobes: CONFIG DMP = OFF, START, STOP (:class:`~protocol.regs.DmpControl`).
     """
 
     config:       In(stream.Signature(ConfigRecord, always_ready=True))
@@ -74,6 +80,10 @@ class NodeConfig(wiring.Component):
     disarm:       Out(1)
     clear_lo:     Out(1)
     clear_hi:     Out(1)
+    dmp_step:     Out(24, init=CONFIG_DEFAULTS[Config.DMP_STEP])
+    dmp_off:      Out(1)
+    dmp_start:    Out(1)
+    dmp_stop:     Out(1)
 
     def elaborate(self, platform):
         m = Module()
@@ -118,6 +128,15 @@ class NodeConfig(wiring.Component):
                     ]
                 with m.Case(Config.PRIME):
                     m.d.comb += self.prime.eq(1)
+                with m.Case(Config.DMP):
+                    m.d.comb += [
+                        self.dmp_off.eq(value == DmpControl.OFF),
+                        self.dmp_start.eq(value == DmpControl.START),
+                        self.dmp_stop.eq(value == DmpControl.STOP),
+                    ]
+                with m.Case(Config.DMP_STEP):
+                    with m.If((value >= 2) & (value < (1 << 24))):
+                        m.d.sync += self.dmp_step.eq(value)
 
         # ARM at the next boundary, the integral cleared in its cycle and the one before;
         # disarming wins over both.

@@ -77,7 +77,9 @@ from mrm_cosim.protocol.regs import NodeEvent as Ev
 
 from .commit import ReferenceCommit
 from .config import NodeConfig
-from .decoder import PacketDecoder
+from .decoder import CommDWords, PacketDecoder
+from .dmp import DmpGenerator
+from .dmp_seq import DmpTiming
 from .encoder import QuadratureEncoder
 from .joint import JointUnit
 from .reply import ReplyBuilder
@@ -181,16 +183,20 @@ class NodeCore(wiring.Component):
         wiring.connect(m, decoder=dec.config, config=cfg.config)
         for sink in (refs.ends, vseq.ends, reply.requests):
             m.d.comb += [sink.valid.eq(dec.ends.valid), sink.p.eq(dec.ends.p)]
-        # A pending word goes to the engine of its bank.
+        # A pending word goes to the engine of its bank (the generator takes one any cycle;
+        # a word for no bank is dropped).
         for_vdc = dec.words.p.bank == Bank.VDC
+        for_joint = dec.words.p.bank == Bank.JOINT
         m.d.comb += [
             vseq.words.valid.eq(dec.words.valid & for_vdc),
             vseq.words.p.eq(dec.words.p),
-            ticks.words.valid.eq(dec.words.valid & ~for_vdc),
+            ticks.words.valid.eq(dec.words.valid & for_joint),
             ticks.words.p.eq(dec.words.p),
-            dec.words.ready.eq(Mux(for_vdc, vseq.words.ready, ticks.words.ready)),
+            dec.words.ready.eq(Mux(for_vdc, vseq.words.ready,
+                                   Mux(for_joint, ticks.words.ready, 1))),
             vseq.hold.eq(dec.words.valid),
         ]
+        jrefs, jref_time, dmp_select, dmp_overruns, dmp_step = self._dmp(m, dec, cfg, timer, refs)
 
         # --- encoder, period timer and its snapshot, CORDIC -----------------------------------
         status = Signal(16)
@@ -251,8 +257,8 @@ class NodeCore(wiring.Component):
             ticks.mode.eq(cfg.mode),
             ticks.count.eq(enc.count),
             ticks.velocity.eq(enc.velocity),
-            ticks.refs.eq(refs.refs),
-            ticks.ref_time.eq(refs.ref_time),
+            ticks.refs.eq(jrefs),
+            ticks.ref_time.eq(jref_time),
             ticks.busy.eq(joint.busy),
             ticks.clear_lo.eq(cfg.clear_lo),
             ticks.clear_hi.eq(cfg.clear_hi),
@@ -278,7 +284,8 @@ class NodeCore(wiring.Component):
 
         # --- status and replies ---------------------------------------------------------------
         m.d.comb += [
-            status.eq(Cat(wd.armed, wd.tripped, wd.safe, vseq.fresh, vseq.primed, cfg.mode)),
+            status.eq(Cat(wd.armed, wd.tripped, wd.safe, vseq.fresh, vseq.primed, cfg.mode,
+                          dmp_select)),
             self.status.eq(status),
             reply.snapshot.eq(timer.snapshot),
             reply.sync_errors.eq(timer.sync_errors),
@@ -291,6 +298,7 @@ class NodeCore(wiring.Component):
                 saturating_sum(self.down_errors[f] for f in ERROR_CLASSES)),
             reply.link.rx_dropped.eq(saturating_sum(self.rx_stats[f] for f in RX_DROPS)),
             reply.link.router_dropped.eq(self.dropped),
+            reply.dmp_overruns.eq(dmp_overruns),
             reply.status.eq(status),
             reply.vdc_pending.eq(vseq.pending),
         ]
@@ -298,10 +306,44 @@ class NodeCore(wiring.Component):
         m.d.comb += [reply.forces[i].eq(f) for i, f in enumerate(forces)]
         wiring.connect(m, reply=reply.tx, tx=wiring.flipped(self.tx))
 
-        self._events(m, dec.ends, timer, vdc, reply, refs)
+        self._events(m, dec.ends, timer, vdc, reply, refs, dmp_step)
         return m
 
-    def _events(self, m, ends, timer, vdc, reply, refs):
+    def _dmp(self, m, dec, cfg, timer, refs):
+        """The joint-side motion primitive: the generator (its bank's words, CONFIG DMP's
+        strobes, steps on the period grid) and the references the joint takes — the
+        generator's while it is selected, with Comm D's ``τ_D`` (docs/dmp.md).
+
+        Returns ``(references, their time, selected, generator overruns, step strobe)``."""
+        m.submodules.dmp     = gen  = DmpGenerator()
+        m.submodules.dmp_seq = dseq = DmpTiming()
+        m.d.comb += [
+            gen.host_addr.eq(dec.words.p.addr),
+            gen.host_data.eq(dec.words.p.data),
+            gen.host_we.eq(dec.words.valid & (dec.words.p.bank == Bank.DMP)),
+            dseq.boundary.eq(timer.boundary),
+            dseq.gen_ready.eq(gen.ready),
+            dseq.step_cycles.eq(cfg.dmp_step),
+            dseq.off.eq(cfg.dmp_off),
+            dseq.start.eq(cfg.dmp_start),
+            dseq.stop.eq(cfg.dmp_stop),
+            gen.start.eq(dseq.gen_start),
+            gen.step.eq(dseq.gen_step),
+            gen.stop.eq(dseq.gen_stop),
+        ]
+        jrefs = Signal(CommDWords)
+        jref_time = Signal(24)
+        sel = dseq.select
+        m.d.comb += [
+            jrefs.tau.eq(refs.refs.tau),
+            jrefs.qd0.eq(Mux(sel, gen.qd0, refs.refs.qd0)),
+            jrefs.vd0.eq(Mux(sel, gen.vd0, refs.refs.vd0)),
+            jrefs.ad0.eq(Mux(sel, gen.ad0, refs.refs.ad0)),
+            jref_time.eq(Mux(sel, dseq.ref_time, refs.ref_time)),
+        ]
+        return jrefs, jref_time, sel, gen.overruns, dseq.gen_step
+
+    def _events(self, m, ends, timer, vdc, reply, refs, dmp_step):
         """The observation port: NodeEvent strobes, test points that nothing reads."""
         strobes = {
             Ev.BOUNDARY:  timer.boundary,
@@ -317,6 +359,7 @@ class NodeCore(wiring.Component):
             Ev.TX_A:      reply.sending_a,
             Ev.TX_C:      reply.sending_c,
             Ev.COMMIT:    refs.committed,
+            Ev.DMP_STEP:  dmp_step,
         }
         for ev, strobe in strobes.items():
             m.d.comb += self.events[ev.bit_length() - 1].eq(strobe)

@@ -17,7 +17,11 @@ Internal events follow the node's period timer (free-running from reset, phase 0
   ``cycles(mode)`` cycles later (:meth:`~mrm_cosim.protocol.isa.Microcode.cycles`), then the
   limits and the watchdog apply;
 * commit point (phase ``COMMIT``): an armed node's last full Comm D becomes the joint
-  engine's input (disarmed: at its last byte).
+  engine's input (disarmed: at its last byte);
+* steps of the primitive generator (:class:`~hdl.node.dmp_ref.DmpGeneratorModel`, CONFIG DMP,
+  :mod:`~hdl.node.dmp_seq`): at every boundary and every DMP_STEP cycles after one while it
+  runs; while it is selected its references replace Comm D's (``τ_D`` stays Comm D's) and
+  their time counts from the step.
 
 External events: :meth:`timecode` at the strobe's cycle, :meth:`packet` at the cycle its last
 byte is taken. Within one cycle, internal events come first (they see the registers as they were
@@ -48,10 +52,12 @@ from mrm_cosim.protocol.joint_program import JointParams, joint_microcode
 from mrm_cosim.protocol.link import ERROR_CLASSES
 from mrm_cosim.protocol.packet import PacketType
 from mrm_cosim.protocol.regs import (COMM_B_WORDS, COMM_D_WORDS, CONFIG_DEFAULTS, PAYLOAD,
-                                     RX_DROPS, Bank, Config, Status, pack_words, unpack_words)
+                                     RX_DROPS, Bank, Config, DmpControl, Status, pack_words,
+                                     unpack_words)
 from mrm_cosim.protocol.regs import NodeEvent as Ev
 from mrm_cosim.protocol.vdc_program import VdcParams, vdc_microcode
 
+from .dmp_ref import DmpGeneratorModel
 from .joint_ref import JointInputs, JointModel
 from .trig_ref import sin_cos
 from .vdc_ref import VdcInputs, VdcModel
@@ -87,7 +93,17 @@ class NodeModel:
     joint : JointModel
     config : dict of Config to int
     d_words : list of 4 int
-        Committed Comm D words ``τ_D, q_d0, q̇_d0, q̈_d0``.
+        The words the joint engine takes: ``τ_D`` (Comm D's) and ``q_d0, q̇_d0, q̈_d0`` (Comm
+        D's, or the primitive generator's while it is selected); ``d_base`` the cycle their
+        time counts from.
+    cd_words : list of 4 int
+        Committed Comm D words ``τ_D, q_d0, q̇_d0, q̈_d0`` (``cd_base``: the boundary they are
+        for).
+    dmp : DmpGeneratorModel
+        The primitive generator; ``dmp_select`` whether its references are in use,
+        ``dmp_waiting`` started and waiting for the boundary of its first step,
+        ``dmp_running`` stepping; its ``overruns`` count the steps that found the next one not
+        ready.
     d_next : list of 4 int
         The last full Comm D received while armed, waiting for the commit point.
     g_words : list of 3 int
@@ -122,7 +138,15 @@ class NodeModel:
     d_words: list = field(default_factory=lambda: [0, 0, 0, 0])
     d_next: list = field(default_factory=lambda: [0, 0, 0, 0])
     d_pending: bool = False
-    d_base: int = 0                       # boundary the committed references are for
+    d_base: int = 0                       # cycle the joint's references are for
+    cd_words: list = field(default_factory=lambda: [0, 0, 0, 0])
+    cd_base: int = 0                      # boundary the committed Comm D words are for
+    dmp: DmpGeneratorModel = field(default_factory=DmpGeneratorModel)
+    dmp_select: bool = False
+    dmp_waiting: bool = False
+    dmp_running: bool = False
+    _dmp_due: int = _NEVER                # the next step strobe inside this period
+    _dmp_hold: int = -1                   # a CONFIG DMP's cycle: no step strobe in it
     d_next_base: int = 0                  # boundary of the pending Comm D's arrival period
     g_words: list = field(default_factory=lambda: [0, 0, 0])
     b_words: list = field(default_factory=lambda: [0] * 13)
@@ -187,7 +211,8 @@ class NodeModel:
             if commit >= nb:
                 commit = _NEVER
             pre = nb - 1 if self.arm_pending and self._pre_seen != nb else _NEVER
-            c = min(nb, self._nt, commit, pre)
+            ds = self._dmp_due if self.dmp_running and self._dmp_due < nb else _NEVER
+            c = min(nb, self._nt, commit, pre, ds)
             if c >= until:
                 break
             if c == pre:
@@ -196,7 +221,7 @@ class NodeModel:
                     self.joint.i_lo = 0
                     self.arm_pending = False
                     self.arming = True
-                if c != min(nb, self._nt, commit):
+                if c != min(nb, self._nt, commit, ds):
                     continue
             if c == nb:
                 self._boundary(c, sample)
@@ -207,10 +232,39 @@ class NodeModel:
                 if self.d_pending and self.events is not None:
                     self.events.append((c, Ev.COMMIT))
                 if self.d_pending:
-                    self.d_words = list(self.d_next)
-                    self.d_base = self.d_next_base
+                    self._take_d(self.d_next, self.d_next_base)
                     self.d_pending = False
+            if c == ds:
+                self._dmp_step(c)
         self._done = max(self._done, until)
+
+    def _take_d(self, words, base: int) -> None:
+        """Comm D's words ``words`` (for boundary ``base``) take effect: all four, or only
+        ``τ_D`` while the generator's references are selected."""
+        self.cd_words, self.cd_base = list(words), base
+        if self.dmp_select:
+            self.d_words[0] = words[0]
+        else:
+            self.d_words, self.d_base = list(words), base
+
+    def _dmp_step(self, c: int) -> None:
+        """A step strobe of the generator in cycle ``c`` (after that cycle's tick): its
+        precomputed references take effect for cycle ``c`` and it computes the next step.
+        One that finds the next step not ready changes nothing here (the generator counts
+        it; a waiting generator then starts at a later boundary)."""
+        if c == self._dmp_hold:                 # CONFIG DMP in this cycle wins
+            return
+        if self.events is not None:
+            self.events.append((c, Ev.DMP_STEP))
+        out = self.dmp.step(c)
+        if out is None:
+            self._dmp_due = _NEVER              # its time runs on: the next boundary steps
+            return
+        if self.dmp_waiting:
+            self.dmp_waiting, self.dmp_running, self.dmp_select = False, True, True
+        self.d_base = c
+        self.d_words = [self.d_words[0], *out]
+        self._dmp_due = c + self.config[Config.DMP_STEP]
 
     def _boundary(self, c: int, sample, resync: bool = False) -> None:
         self._watch(c)
@@ -238,6 +292,8 @@ class NodeModel:
             self.armed, self.tripped, self.prime = True, False, True
             self.last_packet = c
         self._tick(c, sample, c - self.d_base, ramped=arm)
+        if self.dmp_waiting or self.dmp_running:
+            self._dmp_step(c)
 
     def _ramp(self) -> None:
         ramp = self.config[Config.RAMP]
@@ -310,6 +366,10 @@ class NodeModel:
         bytes or None
             The reply payload for Comm A and Comm C requests (Comm C: once the VDC ran).
         """
+        if ptype == PacketType.CONFIG and any(
+                payload[k] == Config.DMP and int.from_bytes(payload[k + 1:k + 5], "little")
+                in tuple(DmpControl) for k in range(0, len(payload) - 4, 5)):
+            self._dmp_hold = now                # its strobe suppresses a step in its cycle
         self.run(now + 1, sample)
         if period is not None:
             self.tc_value = period & 0xFF
@@ -351,8 +411,7 @@ class NodeModel:
                     if self.phase(now) >= self.config[Config.COMMIT]:
                         self.late_d = min(self.late_d + 1, 0xFFFF)
                 else:
-                    self.d_words = words
-                    self.d_base = self._lb
+                    self._take_d(words, self._lb)
                 if self.events is not None:
                     self.events.append((now, Ev.RX_D))
                     if not self.armed:
@@ -369,7 +428,7 @@ class NodeModel:
             for k in range(0, len(payload) - 4, 5):
                 self._config(now, payload[k], int.from_bytes(payload[k + 1:k + 5], "little"))
         elif ptype == PacketType.PARAM and len(payload) >= 3:
-            bank, addr = payload[0] & 1, int.from_bytes(payload[1:3], "little")
+            bank, addr = payload[0] & 3, int.from_bytes(payload[1:3], "little")
             for j, w in enumerate(unpack_words(payload, min(12, (len(payload) - 3) // 3), 3)):
                 self._param(bank, (addr + j) & 0x1FF, w)
         self.last_packet = now
@@ -416,6 +475,8 @@ class NodeModel:
             s |= Status.FRESH
         if self.prime:
             s |= Status.PRIME
+        if self.dmp_select:
+            s |= Status.DMP
         return Status(int(s) | (self.config[Config.MODE] << 5))
 
     def _reply_a(self) -> bytes:
@@ -424,7 +485,8 @@ class NodeModel:
         out += pack_words([self.snap_qd, torque])
         out += status.to_bytes(2, "little") + errors.to_bytes(2, "little")
         out += bytes([self.tc_value])
-        for v in (overruns, sync, late, self.upload_crc, self.upload_count, *self.link_health):
+        for v in (overruns, sync, late, self.upload_crc, self.upload_count, *self.link_health,
+                  self.dmp.overruns):
             out += v.to_bytes(2, "little")
         return out + bytes(PAYLOAD - len(out))
 
@@ -481,12 +543,41 @@ class NodeModel:
                 self._landing = None
         elif reg == Config.PRIME:
             self.prime = True
+        elif reg == Config.DMP_STEP and 2 <= value < (1 << 24):
+            self.config[Config.DMP_STEP] = value
+        elif reg == Config.DMP and value in (DmpControl.OFF, DmpControl.START, DmpControl.STOP):
+            self._dmp_control(now, value)
         elif reg == Config.PRESET:
             self.presets.append((now, signed))
             if self.encoder_preset is not None:
                 self.encoder_preset(now, signed)
 
+    def _dmp_control(self, now: int, value: int) -> None:
+        """CONFIG DMP in cycle ``now`` (:class:`~protocol.regs.DmpControl`; the registers it
+        sets are seen from ``now + 1``)."""
+        if value == DmpControl.START:
+            self.dmp.start(now)
+            self.dmp_waiting, self.dmp_running = True, False
+            self._select(False)
+            return
+        self.dmp.stop()
+        self.dmp_waiting = self.dmp_running = False
+        if value == DmpControl.OFF:
+            self._select(False)
+        elif self.dmp_select:                    # STOP: hold the last position
+            self.d_words = [self.d_words[0], self.dmp.qd0, 0, 0]
+
+    def _select(self, on: bool) -> None:
+        if self.dmp_select and not on:
+            self.d_words, self.d_base = list(self.cd_words), self.cd_base
+        self.dmp_select = on
+
     def _param(self, bank: int, addr: int, w: int) -> None:
+        if bank == Bank.DMP:
+            self.dmp.write(addr, w)
+            return
+        if bank not in (Bank.JOINT, Bank.VDC):
+            return
         if bank == Bank.JOINT:
             mc = joint_microcode(self.joint.params.pid_shift)
             names = {mc.addr(n): n for n in self.joint.params.words()}

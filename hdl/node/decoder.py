@@ -34,7 +34,7 @@ __all__ = ["PacketDecoder", "HostWrite", "ConfigRecord", "PacketEnd", "CommDWord
 class HostWrite(data.Struct):
     """A word for an engine's register file (the engine's host write port)."""
 
-    bank: 1             # :class:`~protocol.regs.Bank`: 0 VDC, 1 joint
+    bank: 2             # :class:`~protocol.regs.Bank`: 0 VDC, 1 joint, 2 generator
     addr: 9
     data: signed(WORD)
 
@@ -114,7 +114,7 @@ class PacketDecoder(wiring.Component):
         wk    = Signal(range(256))      # word of the packet
         word  = Signal(signed(WORD))
         wdone = Signal()
-        par_bank = Signal()
+        par_bank = Signal(2)
         par_addr = Signal(16)
         pend = self.words
         b_addr = Array(C(vmc.addr(n), 9) for n in COMM_B_WORDS)
@@ -148,7 +148,7 @@ class PacketDecoder(wiring.Component):
             with m.If(is_p):
                 with m.Switch(pos):
                     with m.Case(0):
-                        m.d.sync += par_bank.eq(beat.data[0])
+                        m.d.sync += par_bank.eq(beat.data[:2])
                     with m.Case(1):
                         m.d.sync += par_addr[:8].eq(beat.data)
                     with m.Case(2):

@@ -51,6 +51,7 @@ class CommAReply(data.Struct):
     upload_crc:   16
     upload_count: 16
     link:         LinkHealth
+    dmp_overruns: 16
 
 
 class CommCReply(data.Struct):
@@ -77,6 +78,9 @@ class ReplyBuilder(wiring.Component):
         The decoder's upload check.
     link : In(LinkHealth)
         The link's health.
+    dmp_overruns : In(16)
+        Steps of the primitive generator that found its next step not ready (taken with the
+        request, as the link's health).
     status : In(16)
         The node's status (:class:`~protocol.regs.Status`), without FRESH's Comm C meaning.
     forces : In(ArrayLayout(signed(24), 12))
@@ -96,6 +100,7 @@ class ReplyBuilder(wiring.Component):
     upload_crc:   In(16)
     upload_count: In(16)
     link:         In(LinkHealth)
+    dmp_overruns: In(16)
     status:       In(16)
     forces:       In(data.ArrayLayout(signed(WORD), 12))
     vdc_pending:  In(1)
@@ -114,6 +119,7 @@ class ReplyBuilder(wiring.Component):
         a_crc    = Signal(16)
         a_count  = Signal(16)
         a_link   = Signal(LinkHealth)
+        a_dmp    = Signal(16)
         c_status = Signal(16)           # Comm C: the fields taken with the request
         c_period = Signal(8)
         payload_a = Signal(CommAReply)
@@ -132,6 +138,7 @@ class ReplyBuilder(wiring.Component):
             payload_a.upload_crc.eq(a_crc),
             payload_a.upload_count.eq(a_count),
             payload_a.link.eq(a_link),
+            payload_a.dmp_overruns.eq(a_dmp),
             payload_c.forces.eq(self.forces),
             payload_c.status.eq(c_status),
             payload_c.period.eq(c_period),
@@ -191,6 +198,7 @@ class ReplyBuilder(wiring.Component):
                 a_crc.eq(self.upload_crc),
                 a_count.eq(self.upload_count),
                 a_link.eq(self.link),
+                a_dmp.eq(self.dmp_overruns),
             ]
         with m.If(req.valid & (req.p.type == PacketType.COMM_C)):
             # FRESH: the forces the reply will carry (it waits for a running VDC) come from

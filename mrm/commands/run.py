@@ -21,7 +21,8 @@ from pathlib import Path
 
 from mrm_cosim import __version__
 from mrm_cosim.errors import InputError
-from mrm_cosim.mrm.flags import RUN_LINE, RUN_PREVIEW, RUN_TABLE2, RUN_TRACK, named_by_flags
+from mrm_cosim.mrm.flags import (RUN_DMP_TABLE2, RUN_LINE, RUN_PREVIEW, RUN_TABLE2, RUN_TRACK,
+                                 named_by_flags)
 
 EXIT_NOT_CLEAN = 3
 
@@ -135,6 +136,27 @@ def register(subparsers) -> None:
                     "cores, at most one per controller); the results do not depend on it")
     p2.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p2.set_defaults(func=_table2)
+    pd = sub.add_parser("dmp-table2", help="the motion-primitive paper's Table 2: four tool "
+                        "paths on a six-joint arm, traditional (the joint holds the master's "
+                        "position) vs modularized (a DMP generator in every node) at the same "
+                        "slow master period, and the 1 ms master; RMSE by the paper's eq. (10) "
+                        "and by log(T_d^-1 T_g); plots of the paths and errors",
+                        epilog="example:\n  mrm run dmp-table2 --out results/dmp\n  mrm run "
+                        "dmp-table2 --path line --backend compiled")
+    pd.add_argument("--config", default=None, metavar="FILE",
+                    help="comparison TOML: robot, periods, DMP, plane, paths, plant, gains "
+                    "(default: the package's configs/dmp_table2.toml)")
+    pd.add_argument("--robot", default=None,
+                    help="six-joint robot: built-in name or assembly .toml (default: the "
+                    "config's, mrm6)")
+    pd.add_argument("--backend", default=None, choices=["compiled", "pysim", "model"],
+                    help="override the config's backend")
+    pd.add_argument("--seed", type=_seed, default=None, help="override the plant seed")
+    pd.add_argument("--path", action="append", default=None, metavar="NAME",
+                    help="run only this path of the config (repeatable)")
+    pd.add_argument("--out", default="results/dmp-table2", help="result folder (replaced)")
+    pd.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    pd.set_defaults(func=_dmp_table2)
 
 
 def _print_json(summary: dict) -> None:
@@ -432,6 +454,60 @@ def _table2(args) -> int:
               "fig4_tracking.png, fig5_errors.png, torques.png, <controller>/timeline.png)")
     reasons = [f"{c}: {r}" for c, s in summary["controllers"].items() for r in run_faults(s)]
     return _not_clean("table2", reasons)
+
+
+# --- dmp-table2 ----------------------------------------------------------------------------
+@named_by_flags(RUN_DMP_TABLE2)
+def _dmp_table2(args) -> int:
+    from dataclasses import replace as _replace
+
+    from mrm_cosim.cosim.dmp_table2 import (DMP_CONFIG, load_dmp_config, run_dmp_table2,
+                                            summary_dict, table_markdown)
+    from mrm_cosim.cosim.experiment_config import _robot
+    from mrm_cosim.cosim.plots import plot_dmp_errors, plot_dmp_paths
+    from mrm_cosim.cosim.track import check_robot_fits, run_faults
+    from mrm_cosim.models.robot import load_robot
+    from mrm_cosim.results import atomic_output_dir, check_output_dir, write_json
+
+    check_output_dir(args.out)
+    config_path = Path(args.config) if args.config else DMP_CONFIG
+    config = load_dmp_config(config_path)
+    overrides = {k: v for k, v in (("backend", args.backend), ("seed", args.seed)) if v is not None}
+    if args.robot is not None:
+        overrides["robot"] = _robot(args.robot, Path.cwd())
+    config = _replace(config, **overrides)
+    robot = load_robot(config.robot)
+    check_robot_fits(robot, "robot")
+
+    def progress(text):
+        if not args.quiet:
+            sys.stderr.write(f"mrm run dmp-table2: {text}\n")
+
+    results = run_dmp_table2(config, paths=args.path, progress=progress)
+    summary = {"command": "mrm run dmp-table2", "config": str(config_path.resolve()),
+               "overrides": {k: str(v) for k, v in overrides.items()},
+               "robot": robot.name, "backend": config.backend, "seed": config.seed,
+               "periods_ms": list(config.periods_ms), "version": __version__,
+               "paths": summary_dict(results)}
+    table = table_markdown(results, config)
+    with atomic_output_dir(args.out, made_by="mrm run dmp-table2") as tmp:
+        write_json(tmp / "summary.json", summary)
+        (tmp / "config.toml").write_text(config_path.read_text())
+        (tmp / "dmp_table2.md").write_text(
+            f"# {robot.name}: motion primitives on the joints vs the traditional master "
+            f"({config.backend}, seed {config.seed})\n\n{table}\n")
+        title = f"{robot.name}, {config.backend}, seed {config.seed}"
+        plot_dmp_paths(tmp / "paths.png", results, max(config.periods_ms), title)
+        plot_dmp_errors(tmp / "errors.png", results, title)
+    if args.json:
+        _print_json(summary)
+    elif not args.quiet:
+        print((Path(args.out) / "dmp_table2.md").read_text(), end="")
+        print(f"results in {args.out}/ (summary.json, dmp_table2.md, config.toml, paths.png, "
+              "errors.png)")
+    reasons = [f"{name} {arch} {period} ms: {r}" for name, res in results.items()
+               for (arch, period), run in res.runs.items() for r in run_faults(run.summary)]
+    return _not_clean("dmp-table2", reasons)
 
 
 def default_jobs() -> int:

@@ -1,0 +1,178 @@
+# amaranth: UnusedElaboratable=no
+"""The primitive generator inside the node core: deployed with PARAM (bank DMP), started,
+stepped on the period grid, stopped and switched off with CONFIG DMP, its references taking
+over from Comm D's — the gateware against the transaction-level reference (NodeModel) fed with
+the same events at the same cycles, torque, status and the observation port every cycle."""
+
+import math
+
+import numpy as np
+from amaranth import Signal
+from amaranth.sim import Simulator
+
+from mrm_cosim.hdl.link.chain import get_packet, put_packet
+from mrm_cosim.hdl.node.core import NodeCore
+from mrm_cosim.hdl.node.core_ref import NodeModel
+from mrm_cosim.master.dmp import learn_dmp
+from mrm_cosim.models.encoder import counts_per_rad, quadrature_levels
+from mrm_cosim.protocol.dmp import DmpParams, dmp_param_payloads
+from mrm_cosim.protocol.encoder import EncoderParams
+from mrm_cosim.protocol.fixed import FORCE
+from mrm_cosim.protocol.joint_program import JointParams
+from mrm_cosim.protocol.packet import Header, PacketType
+from mrm_cosim.protocol.regs import (Config, DmpControl, NodeEvent, Status, config_payloads,
+                                     joint_upload, pack_comm_d, parse_comm_a)
+from mrm_cosim.testbench import run_simulation
+
+TICK = 50
+PERIOD, COMMIT, WINDOW, STEP = 2000, 1000, 300, 500
+K_RAD = float(counts_per_rad(800_000))
+ENC = EncoderParams(min_window=256, stop_cycles=1 << 20)
+Q0 = 0.2
+
+
+def joint_angle(cycle):
+    """The joint (rad) the encoder lines follow: a slow motion near the primitive's start."""
+    t = cycle * 20e-9
+    return Q0 + 0.5 * t + 60.0 * t * t
+
+
+def primitive():
+    """A 5-basis primitive of a 0.2 s move from Q0 starting at 0.3 rad/s, learned at the
+    generator's step (10 µs): its references move a few counts in the test's periods."""
+    dt = STEP * 20e-9
+    t = np.arange(0, 0.2 + dt / 2, dt)
+    y = Q0 + 0.3 * t - 0.5 * t**2
+    return learn_dmp(y, dt, 5, alpha=25.0, alpha_s=3.0, xd0=[0.3])
+
+
+def uploads():
+    jp = JointParams.from_float(lam=50.0, k_p=800.0, k_i=4000.0, k_d=20.0, i_max=2e-4)
+    cfg = {Config.MODE: 1, Config.TICK: TICK, Config.TIMEOUT: 30_000,
+           Config.RAMP: FORCE.encode(1.5), Config.TAU_MIN: FORCE.encode(-8.0),
+           Config.TAU_MAX: FORCE.encode(8.0), Config.DMP_STEP: STEP}
+    d = primitive()
+    params = DmpParams.from_float(d.weights[0], d.centers, d.widths, d.alpha, d.beta,
+                                  d.alpha_s, d.tau, float(d.x0[0]), float(d.g[0]),
+                                  float(d.xd0[0]), bool(d.goal_scaling[0]),
+                                  step_cycles=STEP)
+    packets = [(PacketType.CONFIG, p) for p in config_payloads(cfg)]
+    packets += [(PacketType.PARAM, p) for p in joint_upload(jp)]
+    packets += [(PacketType.PARAM, p) for p in dmp_param_payloads(params)]
+    packets += [(PacketType.CONFIG, p) for p in config_payloads({Config.ARM: 1})]
+    return packets
+
+
+def test_generator_in_the_node_equals_the_reference_cycle_for_cycle():
+    """Period 0: Comm D's references; START in period 0 → the generator's references from
+    period 1's boundary, a step every 500 cycles; STOP in period 3 (hold); OFF in period 4
+    (Comm D's again). Comm D's τ_D feeds forward throughout."""
+    end = 8 * PERIOD + 1500
+    dut = NodeCore(encoder=ENC)
+    trace, strobes, events, replies, sent, marks = {}, [], [], [], [], {}
+    dut_cycle = Signal(32)
+
+    async def encoder_lines(ctx):
+        for c in range(end + 10):
+            a, b = quadrature_levels(np.array([math.floor(joint_angle(c + 1) * K_RAD)]))
+            ctx.set(dut.enc_a, int(a[0]))
+            ctx.set(dut.enc_b, int(b[0]))
+            await ctx.tick()
+
+    async def counter(ctx):
+        for c in range(end + 10):
+            ctx.set(dut_cycle, c + 1)
+            await ctx.tick()
+
+    async def monitor(ctx):
+        for c in range(end):
+            _, _, cnt, vel, tq, st, valid, ready, last, ps, ev = await ctx.tick().sample(
+                dut.count, dut.velocity, dut.torque, dut.status, dut.rx.valid, dut.rx.ready,
+                dut.rx.p.last, dut.period_start, dut.events)
+            trace[c] = (cnt, vel, tq, st)
+            if ev:
+                strobes.extend((c, f) for f in NodeEvent if ev & f)
+            if valid and ready and last:
+                events.append((c, "packet"))
+            if ps:
+                events.append((c, "timecode"))
+
+    async def send(ctx, ptype, payload, seq=0):
+        await put_packet(ctx, dut.rx, Header(dest=1, src=0, type=int(ptype), seq=seq), payload)
+        sent.append((int(ptype), bytes(payload)))
+
+    async def wait_until(ctx, cycle):
+        while ctx.get(dut_cycle) < cycle:
+            await ctx.tick()
+
+    async def master(ctx):
+        ctx.set(dut.period, 0)
+        timing = {Config.PERIOD: PERIOD, Config.COMMIT: COMMIT, Config.SYNC_WINDOW: WINDOW}
+        for ptype, payload in [(PacketType.CONFIG, p) for p in config_payloads(timing)] + \
+                uploads():
+            await send(ctx, ptype, payload)
+        first = (ctx.get(dut_cycle) // PERIOD + 1) * PERIOD
+        marks["first"] = first
+        for n in range(7):
+            start = first + PERIOD * n
+            await wait_until(ctx, start + 40)
+            await send(ctx, PacketType.COMM_A, b"\0", seq=n)
+            replies.append(await get_packet(ctx, dut.tx))
+            q = joint_angle(start)
+            await send(ctx, PacketType.COMM_D, pack_comm_d(0.5 + 0.1 * n, [0, 0, 9.81], q,
+                                                           0.3, 0.0))
+            control = {0: DmpControl.START, 3: DmpControl.STOP, 4: DmpControl.OFF}.get(n)
+            if control is not None:
+                await wait_until(ctx, start + 1300)
+                marks[control] = ctx.get(dut_cycle)
+                await send(ctx, PacketType.CONFIG, config_payloads({Config.DMP: control})[0])
+
+    sim = Simulator(dut)
+    sim.add_clock(20e-9)
+    sim.add_process(encoder_lines)
+    sim.add_process(counter)
+    sim.add_testbench(monitor)
+    sim.add_testbench(master, background=True)
+    run_simulation(sim, "node_dmp_core")
+
+    model = NodeModel(encoder=ENC, events=[])
+    packets = iter(sent)
+    by_cycle = {}
+    for c, kind in events:
+        by_cycle.setdefault(c, []).append(kind)
+
+    def sample(c):
+        return trace[c][0], trace[c][1], 0
+
+    ref_replies = []
+    for c in range(end - 1):
+        model.run(c, sample)
+        assert model.torque_at(c) == trace[c][2], f"torque in cycle {c}"
+        if c >= marks["first"]:
+            assert int(model.status) == trace[c][3], f"status in cycle {c}"
+        model.run(c + 1)
+        for kind in by_cycle.get(c, []):
+            assert kind == "packet"
+            ptype, payload = next(packets)
+            reply = model.packet(c, ptype, payload)
+            if reply is not None:
+                ref_replies.append(reply)
+    assert [r[1] for r in replies] == ref_replies
+    assert sorted(e for e in strobes if e[0] < end - 1) == \
+        sorted(e for e in model.events if e[0] < end - 1)
+
+    first = marks["first"]
+    steps = sorted(c for c, f in strobes if f == NodeEvent.DMP_STEP)
+    # the first step at period 1's boundary, then every STEP cycles until the STOP
+    assert steps[0] == first + PERIOD
+    assert all(b - a == STEP for a, b in zip(steps, steps[1:], strict=False))
+    assert marks[DmpControl.STOP] < steps[-1] + STEP
+    selected = [c for c in range(end) if trace[c][3] & Status.DMP]
+    assert selected[0] == first + PERIOD + 1
+    assert marks[DmpControl.OFF] < selected[-1] < marks[DmpControl.OFF] + 100
+    # no generator overrun: every step found its references ready
+    assert all(parse_comm_a(r[1])["dmp_overruns"] == 0 for r in replies)
+    # the references moved: 0.3 rad/s for 120 µs is 4.6 counts
+    x0 = DmpParams.from_float([0.0], [1.0], [0.1], 25.0, 6.25, 3.0, 0.2, Q0, Q0, 0.0,
+                              True, step_cycles=STEP).x0
+    assert model.dmp.qd0 - x0 > 16 * 2
