@@ -185,8 +185,8 @@ def read_demo(path, *, columns=None, cartesian: bool = False, field: str = "TRAJ
     dt = float((t[-1] - t[0]) / (len(t) - 1))
     for k, step in enumerate(steps):
         if not step > 0.0:
-            raise InputError(f"{field} line {lines[k + 1]}", f"t = {t[k + 1]!r} s does not "
-                             f"increase (previous line t = {t[k]!r} s)")
+            raise InputError(f"{field} line {lines[k + 1]}", f"t = {float(t[k + 1])!r} s "
+                             f"does not increase (previous line t = {float(t[k])!r} s)")
     off = np.abs(steps - dt) > STEP_TOLERANCE * dt
     if off.any():
         k = int(np.argmax(off))

@@ -17,7 +17,7 @@ The file holds every parameter of the primitive and where it came from::
     goal_scaling = [true, true]
     centers = [1.0, …]         # n_basis phases
     widths = [0.05, …]         # σ_i on the phase
-    weights = [[…], […]]       # n_dof rows of n_basis
+    weights = [[…], […]]       # n_dof rows, one weight per centre
 
     [provenance]               # what it was learned from (free-form, kept as written)
     source = "demo.csv"
@@ -157,9 +157,10 @@ def parse_dmp(doc: dict, field: str = "dmp") -> tuple[Dmp, dict]:
     rows = table["weights"]
     if not isinstance(rows, list) or not rows or not all(isinstance(r, list) for r in rows):
         raise InputError(f"{field}.weights", "must be a non-empty list of rows (one per DOF)")
-    n_dof, n_basis = len(rows), len(rows[0])
+    centers = _floats(table["centers"], None, f"{field}.centers")
+    n_dof, n_basis = len(rows), len(centers)
     if n_basis < 2:
-        raise InputError(f"{field}.weights[0]", f"must have at least 2 weights, not {n_basis}")
+        raise InputError(f"{field}.centers", f"must have at least 2 elements, not {n_basis}")
     weights = np.array([_floats(r, n_basis, f"{field}.weights[{i}]")
                         for i, r in enumerate(rows)])
     scalars = {k: _positive(table[k], f"{field}.{k}") for k in _SCALARS}
@@ -170,7 +171,6 @@ def parse_dmp(doc: dict, field: str = "dmp") -> tuple[Dmp, dict]:
     for i, b in enumerate(flags):
         if not isinstance(b, bool):
             raise InputError(f"{field}.goal_scaling[{i}]", f"must be true or false, not {b!r}")
-    centers = _floats(table["centers"], n_basis, f"{field}.centers")
     widths = _floats(table["widths"], n_basis, f"{field}.widths")
     for i, w in enumerate(widths):
         if w <= 0.0:
