@@ -36,7 +36,7 @@ SWEEP = {**OUT, "workers": "--workers", "scheduler": "--scheduler", "SPEC": "SPE
 DMP_LEARN = {**OUT, "n_basis": "--basis", "alpha": "--alpha", "alpha_s": "--alpha-s",
              "overlap": "--overlap", "columns": "--columns", "robot": "--robot"}
 DMP_ROLLOUT = {"out": "--samples", "plot": "--plot", "g": "--goal", "tau": "--tau",
-               "dt": "--dt"}
+               "dt": "--dt", "duration": "--duration"}
 
 
 def flag_name(field: str, flags: dict[str, str]) -> str:

@@ -416,6 +416,7 @@ DMP_ROLLOUT_FLAGS = [
     (["--dt", "0"], "--dt"), (["--dt", "0.5"], "--dt"),
     (["--tau", "0.01", "--dt", "0.001"], "--dt"),            # k·α = 2.5: would diverge
     (["--plot", "/"], "--plot"), (["--plot", "{dmp}"], "--plot"),
+    (["--duration", "-1"], "--duration"), (["--duration", "0.0001"], "--dt"),
 ]
 for i, (flags, field) in enumerate(DMP_ROLLOUT_FLAGS):
     case(f"dmp-rollout-flag-{i}", [*_ROLL, *flags], field, dmp=DMP_TOML)

@@ -61,12 +61,14 @@ def register(subparsers) -> None:
     ro = sub.add_parser(
         "rollout", help="run a learned DMP (new goal, new τ); summary, samples, plot",
         epilog="example:\n  mrm dmp rollout dmp.toml --goal 0.5,0.2 --tau 2 --dt 0.001 "
-        "--samples out.csv --plot out.png")
+        "--samples out.csv --plot out.png\n  mrm dmp rollout dmp.toml --duration 3 --json")
     ro.add_argument("dmp", metavar="DMP.toml", help="a file written by mrm dmp learn")
     ro.add_argument("--goal", metavar="G1,G2,…", help="new goal, one value per DOF "
                     "(default: the demo's)")
     ro.add_argument("--tau", metavar="T", help="time constant, s: the rollout lasts τ "
                     "(default: the demo's duration)")
+    ro.add_argument("--duration", metavar="S", help="length of the rollout, s; longer than "
+                    "τ lets the phase die out at the goal (default: τ)")
     ro.add_argument("--dt", default="0.001", metavar="S", help="integration step, s")
     ro.add_argument("--samples", metavar="OUT.csv",
                     help="write t, x_i, xd_i, xdd_i at every step")
@@ -192,6 +194,8 @@ def _rollout(args) -> int:
     _distinct({"DMP": args.dmp, "--samples": args.samples, "--plot": args.plot})
     dt = require_positive(_number(args.dt, "dt"), "dt")
     tau = None if args.tau is None else require_positive(_number(args.tau, "tau"), "tau")
+    duration = (None if args.duration is None
+                else require_positive(_number(args.duration, "duration"), "duration"))
     goal = None
     if args.goal is not None:
         goal = [_number(v, f"g[{i}]") for i, v in enumerate(_list(args.goal, "g"))]
@@ -203,7 +207,7 @@ def _rollout(args) -> int:
         dmp = dmp.with_goal(goal)
     if tau is not None:
         dmp = dmp.with_tau(tau)
-    run = dmp.rollout(dt)
+    run = dmp.rollout(dt, duration)
     n = dmp.n_dof
     if args.samples is not None:
         from mrm_cosim.mrm.commands.plan import write_csv_atomic
