@@ -32,9 +32,9 @@ from pathlib import Path
 
 from mrm_cosim.errors import InputError
 
-__all__ = ["atomic_output_dir", "atomic_write_text", "check_output_dir", "check_output_file",
-           "check_writable_folder", "make_folder", "remove_empty", "remove_stale", "usual_mode",
-           "write_json", "MARKER", "OWNER"]
+__all__ = ["atomic_output_dir", "atomic_write_bytes", "atomic_write_text", "check_output_dir",
+           "check_output_file", "check_writable_folder", "make_folder", "remove_empty",
+           "remove_stale", "usual_mode", "write_json", "MARKER", "OWNER"]
 
 #: File in every result folder this writer made: what made it (JSON).
 MARKER = ".mrm-results"
@@ -260,6 +260,15 @@ def atomic_write_text(path, text: str, field: str = "out") -> None:
     replaces it only once complete; the file gets the usual permissions (0666 less the umask).
     ``path`` must pass :func:`check_output_file` (before and again just before the rename);
     an error writing it is an :class:`InputError` naming ``field``."""
+    _atomic_write(path, text, field)
+
+
+def atomic_write_bytes(path, data: bytes, field: str = "out") -> None:
+    """:func:`atomic_write_text` for binary contents (a PNG)."""
+    _atomic_write(path, bytes(data), field)
+
+
+def _atomic_write(path, data: str | bytes, field: str) -> None:
     path = check_output_file(path, field)
     remove_stale(path)
     try:
@@ -268,8 +277,9 @@ def atomic_write_text(path, text: str, field: str = "out") -> None:
     except OSError as exc:
         raise InputError(field, f"cannot write {str(path)!r} ({exc.strerror or exc})") from None
     try:
-        with os.fdopen(fd, "w", newline="") as f:
-            f.write(text)
+        with (os.fdopen(fd, "wb") if isinstance(data, bytes)
+              else os.fdopen(fd, "w", newline="")) as f:
+            f.write(data)
         os.chmod(tmp, 0o666 & ~_umask())
         check_output_file(path, field)    # made a link or a FIFO meanwhile: left alone
         os.replace(tmp, path)

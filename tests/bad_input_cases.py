@@ -2,7 +2,8 @@
 
 A case is ``(id, argv, files, field)``: ``argv`` is the ``mrm`` command line, in which
 ``{robot}``, ``{config}``, ``{line}`` stand for files the case writes from ``files`` (their
-TOML text) and ``{out}`` for a result folder that must not appear; ``field`` is what the one
+TOML text; a name ending in ``_csv``, such as ``{traj_csv}``, is written as ``traj.csv``) and
+``{out}`` for a result folder or file that must not appear; ``field`` is what the one
 line on stderr must name. Every case must be refused before anything is simulated.
 """
 
@@ -297,3 +298,164 @@ for i, (flags, field) in enumerate([(["--workers", "0"], "--workers"),
 case("sweep-missing-spec", ["sweep", "/nonexistent/s.toml", "--out", "{out}"], "SPEC")
 case("sweep-out-is-a-file", ["sweep", "{spec}", "--out", "{spec}"], "--out",
      spec='[sweep]\nduration = 0.01\n')
+
+
+# --- DMP learning and rollout, through `mrm dmp learn` and `mrm dmp rollout` (issue 17) -------
+def _joint_csv(rows: int = 21, dt: float = 0.05) -> str:
+    lines = ["t,q1,q2"]
+    for k in range(rows):
+        u = k / (rows - 1)
+        lines.append(f"{k * dt!r},{u * u * (3 - 2 * u)!r},{0.5 * u!r}")
+    return "\n".join(lines) + "\n"
+
+
+def _cartesian_csv() -> str:
+    """Five poses of mrm6's tool near home (FK of small joint steps), 10 ms apart."""
+    import numpy as np
+
+    from mrm_cosim.master.kinematics import forward
+    from mrm_cosim.master.quaternion import from_matrix
+    from mrm_cosim.models.robot import load_robot
+
+    robot = load_robot("mrm6")
+    lines = ["t,x,y,z,qw,qx,qy,qz"]
+    for k in range(5):
+        T = forward(robot, robot.home + 0.01 * k * np.array([1, -1, 1, 0.5, 1, -1]))
+        cells = [0.01 * k, *T[:3, 3], *from_matrix(T[:3, :3])]
+        lines.append(",".join(repr(float(c)) for c in cells))
+    return "\n".join(lines) + "\n"
+
+
+def _dmp_toml() -> str:
+    import numpy as np
+
+    from mrm_cosim.master.dmp import learn_dmp
+    from mrm_cosim.master.dmp_file import dmp_toml
+
+    data = np.array([[float(c) for c in row.split(",")] for row in
+                     JOINT_CSV.splitlines()[1:]])
+    return dmp_toml(learn_dmp(data[:, 1:], 0.05, 5), {"source": "corpus"})
+
+
+JOINT_CSV = _joint_csv()
+CART_CSV = _cartesian_csv()
+DMP_TOML = _dmp_toml()
+
+
+def _row_edit(text: str, line: int, column: int, value: str) -> str:
+    """``text`` with the cell at 1-based ``line`` and 0-based ``column`` replaced."""
+    lines = text.splitlines()
+    cells = lines[line - 1].split(",")
+    cells[column] = value
+    lines[line - 1] = ",".join(cells)
+    return "\n".join(lines) + "\n"
+
+
+_LEARN = ["dmp", "learn", "{traj_csv}", "--basis", "5", "--out", "{out}"]
+DMP_LEARN_FILES = [
+    ("header-time", JOINT_CSV.replace("t,q1,q2", "time,q1,q2"), "TRAJ line 1"),
+    ("header-dup", JOINT_CSV.replace("t,q1,q2", "t,q1,q1"), "TRAJ line 1"),
+    ("header-empty-name", JOINT_CSV.replace("t,q1,q2", "t,,q2"), "TRAJ line 1"),
+    ("header-only-t", "t\n0\n1\n2\n", "TRAJ line 1"),
+    ("empty", "", "TRAJ"),
+    ("two-rows", "t,q1\n0,0\n0.1,1\n", "TRAJ"),
+    ("nonuniform", _row_edit(JOINT_CSV, 5, 0, "0.16"), "TRAJ line 5"),
+    ("not-increasing", _row_edit(JOINT_CSV, 5, 0, "0.1"), "TRAJ line 5"),
+    ("nan", _row_edit(JOINT_CSV, 3, 1, "nan"), "TRAJ line 3 column q1"),
+    ("inf", _row_edit(JOINT_CSV, 4, 2, "-inf"), "TRAJ line 4 column q2"),
+    ("text", _row_edit(JOINT_CSV, 6, 2, "0.1rad"), "TRAJ line 6 column q2"),
+    ("ragged", JOINT_CSV.replace("\n0.1,", "\n0.1,0,", 1), "TRAJ line 4"),
+]
+for id_, text, field in DMP_LEARN_FILES:
+    case(f"dmp-learn-{id_}", _LEARN, field, traj_csv=text)
+DMP_LEARN_FLAGS = [
+    (["--basis", "0"], "--basis"), (["--basis", "1"], "--basis"),
+    (["--basis", "2.5"], "--basis"), (["--basis", "ten"], "--basis"),
+    (["--alpha", "-1"], "--alpha"), (["--alpha", "nan"], "--alpha"),
+    (["--alpha-s", "0"], "--alpha-s"), (["--overlap", "1"], "--overlap"),
+    (["--overlap", "x"], "--overlap"),
+    (["--columns", "q1,q7"], "--columns"), (["--columns", "q1,,q2"], "--columns"),
+    (["--columns", "q1,q1"], "--columns"), (["--columns", "t"], "--columns"),
+    (["--robot", "mrm6"], "--robot"),
+    (["--alpha", "2000"], "TRAJ"),                     # k·α > 1.66 at the demo's step
+]
+for i, (flags, field) in enumerate(DMP_LEARN_FLAGS):
+    case(f"dmp-learn-flag-{i}", ["dmp", "learn", "{traj_csv}", "--basis", "5", *flags,
+                                 "--out", "{out}"], field, traj_csv=JOINT_CSV)
+case("dmp-learn-no-basis", ["dmp", "learn", "{traj_csv}", "--out", "{out}"], "--basis",
+     traj_csv=JOINT_CSV)
+case("dmp-learn-missing", ["dmp", "learn", "/nonexistent/t.csv", "--basis", "5", "--out",
+                           "{out}"], "TRAJ")
+case("dmp-learn-out-is-input", ["dmp", "learn", "{traj_csv}", "--basis", "5", "--out",
+                                "{traj_csv}"], "--out", traj_csv=JOINT_CSV)
+case("dmp-learn-out-is-a-folder", ["dmp", "learn", "{traj_csv}", "--basis", "5", "--out",
+                                   "/"], "--out", traj_csv=JOINT_CSV)
+case("dmp-learn-out-no-folder", ["dmp", "learn", "{traj_csv}", "--basis", "5", "--out",
+                                 "/nonexistent/d.toml"], "--out", traj_csv=JOINT_CSV)
+_CART = ["dmp", "learn", "{traj_csv}", "--cartesian", "--basis", "5", "--out", "{out}"]
+case("dmp-learn-cartesian-unreachable", _CART, "TRAJ line 4",
+     traj_csv=_row_edit(CART_CSV, 4, 1, "5.0"))
+case("dmp-learn-cartesian-unreachable-first", _CART, "TRAJ line 2",
+     traj_csv=_row_edit(CART_CSV, 2, 3, "-3.0"))
+case("dmp-learn-cartesian-quaternion", _CART, "TRAJ line 3",
+     traj_csv=_row_edit(CART_CSV, 3, 4, "2.0"))
+case("dmp-learn-cartesian-columns", _CART, "TRAJ line 1",
+     traj_csv=CART_CSV.replace(",qz", ",q_z", 1))
+case("dmp-learn-cartesian-mrm3", [*_CART, "--robot", "mrm3"], "--robot", traj_csv=CART_CSV)
+case("dmp-learn-cartesian-no-robot", [*_CART, "--robot", "mrm99"], "--robot",
+     traj_csv=CART_CSV)
+case("dmp-learn-cartesian-and-columns", [*_CART, "--columns", "x"], "--columns",
+     traj_csv=CART_CSV)
+
+_ROLL = ["dmp", "rollout", "{dmp}", "--samples", "{out}"]
+DMP_ROLLOUT_FLAGS = [
+    (["--tau", "0"], "--tau"), (["--tau", "-1"], "--tau"), (["--tau", "nan"], "--tau"),
+    (["--tau", "fast"], "--tau"),
+    (["--goal", "1"], "--goal"), (["--goal", "1,2,3"], "--goal"),
+    (["--goal", "1,x"], "--goal[1]"), (["--goal", "1,inf"], "--goal"),
+    (["--dt", "0"], "--dt"), (["--dt", "0.5"], "--dt"),
+    (["--tau", "0.01", "--dt", "0.001"], "--dt"),            # k·α = 2.5: would diverge
+    (["--plot", "/"], "--plot"), (["--plot", "{dmp}"], "--plot"),
+    (["--duration", "-1"], "--duration"), (["--duration", "0.0001"], "--dt"),
+]
+for i, (flags, field) in enumerate(DMP_ROLLOUT_FLAGS):
+    case(f"dmp-rollout-flag-{i}", [*_ROLL, *flags], field, dmp=DMP_TOML)
+case("dmp-rollout-samples-is-input", ["dmp", "rollout", "{dmp}", "--samples", "{dmp}"],
+     "--samples", dmp=DMP_TOML)
+case("dmp-rollout-samples-is-a-folder", ["dmp", "rollout", "{dmp}", "--samples", "/"],
+     "--samples", dmp=DMP_TOML)
+case("dmp-rollout-missing", ["dmp", "rollout", "/nonexistent/d.toml", "--samples", "{out}"],
+     "DMP")
+
+
+def _dmp_with(old: str, new: str) -> str:
+    assert old in DMP_TOML, old
+    return DMP_TOML.replace(old, new, 1)
+
+
+DMP_FILES = [
+    ("not-toml", "format = [\n", "DMP"),
+    ("format", _dmp_with('format = "mrm-dmp"', 'format = "dmp"'), "format"),
+    ("version", _dmp_with("version = 1", "version = 2"), "version"),
+    ("unknown-top", "colour = 1\n" + DMP_TOML, "colour"),
+    ("unknown-key", _dmp_with("alpha = 25.0", "alpha = 25.0\ngamma = 1.0"), "dmp.gamma"),
+    ("missing-key", _dmp_with("alpha_s = 2.0\n", ""), "dmp.alpha_s"),
+    ("tau-negative", _dmp_with("tau = ", "tau = -"), "dmp.tau"),
+    ("tau-string", _dmp_with("tau = 1.0", 'tau = "1.0"'), "dmp.tau:"),
+    ("alpha-nan", _dmp_with("alpha = 25.0", "alpha = nan"), "dmp.alpha"),
+    ("x0-count", _dmp_with("x0 = [", "x0 = [0.0, "), "dmp.x0"),
+    ("g-text", _dmp_with("g = [", 'g = ["a", '), "dmp.g"),
+    ("goal-scaling", _dmp_with("goal_scaling = [true", "goal_scaling = [1"),
+     "dmp.goal_scaling[0]"),
+    ("widths-negative", _dmp_with("widths = [", "widths = [-"), "dmp.widths[0]"),
+    ("centers-one", "\n".join("centers = [0.5]" if line.startswith("centers =") else line
+                               for line in DMP_TOML.splitlines()), "dmp.centers:"),
+    ("widths-count", _dmp_with("widths = [", "widths = [0.5, "), "dmp.widths"),
+    ("weights-row", _dmp_with("weights = [\n    [", "weights = [\n    [1.0, "),
+     "dmp.weights[0]"),
+    ("weights-inf", _dmp_with("weights = [\n    [", "weights = [\n    [inf, "),
+     "dmp.weights[0]"),
+    ("no-dmp-table", 'format = "mrm-dmp"\nversion = 1\n', "dmp"),
+]
+for id_, text, field in DMP_FILES:
+    case(f"dmp-file-{id_}", _ROLL, field, dmp=text)

@@ -17,7 +17,7 @@ def test_the_corpus_is_large_and_its_ids_unique():
 def test_bad_input_is_refused_in_one_line(tmp_path, capsys, argv, files, field):
     paths = {}
     for name, text in files.items():
-        path = tmp_path / f"{name}.toml"
+        path = tmp_path / (f"{name[:-4]}.csv" if name.endswith("_csv") else f"{name}.toml")
         path.write_bytes(text.encode("utf-8", "surrogateescape"))
         paths[name] = str(path)
     out = tmp_path / "out"
