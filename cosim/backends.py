@@ -140,7 +140,9 @@ class VcdWindow:
     start, stop : int
         First cycle recorded and first cycle not recorded.
     path : Path
-        Where the VCD goes (written atomically when the window closes).
+        Where the waveform goes (written atomically when the window closes): a VCD, or FST
+        if it ends in ``.fst`` (:mod:`cosim.waves`); a GTKWave save file ``.gtkw`` beside
+        it opens it with the key signals grouped.
     signals : str
         Comma-separated shell patterns (``fnmatch``, case-sensitive) on the signals' dotted
         names below the design's top: ``torque1``, ``node1.link.up_codec.*``,
@@ -182,6 +184,11 @@ class VcdWindow:
         if signals is not None and any(not p.strip() for p in str(signals).split(",")):
             raise InputError("signals", f"comma-separated non-empty patterns, not {signals!r}")
         return cls(start, stop, Path(path), signals or "*")
+
+    @property
+    def format(self) -> str:
+        """``"fst"`` for a path ending in ``.fst``, else ``"vcd"``."""
+        return "fst" if Path(self.path).suffix == ".fst" else "vcd"
 
     def matches(self, name: str) -> bool:
         """Whether the dotted signal name is selected."""
@@ -398,7 +405,8 @@ class CompiledBackend(LineSide):
         super().__init__(faults, line_slots, record)
         text, signed = system_verilog(factory, key)
         self.model = CompiledModel(None, "system", quiet=quiet, verilog_text=text,
-                                   signed_ports=signed, trace=vcd is not None)
+                                   signed_ports=signed,
+                                   trace=False if vcd is None else vcd.format)
         self.vcd = vcd
         self._raw: Path | None = None
         self._vcd_done = False
@@ -422,23 +430,27 @@ class CompiledBackend(LineSide):
         return {k: np.concatenate([p[k] for p in parts]) for k in outputs}
 
     def _open(self) -> None:
-        fd, raw = tempfile.mkstemp(prefix="mrm-trace-", suffix=".vcd")
+        fd, raw = tempfile.mkstemp(prefix="mrm-trace-", suffix=f".{self.vcd.format}")
         os.close(fd)
         self._raw = Path(raw)
         self.model.trace_open(self._raw)
 
     def finish(self) -> list[str] | None:
         """Close the window now (also at its end, or if the run ends inside it) and write the
-        VCD of the selected signals. Returns their names, or ``None`` if nothing was open."""
+        waveform of the selected signals (and its ``.gtkw``). Returns their names, or ``None``
+        if nothing was open."""
         from mrm_cosim.cosim.compiled import filter_vcd
+        from mrm_cosim.cosim.waves import filter_fst, write_gtkw
 
         if self._raw is None:
             return None
         self.model.trace_close()
         tmp = _atomic_target(self.vcd.path)
         try:
-            names = filter_vcd(self._raw, tmp, "system", self.vcd.matches, _PERIOD_PS)
+            rewrite = filter_fst if self.vcd.format == "fst" else filter_vcd
+            names = rewrite(self._raw, tmp, "system", self.vcd.matches, _PERIOD_PS)
             os.replace(tmp, self.vcd.path)
+            write_gtkw(self.vcd.path, names)
         finally:
             tmp.unlink(missing_ok=True)
             self._raw.unlink(missing_ok=True)
@@ -526,15 +538,32 @@ class PysimBackend(LineSide):
 
     def _sample(self, ctx) -> None:
         if self._trace is None:
-            self._trace = _VcdOut(self.vcd.path, self._names)
+            # FST: the VCD goes to a hidden file beside the target first (finish converts it)
+            target = (self.vcd.path if self.vcd.format == "vcd"
+                      else _atomic_target(self.vcd.path))
+            self._trace = _VcdOut(target, self._names)
         self._trace.sample(self._cycle, [ctx.get(sig) for sig in self._trace.signals])
 
     def finish(self) -> list[str] | None:
         """Close the window now (also at its end, or if the run ends inside it) and write the
-        VCD. Returns the names of the signals in it, or ``None`` if nothing was recorded."""
+        waveform (an FST converted from the VCD by :func:`cosim.waves.vcd_to_fst`) and its
+        ``.gtkw``. Returns the names of the signals in it, or ``None`` if nothing was
+        recorded."""
+        from mrm_cosim.cosim.waves import vcd_to_fst, write_gtkw
+
         if self._trace is None:
             return None
+        vcd = self._trace.path
         names, self._trace = self._trace.close(), None
+        if self.vcd.format == "fst":
+            tmp = _atomic_target(self.vcd.path)
+            try:
+                vcd_to_fst(vcd, tmp)
+                os.replace(tmp, self.vcd.path)
+            finally:
+                vcd.unlink(missing_ok=True)
+                tmp.unlink(missing_ok=True)
+        write_gtkw(self.vcd.path, names)
         self.vcd = None
         return names
 

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["CompiledModel", "Port", "verilator_path", "cache_dir", "BuildError",
+           "fst_headers_missing",
            "signed_port_map", "filter_vcd", "vcd_header", "DEFAULT_ARGS"]
 
 _WRAPPER_VERSION = "2"
@@ -65,6 +66,18 @@ def verilator_path() -> tuple[Path, dict]:
         raise BuildError(f"no verilator executable in {root}")
     env = dict(os.environ, VERILATOR_ROOT=str(root))
     return exe, env
+
+
+def fst_headers_missing() -> list[str]:
+    """The C headers Verilator's FST writer (``--trace-fst``) includes that the C++ compiler
+    cannot find here (``lz4.h``: Debian's ``liblz4-dev``; ``zlib.h``: ``zlib1g-dev``)."""
+    missing = []
+    for header in ("lz4.h", "zlib.h"):
+        proc = subprocess.run(["c++", "-E", "-x", "c++", "-"], input=f"#include <{header}>\n",
+                              capture_output=True, text=True)
+        if proc.returncode != 0:
+            missing.append(header)
+    return missing
 
 
 def cache_dir() -> Path:
@@ -130,7 +143,7 @@ def cxx_member(name: str) -> str:
     return "".join(out)
 
 
-def _wrapper(top: str, ports: list[Port], trace: bool) -> str:
+def _wrapper(top: str, ports: list[Port], trace) -> str:
     cls = f"V{top}"
     narrow = [p for p in ports if p.width <= 64]
     wide = [p for p in ports if p.width > 64]
@@ -142,14 +155,16 @@ def _wrapper(top: str, ports: list[Port], trace: bool) -> str:
                       if p.direction == "input")
     wgets = "\n".join(f"    case {p.index}: return m->{mem[p.name]}[w];" for p in wide)
     if trace:
-        trace_include = '#include "verilated_vcd_c.h"'
-        trace_member = "VerilatedVcdC* vcd;"
+        trace_class = "VerilatedFstC" if trace == "fst" else "VerilatedVcdC"
+        header = "verilated_fst_c.h" if trace == "fst" else "verilated_vcd_c.h"
+        trace_include = f'#include "{header}"'
+        trace_member = f"{trace_class}* vcd;"
         trace_dump = "if (h->vcd) h->vcd->dump(h->cycle * h->period);"
         trace_api = """
 int mrm_trace_open(void* p, const char* path, uint64_t period) {
   Handle* h = (Handle*)p;
   if (h->vcd) return 1;
-  h->vcd = new VerilatedVcdC;
+  h->vcd = new TRACE_CLASS;
   h->m->trace(h->vcd, 99);
   h->vcd->open(path);
   if (!h->vcd->isOpen()) { delete h->vcd; h->vcd = nullptr; return 2; }
@@ -163,6 +178,7 @@ void mrm_trace_close(void* p) {
   delete h->vcd;
   h->vcd = nullptr;
 }"""
+        trace_api = trace_api.replace("TRACE_CLASS", trace_class)
         trace_init = "h->vcd = nullptr; h->ctx->traceEverOn(true);"
         trace_fini = "mrm_trace_close(h);"
     else:
@@ -285,9 +301,10 @@ class CompiledModel:
         Keep ``rst`` as an input port (held low unless set). By default the build ties it to 0
         in a generated harness module instead, which lets Verilator fold the reset logic away:
         2–3× faster for Amaranth designs, same behaviour as a reset held low.
-    trace : bool
-        Build with Verilator's ``--trace`` (a separate cache entry) so that
-        :meth:`trace_open` can write a VCD of a chosen window.
+    trace : bool or str
+        Build with Verilator's ``--trace`` (``True`` or ``"vcd"``) or ``--trace-fst``
+        (``"fst"``: Verilator writes FST natively), a separate cache entry each, so that
+        :meth:`trace_open` can write a waveform of a chosen window.
     verilog_text : str, optional
         Already generated Verilog (skips the conversion).
     signed_ports : dict of str to bool, optional
@@ -322,7 +339,9 @@ class CompiledModel:
         else:
             self._harness = ""
         self.ports = {p.name: p for p in ports}
-        self.trace = trace
+        if trace not in (False, True, "vcd", "fst"):
+            raise ValueError(f"trace must be False, True, 'vcd' or 'fst', not {trace!r}")
+        self.trace = "vcd" if trace is True else trace
         self._lib_path = self._build(opt, tuple(verilator_args), cflags, quiet)
         lib = ctypes.CDLL(str(self._lib_path))
         lib.mrm_create.restype = ctypes.c_void_p
@@ -354,7 +373,8 @@ class CompiledModel:
                                  text=True).stdout.strip()
         wrapper = _wrapper(self.top, list(self.ports.values()), self.trace)
         flags = ["-Wno-fatal", "-Wno-lint", "-Wno-style", "--cc", "--exe", "--build",
-                 "-j", "2", "--top-module", self.top, *(["--trace"] if self.trace else []),
+                 "-j", "2", "--top-module", self.top,
+                 *({"vcd": ["--trace"], "fst": ["--trace-fst"]}.get(self.trace, [])),
                  *verilator_args,
                  "-CFLAGS", f"-fPIC {opt} {cflags}".strip(),
                  "-LDFLAGS", "-shared -fPIC", "-o", "libmodel.so",
@@ -463,13 +483,14 @@ class CompiledModel:
 
     # --- waveforms --------------------------------------------------------------------------
     def trace_open(self, path) -> None:
-        """Start writing Verilator's VCD of every signal to ``path``.
+        """Start writing Verilator's VCD (FST for a ``trace="fst"`` build) of every signal to
+        ``path``.
 
         From now on the values of each cycle are dumped after its inputs settle (the instant
         :meth:`run` samples outputs), time-stamped with the cycle number since the model was
         created (``$timescale`` as written by Verilator: read the stamps as cycle numbers).
-        Needs a model built with ``trace=True``; :func:`filter_vcd` turns the raw file into a
-        VCD of chosen signals on the 20 ns grid.
+        Needs a model built with ``trace``; :func:`filter_vcd` (:func:`cosim.waves.filter_fst`)
+        turns the raw file into a waveform of chosen signals on the 20 ns grid.
         """
         if not self.trace:
             raise RuntimeError(f"{self.name} was built without tracing (trace=True)")

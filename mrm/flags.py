@@ -25,7 +25,7 @@ RUN_PREVIEW = {**OUT, "robot": "--robot", "duration": "--duration", "seed": "--s
                "uncertainty": "--uncertainty"}
 RUN_TRACK = {**OUT, "robot": "--robot", "duration": "--duration", "seed": "--seed",
              "backend": "--backend", "controller": "--controller", "faults": "--line-fault",
-             "vcd": "--vcd", "signals": "--signals", "config": "--config"}
+             "vcd": "--vcd", "fst": "--fst", "signals": "--signals", "config": "--config"}
 RUN_TABLE2 = {**OUT, "backend": "--backend", "duration": "--duration", "seed": "--seed",
               "config": "--config", "jobs": "--jobs"}
 RUN_LINE = {**RUN_TRACK, "profile": "--profile", "file": "FILE"}

@@ -197,6 +197,14 @@ FLAGS = [
     (["run", "track", "--line-fault", "zap:up:1@1ms"], "--line-fault"),
     (["run", "track", "--signals", "torque*"], "--signals"),
     (["run", "track", "--vcd", "x:y", "--backend", "compiled"], "--vcd"),
+    (["run", "track", "--fst", "x:y", "--backend", "compiled"], "--fst"),
+    (["run", "track", "--fst", "2ms:1ms", "--backend", "pysim"], "--fst"),
+    (["run", "track", "--fst", "0:1ms", "--backend", "model"], "--fst"),
+    (["run", "track", "--vcd", "0:1ms", "--backend", "model"], "--vcd"),
+    (["run", "track", "--fst", "0:1ms", "--vcd", "0:1ms", "--backend", "pysim"], "--fst"),
+    (["run", "track", "--fst", "0:1ms", "--backend", "pysim", "--signals", "torque*,,"],
+     "--signals"),
+    (["run", "track", "--fst", "0:1ms", "--fst", "0:2ms"], "--fst"),
     (["run", "preview", "--duration", "0.001"], "--duration"),
     (["run", "preview", "--duration", "-1"], "--duration"),
     (["run", "preview", "--robot", "mrm99"], "--robot"),
@@ -212,6 +220,12 @@ for i, (argv, field) in enumerate(FLAGS):
     needs_out = argv[0] == "run"
     case(f"flag-{argv[1]}-{i}", argv + (["--out", "{out}"] if needs_out else []), field,
          **({"line": LINE} if "{line}" in argv else {}))
+
+# A waveform goes into the result folder: a place where none can be written is refused
+# before the run, naming --out (the FST or VCD is never half-written).
+case("wave-fst-out-proc", ["run", "track", "--fst", "0:1us", "--out", "/proc/mrm-waves"], "--out")
+case("wave-vcd-out-file", ["run", "track", "--vcd", "0:1us", "--out", str(ROOT / "README.md")],
+     "--out")
 
 # --- Cartesian lines, through `mrm plan line` and `mrm run line` ---------------------------
 LINE_EDITS = [

@@ -34,6 +34,21 @@ def test_block_against_reference_testbench():
     assert _load(EXAMPLES / "testbenches" / "sincos_vs_reference.py").main(n=60) == []
 
 
+def test_vdc_engine_testbench(monkeypatch):
+    example = _load(EXAMPLES / "testbenches" / "vdc_engine_vs_reference.py")
+    assert example.main(periods=8) == []
+    # the testbench sees a difference of one LSB in one force word
+    step = example.VdcModel.step
+
+    def off_by_one(self, x):
+        F_a, F_b = step(self, x)
+        return F_a, F_b[:5] + [F_b[5] + 1]
+
+    monkeypatch.setattr(example.VdcModel, "step", off_by_one)
+    bad = example.main(periods=2)
+    assert [(period, what) for period, what, *_ in bad] == [(0, "forces"), (1, "forces")]
+
+
 def test_own_component_testbench():
     r = _load(EXAMPLES / "testbenches" / "my_component.py").main()
     assert r == {"running": 1, "data_bytes": 7, "packets": 3}

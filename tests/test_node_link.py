@@ -1,116 +1,50 @@
 # amaranth: UnusedElaboratable=no
-"""The slave node on the real link: a master codec sends uploads, a time-code and the
-A/B/C/D exchange to a SlaveNode; its replies equal the transaction-level reference."""
+"""The slave node on the real link, driven with the kit's node bus-functional model
+(mrm_cosim.testbench.NodeBench / NodeMaster): uploads, a time-code and the A/B/C/D exchange;
+the node's replies equal the transaction-level reference, and the upload read-back holds."""
 
 import numpy as np
-from amaranth import *
-from amaranth.lib import stream, wiring
-from amaranth.lib.wiring import In, Out
+import pytest
 from amaranth.sim import Simulator
 
-from mrm_cosim.protocol import packet as proto
-from mrm_cosim.hdl.link.chain import master_receive, put_chars
-from mrm_cosim.hdl.link.chars import Char
-from mrm_cosim.hdl.link.codec import Codec
 from mrm_cosim.hdl.node.core_ref import NodeModel
+from mrm_cosim.models.robot import load_robot
+from mrm_cosim.protocol import packet as proto
 from mrm_cosim.protocol.encoder import EncoderParams
 from mrm_cosim.protocol.regs import (
-    Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c, vdc_upload,
+    Config, Status, config_payloads, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c,
+    upload_check, vdc_upload,
 )
-from mrm_cosim.hdl.node.top import SlaveNode
-from mrm_cosim.models.robot import load_robot
+from mrm_cosim.testbench import NodeBench, NodeMaster, run_simulation
 
-from mrm_cosim.testbench import run_simulation
-
-SHORT = {"reset_cycles": 60, "wait_cycles": 150}
 ENC = EncoderParams(min_window=256)
 
 
-class MasterAndNode(wiring.Component):
-    """A master-side codec wired to one SlaveNode at address 1 (as hdl.link.chain.Chain)."""
-
-    master_tx:      In(stream.Signature(Char))
-    master_rx:      Out(stream.Signature(Char))
-    tick_in:        In(1)
-    time_in:        In(8)
-    master_running: Out(1)
-    node_running:   Out(1)
-    status:         Out(16)
-
-    def __init__(self):
-        self.master = Codec(**SHORT)
-        self.node = SlaveNode(codec=SHORT, encoder=ENC)
-        super().__init__()
-
-    def elaborate(self, platform):
-        m = Module()
-        m.submodules.master = master = self.master
-        m.submodules.node = node = self.node
-        m.d.comb += [
-            master.link_start.eq(1),
-            master.tick_in.eq(self.tick_in),
-            master.time_in.eq(self.time_in),
-            self.master_running.eq(master.running),
-            self.node_running.eq(node.link.up_running),
-            self.status.eq(node.status),
-            node.address.eq(1),
-            node.up.d_in.eq(master.d_out),
-            node.up.s_in.eq(master.s_out),
-            master.d_in.eq(node.up.d_out),
-            master.s_in.eq(node.up.s_out),
-        ]
-        wiring.connect(m, tx=wiring.flipped(self.master_tx), codec=master.tx)
-        wiring.connect(m, rx=wiring.flipped(self.master_rx), codec=master.rx)
-        return m
-
-
 def test_node_answers_the_exchange_over_the_link():
-    dut = MasterAndNode()
+    bench = NodeBench(encoder=ENC)
+    nm = NodeMaster(bench)
     robot = load_robot("mrm3")
     theta = robot.nominal_theta[1]
     rng = np.random.default_rng(1)
     uploads = [(proto.PacketType.PARAM, p) for p in
                vdc_upload(theta, np.full((2, 6), 30.0), np.zeros((2, 13)), theta - 0.01,
                           theta + 0.01)]
+    uploads += [(proto.PacketType.CONFIG, p) for p in config_payloads({Config.RAMP: 3})]
     g = np.array([0.0, 0.0, 9.81])
     V = rng.normal(size=6) * 0.2
     b = pack_comm_b(0.2, V, V + 1e-3, prime=True)
     d = pack_comm_d(0.5, g, 0.0, 0.2, 0.0)
-    replies = {}
-
-    async def frame(ctx, ptype, payload, seq=0):
-        await put_chars(ctx, dut.master_tx,
-                        proto.encode(proto.Header(1, proto.MASTER_ADDRESS, int(ptype), seq),
-                                     payload))
-
-    async def reply(ctx):
-        (chars,) = await master_receive(ctx, dut)
-        verdict, header, payload = proto.check_frame(chars)
-        assert verdict == proto.Verdict.GOOD
-        return header, bytes(payload)
+    out = {}
 
     async def master(ctx):
-        for _ in range(3000):
-            if ctx.get(dut.master_running) and ctx.get(dut.node_running):
-                break
-            await ctx.tick()
-        else:
-            raise AssertionError("link did not come up")
-        for ptype, payload in uploads:
-            await frame(ctx, ptype, payload)
-        await frame(ctx, proto.PacketType.COMM_D, d)            # gravity for the first VDC run
-        ctx.set(dut.time_in, 5)
-        ctx.set(dut.tick_in, 1)
-        await ctx.tick()
-        ctx.set(dut.tick_in, 0)
-        await ctx.tick().repeat(100)
-        await frame(ctx, proto.PacketType.COMM_A, b"\0", seq=7)
-        replies["A"] = await reply(ctx)
-        await frame(ctx, proto.PacketType.COMM_B, b)
-        await frame(ctx, proto.PacketType.COMM_C, b"\0", seq=8)
-        replies["C"] = await reply(ctx)
+        await nm.bring_up(ctx)
+        await nm.upload(ctx, uploads)
+        await nm.send(ctx, proto.PacketType.COMM_D, d)      # gravity for the first VDC run
+        out.update(await nm.exchange(ctx, period=5, comm_b=b, comm_d=d))
+        out["read_back"] = await nm.read_back(ctx)
+        out["seqs"] = [h.seq for h, _ in nm.replies]
 
-    sim = Simulator(dut)
+    sim = Simulator(bench)
     sim.add_clock(20e-9)
     sim.add_testbench(master)
     run_simulation(sim, "node_link")
@@ -124,14 +58,32 @@ def test_node_answers_the_exchange_over_the_link():
     model.packet(0, proto.PacketType.COMM_B, b)
     ref_c = model.packet(0, proto.PacketType.COMM_C, b"\0", period=5)
 
-    header_a, payload_a = replies["A"]
-    assert (header_a.dest, header_a.src, header_a.type, header_a.seq) == \
-        (proto.MASTER_ADDRESS, 1, proto.PacketType.COMM_A, 7)
-    assert payload_a == ref_a
-    assert parse_comm_a(payload_a)["period"] == 5
-    header_c, payload_c = replies["C"]
-    assert (header_c.src, header_c.type, header_c.seq) == (1, proto.PacketType.COMM_C, 8)
-    assert payload_c == ref_c
-    F_a, F_b, status, _ = parse_comm_c(payload_c)
+    assert out["A"] == ref_a
+    a = parse_comm_a(out["A"])
+    assert a["period"] == 5
+    assert (a["upload_crc"], a["upload_count"]) == upload_check(p for _, p in uploads)
+    assert a["upload_count"] == len(uploads) > 1
+    assert out["C"] == ref_c
+    F_a, F_b, status, _ = parse_comm_c(out["C"])
     assert status & Status.FRESH and any(F_b)
+    # uploads, then D (seq n), A request, B, C request, D, read-back A: replies echo their seq
+    n = len(uploads)
+    assert out["seqs"] == [n + 1, n + 3, n + 5]
+    assert out["read_back"]["upload_count"] == len(uploads)
 
+
+def _comm_a(crc, count):
+    payload = bytearray(40)
+    payload[21:23] = crc.to_bytes(2, "little")
+    payload[23:25] = count.to_bytes(2, "little")
+    return bytes(payload)
+
+
+def test_upload_read_back_fails_on_a_lost_or_changed_upload():
+    nm = NodeMaster(bench=object())      # the check reads no signal: no design needed
+    nm.uploads = [b"\x01" * 9, b"\x02" * 17]
+    nm.check_uploads(_comm_a(*upload_check(nm.uploads)))
+    with pytest.raises(AssertionError, match="count 1, expected .* count 2"):
+        nm.check_uploads(_comm_a(*upload_check(nm.uploads[:1])))     # the second one lost
+    with pytest.raises(AssertionError, match="expected crc"):
+        nm.check_uploads(_comm_a(*upload_check([b"\x01" * 9, b"\x03" * 17])))

@@ -11,6 +11,7 @@ into its result folder. A run that is not clean ends with exit code 3 and says w
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import logging
@@ -66,7 +67,8 @@ def register(subparsers) -> None:
                         "(master, link, nodes, plant)",
                         epilog="example:\n  mrm run track --controller vdc --backend model "
                         "--duration 0.05 --out results/track\n  mrm run track --backend "
-                        "compiled --duration 0.003 --vcd 1ms:1.1ms --signals 'torque*'")
+                        "compiled --duration 0.003 --vcd 1ms:1.1ms --signals 'torque*'\n"
+                        "  mrm run track --backend pysim --duration 0.001 --fst 0:20us")
     pt.add_argument("--controller", default="vdc", choices=["vdc", "pid-fpga", "pid-1khz"],
                     help="the controller to run")
     pt.add_argument("--config", default=None, metavar="FILE", help=_CONFIG_HELP)
@@ -81,9 +83,13 @@ def register(subparsers) -> None:
     pt.add_argument("--vcd", default=None, metavar="T0:T1",
                     help="write OUT/waves.vcd of this window only (times from period 0, e.g. "
                     "0.5ms:0.6ms; pysim and compiled backends)")
+    pt.add_argument("--fst", default=None, metavar="T0:T1",
+                    help="as --vcd, as FST: OUT/waves.fst (compiled: Verilator writes it; "
+                    "needs pip install 'mrm-cosim[fst]'). Either waveform comes with "
+                    "OUT/waves.gtkw: gtkwave OUT/waves.fst OUT/waves.gtkw")
     pt.add_argument("--signals", default=None, metavar="PATTERN",
-                    help="comma-separated globs of the signals in the VCD, dotted below the "
-                    "top (e.g. 'torque*,node1.core.*'; default: all)")
+                    help="comma-separated globs of the signals in the VCD or FST, dotted "
+                    "below the top (e.g. 'torque*,node1.core.*'; default: all)")
     pt.add_argument("--line-fault", action="append", default=[],
                     metavar="KIND:DIR:NODE@T[+LEN]",
                     help="inject a fault on the line above NODE, DIR down (towards it) or up, "
@@ -257,8 +263,10 @@ def _track(args) -> int:
     _log.debug("experiment: %s", json.dumps(config.to_dict()))
     robot = load_robot(config.robot)
     check_robot_fits(robot, "robot")
-    if args.signals is not None and args.vcd is None:
-        raise InputError("signals", "selects the signals of a --vcd window; give --vcd too")
+    wave = _waveform(args)
+    if args.signals is not None and wave is None:
+        raise InputError("signals", "selects the signals of a --vcd or --fst window; give "
+                         "one of them too")
     faults = [LineFault.parse(spec) for spec in args.line_fault]
     if faults and config.backend == "model":
         raise InputError("faults", "the model backend's link is ideal: inject line "
@@ -266,22 +274,37 @@ def _track(args) -> int:
     for f in faults:
         if f.node > robot.n:
             raise InputError("faults", f"the robot has {robot.n} nodes, not {f.node}")
-    if args.vcd is not None:        # refused before anything runs or prints
+    if wave is not None:            # refused before anything runs or prints
         from mrm_cosim.cosim.backends import VcdWindow
 
-        VcdWindow.parse(args.vcd, Path(args.out) / "waves.vcd", signals=args.signals)
+        if config.backend == "model":
+            raise InputError(wave[0], "the model backend has no signals; use pysim or "
+                             "compiled")
+        if wave[0] == "fst" and config.backend == "compiled":
+            from mrm_cosim.cosim.compiled import fst_headers_missing
+
+            missing = fst_headers_missing()
+            if missing:
+                raise InputError("fst", f"Verilator's FST writer needs {', '.join(missing)} "
+                                 "(Debian: apt-get install liblz4-dev zlib1g-dev); or use "
+                                 "--vcd, or --backend pysim")
+
+        with _wave_field(wave):
+            VcdWindow.parse(wave[1], Path(args.out) / f"waves.{wave[0]}", signals=args.signals)
     tr = config.trajectory
     profile = paper_test_profile(robot, tr.amplitude, tr.duration)
     progress = None if args.quiet else Progress([args.controller], config.duration)
     with atomic_output_dir(args.out, made_by="mrm run track") as tmp:
         if progress is not None:
             progress.begin(args.controller)
-        vcd_path = tmp / "waves.vcd" if args.vcd is not None else None
-        result, summary = run_track(robot, args.controller, config.backend, config.duration,
-                                    config.seed, gains=config.gains, timing=config.timing,
-                                    plant_config=config.plant, progress=progress,
-                                    profile=profile, vcd=args.vcd, signals=args.signals,
-                                    vcd_path=vcd_path, faults=faults)
+        vcd_path = tmp / f"waves.{wave[0]}" if wave is not None else None
+        with _wave_field(wave):
+            result, summary = run_track(robot, args.controller, config.backend,
+                                        config.duration, config.seed, gains=config.gains,
+                                        timing=config.timing, plant_config=config.plant,
+                                        progress=progress, profile=profile,
+                                        vcd=wave and wave[1], signals=args.signals,
+                                        vcd_path=vcd_path, faults=faults)
         summary["version"] = __version__
         _write_track(tmp, args, config, robot, result, summary, profile)
     if args.json:
@@ -291,23 +314,50 @@ def _track(args) -> int:
     return _not_clean("track", run_faults(summary))
 
 
+def _waveform(args) -> tuple[str, str] | None:
+    """``("vcd" | "fst", "T0:T1")`` of a waveform request, ``None`` without one; FST needs
+    its optional dependency (refused naming --fst, before anything runs)."""
+    if args.vcd is not None and args.fst is not None:
+        raise InputError("fst", "give one of --vcd and --fst (the same window as VCD or FST)")
+    if args.fst is not None:
+        from mrm_cosim.cosim.waves import require_fst
+
+        require_fst("fst")
+        return "fst", args.fst
+    return None if args.vcd is None else ("vcd", args.vcd)
+
+
+@contextlib.contextmanager
+def _wave_field(wave):
+    """The library names a bad window ``vcd`` whatever the format: name --fst for FST."""
+    try:
+        yield
+    except InputError as exc:
+        if wave is not None and wave[0] == "fst" and exc.field == "vcd":
+            raise InputError("fst", exc.message) from None
+        raise
+
+
 def _write_track(tmp: Path, args, config, robot, result, summary, profile) -> None:
     from mrm_cosim.cosim.plots import pick_period, plot_timeline, plot_tracking
     from mrm_cosim.cosim.table2 import timeline_json
     from mrm_cosim.results import usual_mode, write_json
 
-    if args.vcd is not None:
-        vcd = tmp / "waves.vcd"
-        if not vcd.exists() or vcd.stat().st_size == 0:
-            raise InputError("vcd", "the window is not inside the run (nothing recorded)")
-        usual_mode(vcd)
+    wave = _waveform(args)
+    if wave is not None:
+        path = tmp / f"waves.{wave[0]}"
+        if not path.exists() or path.stat().st_size == 0:
+            raise InputError(wave[0], "the window is not inside the run (nothing recorded)")
+        usual_mode(path)
+        usual_mode(path.with_suffix(".gtkw"))
     q_d = profile.evaluate(result.t)[0]
     write_json(tmp / "summary.json", summary)
     (tmp / "config.toml").write_text(config.to_toml())
     write_json(tmp / "config.json", {
         "command": "mrm run track", "controller": args.controller,
         "backend": config.backend, "robot": robot.describe(), "seed": config.seed,
-        "duration_s": config.duration, "vcd": args.vcd, "signals": args.signals,
+        "duration_s": config.duration, "vcd": args.vcd, "fst": args.fst,
+        "signals": args.signals,
         "line_faults": list(args.line_fault), "experiment": config.to_dict(),
         "version": __version__})
     write_json(tmp / "timeline.json", timeline_json(result.master.records))
@@ -334,7 +384,9 @@ def _print_track(args, config, summary) -> None:
     if summary["link_errors"]:
         print("link faults counted at: " + link_fault_places(summary["link_error_detail"]))
     print(f"results in {args.out}/ (summary.json, config.toml, timeline.json, tracking.png"
-          + (", waves.vcd: the --vcd window)" if args.vcd else ")"))
+          + (", waves.vcd: the --vcd window" if args.vcd else "")
+          + (", waves.fst: the --fst window" if args.fst else "")
+          + ("; waves.gtkw opens it in GTKWave)" if args.vcd or args.fst else ")"))
 
 
 def _phases_text(phases: dict) -> str:
