@@ -54,6 +54,9 @@ import numpy as np
 
 from mrm_cosim.cosim.gateware_side import GatewareSide, Observed, PlantLines, Reply
 from mrm_cosim.cosim.model_link import LINK_UP_CYCLE, LinkTiming
+from mrm_cosim.cosim import model_kernel_src as kernel_src
+from mrm_cosim.cosim.model_kernel import (KernelArrays, KernelEncoder, KernelNode,
+                                          kernel_choice, load)
 from mrm_cosim.cosim.model_node import EncoderEvents, FastNode
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.protocol import packet as ref
@@ -90,6 +93,11 @@ class ModelBackend(GatewareSide):
         <cosim.model_node.FastNode.lazy>`) and feed the encoder interfaces the plant's count
         changes instead of per-cycle arrays. ``False`` is the eager path: every tick computed,
         per-cycle counts; both give the same results bit for bit.
+    kernel : {"numba", "python"}, optional
+        Where the plain part of each plant step runs (lazy only): the compiled inner loop
+        (:mod:`cosim.model_kernel`, the default; the pure-Python path with a warning where
+        numba cannot run) or the references in Python. Default ``$MRM_MODEL_KERNEL``, else
+        numba. Same results bit for bit.
 
     Attributes
     ----------
@@ -101,7 +109,10 @@ class ModelBackend(GatewareSide):
 
     name = "model"
 
-    def __init__(self, encoder=None, strict: bool = False, lazy: bool = True, pid_shift=0):
+    def __init__(self, encoder=None, strict: bool = False, lazy: bool = True, pid_shift=0,
+                 kernel: str | None = None):
+        self.kernel = kernel_choice(kernel)
+        self._kern = None
         self._encoder = encoder
         self._pid_shift = pid_shift
         self.strict = strict
@@ -124,10 +135,23 @@ class ModelBackend(GatewareSide):
         counts = [int(c) for c in counts]
         self.n = len(counts)
         encs = encoders_per_node(self._encoder, self.n)
-        self.nodes = [FastNode(encoder=enc, joint=JointModel(JointParams.zero(pid_shift=s)))
+        kern = load() if self.lazy and self.kernel == "numba" else None
+        self._kern = kern
+        node_cls = FastNode if kern is None else KernelNode
+        self.nodes = [node_cls(encoder=enc, joint=JointModel(JointParams.zero(pid_shift=s)))
                       for enc, s in zip(encs, pid_shifts_per_node(self._pid_shift, self.n),
                                         strict=True)]
-        self.encoders = [EncoderEvents(enc, c) for enc, c in zip(encs, counts, strict=True)]
+        if kern is None:
+            self.encoders = [EncoderEvents(enc, c) for enc, c in zip(encs, counts, strict=True)]
+        else:
+            self._arrays = arrays = KernelArrays(self.n)
+            self.encoders = [KernelEncoder(kern, arrays, k, enc, c)
+                             for k, (enc, c) in enumerate(zip(encs, counts, strict=True))]
+            for k, node in enumerate(self.nodes):
+                node.bind(arrays, k)
+            self._plain = np.zeros(self.n, dtype=np.bool_)
+            self._tau_words = np.zeros(self.n, dtype=np.int64)
+            self._no_changes = np.zeros(0, dtype=np.int64)
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
             node.lazy = self.lazy
             node.events = []                    # the observation port, for the timeline
@@ -150,7 +174,9 @@ class ModelBackend(GatewareSide):
     async def advance(self, n: int, lines: PlantLines, offset: int = 0) -> Observed:
         start = self.cycle
         end = start + n
-        if self.lazy:
+        if self._kern is not None:
+            events = self._run_kernel(start, n, lines, offset)
+        elif self.lazy:
             changes = lines.changes()
             whole = offset == 0 and (lines.at_rest or n == self._step_len(lines))
             for k, enc in enumerate(self.encoders):
@@ -161,7 +187,8 @@ class ModelBackend(GatewareSide):
             for k, enc in enumerate(self.encoders):
                 enc.feed(start, np.full(n, lines.counts[k]) if lines.at_rest
                          else lines.cycles().counts[offset:offset + n, k])
-        events = self._run_nodes(end)
+        if self._kern is None:
+            events = self._run_nodes(end)
         replies = [Reply(c, src, ptype, seq, bytes(payload))
                    for c, src, ptype, payload, seq in self._link.replies_before(end)]
         self.cycle = end
@@ -180,6 +207,9 @@ class ModelBackend(GatewareSide):
                               f"at cycle {cycle} are not the master's grid")
 
     def finish(self) -> None:
+        if self._kern is not None:
+            for node in self.nodes:
+                node.pull()
         for k, node in enumerate(self.nodes):
             if node.tripped:
                 self._violate(f"node {k + 1}: the watchdog tripped")
@@ -225,12 +255,66 @@ class ModelBackend(GatewareSide):
     def _step_len(lines: PlantLines) -> int:
         return lines.plant.cycles_per_step
 
-    def _run_nodes(self, end: int) -> list:
+    def _run_kernel(self, start: int, n: int, lines: PlantLines, offset: int) -> list:
+        """:meth:`advance`'s work with the compiled kernel: the count changes into every
+        encoder and the nodes without an event in the piece in one call, the others by the
+        reference event loop (:meth:`_run_nodes`)."""
+        end = start + n
+        nodes_k, cyc, cnt = [], [], []
+        if not lines.at_rest:
+            whole = offset == 0 and n == self._step_len(lines)
+            for k, ch in enumerate(lines.changes()):
+                for i, c in ch:
+                    if whole or offset <= i < offset + n:
+                        nodes_k.append(k)
+                        cyc.append(i - offset)
+                        cnt.append(c)
+        for enc in self.encoders:           # (the kernel feeds them; the order is checked)
+            if int(enc._E[kernel_src.E_KNOWN]) != start - 1:
+                raise ValueError(f"feed must continue at cycle "
+                                 f"{int(enc._E[kernel_src.E_KNOWN]) + 1}, not {start}")
+        plain = self._plain
+        inbox = self._link.inbox
+        others = []
+        for k, node in enumerate(self.nodes):
+            box = inbox[k]
+            p = node.next_special() >= end - 1 and not any(e[0] < end for e in box)
+            plain[k] = p
+            if p:
+                if not node.in_kernel:
+                    node.push()
+                if node._done < end - 1:
+                    node._done = end - 1
+            else:
+                node.pull()
+                others.append(k)
+        if nodes_k:
+            chg = (np.array(nodes_k, dtype=np.int64), np.array(cyc, dtype=np.int64),
+                   np.array(cnt, dtype=np.int64))
+        else:
+            chg = (self._no_changes,) * 3
+        a = self._arrays
+        tau = self._tau_words
+        self._kern.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, plain, start, n,
+                              *chg, tau)
+        N = a.N
+        for k in range(self.n):
+            if plain[k]:
+                if N[k, kernel_src.N_TORQUE_NONE]:
+                    raise RuntimeError(f"node {k + 1}: an unobserved torque was sampled")
+                self._torque[k] = FORCE.decode(int(tau[k]))
+        return self._run_nodes(end, others)
+
+    def _run_nodes(self, end: int, which=None) -> list:
         """Every node's events of cycles < ``end``; torque words output in cycle ``end − 1``.
-        Returns the observation-port strobes before ``end`` ``(cycle, node, name)``."""
+        Returns the observation-port strobes before ``end`` ``(cycle, node, name)``.
+        ``which``: only these nodes (the others' events are still collected)."""
         out = []
         start = self._start
         for k, node in enumerate(self.nodes):
+            if which is not None and k not in which:
+                self._collect(k, node, end, out)
+                continue
             sample = self._samplers[k]
             box = self._link.inbox[k]
             if box:
@@ -261,12 +345,17 @@ class ModelBackend(GatewareSide):
                 del box[:i]
             node.run(end - 1, sample)
             self._torque[k] = FORCE.decode(node.torque_at(end - 1))
-            if node.events:
-                later = []
-                for c, flag in node.events:
-                    if c < end:
-                        out.append((c, k + 1, flag.name))
-                    else:           # (a MARK still ahead waits for its chunk)
-                        later.append((c, flag))
-                node.events = later
+            self._collect(k, node, end, out)
         return out
+
+    @staticmethod
+    def _collect(k: int, node, end: int, out: list) -> None:
+        """Node ``k``'s observation-port strobes before ``end`` into ``out``."""
+        if node.events:
+            later = []
+            for c, flag in node.events:
+                if c < end:
+                    out.append((c, k + 1, flag.name))
+                else:           # (a MARK still ahead waits for its chunk)
+                    later.append((c, flag))
+            node.events = later
