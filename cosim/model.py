@@ -54,7 +54,6 @@ import numpy as np
 
 from mrm_cosim.cosim.gateware_side import GatewareSide, Observed, PlantLines, Reply
 from mrm_cosim.cosim.model_link import LINK_UP_CYCLE, LinkTiming
-from mrm_cosim.cosim import model_kernel_src as kernel_src
 from mrm_cosim.cosim.model_kernel import (KernelArrays, KernelEncoder, KernelNode,
                                           kernel_choice, load)
 from mrm_cosim.cosim.model_node import EncoderEvents, FastNode
@@ -150,15 +149,15 @@ class ModelBackend(GatewareSide):
             for k, node in enumerate(self.nodes):
                 node.bind(arrays, k)
             self._plain = np.zeros(self.n, dtype=np.bool_)
-            self._tau_words = np.zeros(self.n, dtype=np.int64)
-            self._no_changes = np.zeros(0, dtype=np.int64)
+            self._no_changes = (np.zeros(0, dtype=np.int64),) * 3
+            self._fed = 0
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
             node.lazy = self.lazy
             node.events = []                    # the observation port, for the timeline
             node.attach(encoder)
         self._samplers = [e.sample for e in self.encoders]
         self._link = LinkTiming(self.n)
-        self._torque = np.zeros(self.n)
+        self._torque = np.zeros(self.n)         # (the kernel writes the plain nodes' torques)
 
     @property
     def link_up(self) -> bool:
@@ -260,49 +259,50 @@ class ModelBackend(GatewareSide):
         encoder and the nodes without an event in the piece in one call, the others by the
         reference event loop (:meth:`_run_nodes`)."""
         end = start + n
-        nodes_k, cyc, cnt = [], [], []
+        if start != self._fed:
+            raise ValueError(f"feed must continue at cycle {self._fed}, not {start}")
+        self._fed = end
+        chg = self._no_changes
         if not lines.at_rest:
-            whole = offset == 0 and n == self._step_len(lines)
-            for k, ch in enumerate(lines.changes()):
-                for i, c in ch:
-                    if whole or offset <= i < offset + n:
-                        nodes_k.append(k)
-                        cyc.append(i - offset)
-                        cnt.append(c)
-        for enc in self.encoders:           # (the kernel feeds them; the order is checked)
-            if int(enc._E[kernel_src.E_KNOWN]) != start - 1:
-                raise ValueError(f"feed must continue at cycle "
-                                 f"{int(enc._E[kernel_src.E_KNOWN]) + 1}, not {start}")
+            changes = lines.changes()
+            if any(changes):
+                nodes_k, cyc, cnt = [], [], []
+                whole = offset == 0 and n == lines.plant.cycles_per_step
+                for k, ch in enumerate(changes):
+                    for i, c in ch:
+                        if whole or offset <= i < offset + n:
+                            nodes_k.append(k)
+                            cyc.append(i - offset)
+                            cnt.append(c)
+                if nodes_k:
+                    chg = (np.array(nodes_k, dtype=np.int64), np.array(cyc, dtype=np.int64),
+                           np.array(cnt, dtype=np.int64))
         plain = self._plain
         inbox = self._link.inbox
-        others = []
+        others = None
+        last = end - 1
         for k, node in enumerate(self.nodes):
             box = inbox[k]
-            p = node.next_special() >= end - 1 and not any(e[0] < end for e in box)
-            plain[k] = p
-            if p:
+            if node.next_special() >= last and not (box and min(e[0] for e in box) < end):
+                plain[k] = True
                 if not node.in_kernel:
                     node.push()
-                if node._done < end - 1:
-                    node._done = end - 1
+                if node._done < last:
+                    node._done = last
             else:
+                plain[k] = False
                 node.pull()
-                others.append(k)
-        if nodes_k:
-            chg = (np.array(nodes_k, dtype=np.int64), np.array(cyc, dtype=np.int64),
-                   np.array(cnt, dtype=np.int64))
-        else:
-            chg = (self._no_changes,) * 3
+                others = [k] if others is None else others + [k]
         a = self._arrays
-        tau = self._tau_words
-        self._kern.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, plain, start, n,
-                              *chg, tau)
-        N = a.N
-        for k in range(self.n):
-            if plain[k]:
-                if N[k, kernel_src.N_TORQUE_NONE]:
-                    raise RuntimeError(f"node {k + 1}: an unobserved torque was sampled")
-                self._torque[k] = FORCE.decode(int(tau[k]))
+        if self._kern.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, plain, start, n,
+                                 *chg, self._torque):
+            raise RuntimeError("model kernel: an unobserved torque word was sampled")
+        if others is None:
+            out = []
+            for k, node in enumerate(self.nodes):
+                if node.events:
+                    self._collect(k, node, end, out)
+            return out
         return self._run_nodes(end, others)
 
     def _run_nodes(self, end: int, which=None) -> list:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from functools import cache
 
 import numpy as np
 
@@ -88,7 +89,7 @@ def _warm_up(k) -> None:
     a.N[0, src.N_TICK] = 50
     a.P[0, src.P_CYC:src.P_CYC + 3] = 40
     z = np.zeros(0, dtype=np.int64)
-    tau = np.zeros(1, dtype=np.int64)
+    tau = np.zeros(1)
     k.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, np.ones(1, dtype=np.bool_), 0,
                  500, z, z, z, tau)
     e = a.rows(0)
@@ -109,10 +110,12 @@ def point_shifts(fmt, *lsbs) -> tuple[int, ...]:
     return (*shifts, fmt.lsb - low)
 
 
-def _points(pid_shift: int) -> list[tuple[int, ...]]:
-    """The rounding points of hdl/node/joint_ref.py, in :data:`src.POINTS` order."""
+@cache
+def _points(pid_shift: int) -> tuple[int, ...]:
+    """The rounding points of hdl/node/joint_ref.py, in :data:`src.POINTS` order, their 6
+    slots each one after the other."""
     f = pid_formats(pid_shift)
-    return [
+    return sum([
         point_shifts(POS, POS.lsb, CNT.lsb),                                        # E
         point_shifts(VEL, VEL.lsb, LAMC.lsb + POS.lsb),                             # QDR
         point_shifts(ACC, ACC.lsb, LAM.lsb + VEL.lsb),                              # QDDR
@@ -129,7 +132,7 @@ def _points(pid_shift: int) -> list[tuple[int, ...]]:
         point_shifts(VEL, VEL.lsb, ACC.lsb + TS.lsb),                               # VD
         point_shifts(ANG, VEL.lsb + TS.lsb),                                        # DQ
         point_shifts(POS, POS.lsb, ANG.lsb + KC.lsb),                               # QD
-    ]
+    ], ())
 
 
 def param_row(params, out: np.ndarray | None = None) -> np.ndarray:
@@ -139,8 +142,7 @@ def param_row(params, out: np.ndarray | None = None) -> np.ndarray:
         row[i] = getattr(params, name)
     mc = joint_microcode(params.pid_shift)
     row[src.P_CYC:src.P_CYC + 3] = [mc.cycles(m) for m in MODES]
-    for i, pt in enumerate(_points(params.pid_shift)):
-        row[src.P_SH + 6 * i:src.P_SH + 6 * i + 6] = pt
+    row[src.P_SH:] = _points(params.pid_shift)
     return row
 
 

@@ -29,6 +29,7 @@ from mrm_cosim.hdl.node.encoder_ref import VEL_LATENCY as _VEL_LATENCY
 from mrm_cosim.protocol.encoder import AGE_MAX as _AGE_MAX
 from mrm_cosim.protocol.encoder import DC_MAX as _DC_MAX
 from mrm_cosim.protocol.encoder import RECIP_TABLE
+from mrm_cosim.protocol.fixed import FORCE as _FORCE
 
 # --- node state row (FastNode / NodeModel fields the plain ticks read or write) -------------
 N_NT, N_TORQUE, N_TORQUE_NONE = 0, 1, 2
@@ -67,6 +68,7 @@ E_SIZE = 30
 
 WORD_MIN, WORD_MAX = -(1 << 23), (1 << 23) - 1
 TIME_MAX = (1 << 23) - 1
+FORCE_LSB = 2.0 ** _FORCE.lsb           # FORCE.decode(w) = ldexp(w, lsb): exact, as w · 2^lsb
 NEVER = 1 << 62
 AGE_MAX = _AGE_MAX
 DC_MAX = _DC_MAX
@@ -645,10 +647,13 @@ def plain_step(NS, PS, ES, VIS, PIPE, DUE, PEND, plain, start, n, chg_node, chg_
     """One piece of a plant step for every node: the count changes into each encoder
     (:meth:`EncoderEvents.feed_changes`), then, for the nodes marked ``plain`` (no event but
     plain ticks before ``start + n − 1``), :meth:`FastNode.run` to ``start + n − 1`` and
-    the torque word output in that cycle into ``tau_out`` (and ``NS[k, N_TORQUE_NONE]``)."""
+    the torque output in that cycle into ``tau_out`` (N·m: the FORCE word times 2^−13, as
+    ``FORCE.decode``). Returns True if a plain node's torque there is a dead tick's, which
+    nothing may observe (a bug: the caller raises)."""
     end = start + n
     j = 0
     m = chg_node.shape[0]
+    bad = False
     for k in range(NS.shape[0]):
         j0 = j
         while j < m and chg_node[j] == k:
@@ -656,7 +661,10 @@ def plain_step(NS, PS, ES, VIS, PIPE, DUE, PEND, plain, start, n, chg_node, chg_
         enc_feed_changes(ES[k], PEND[k], VIS[k], start, n, chg_cyc[j0:j], chg_cnt[j0:j])
         if plain[k]:
             node_plain(NS[k], PS[k], ES[k], VIS[k], PIPE[k], DUE[k], end - 1)
-            tau_out[k] = torque_at(NS[k], end - 1)
+            tau_out[k] = float(torque_at(NS[k], end - 1)) * FORCE_LSB
+            if NS[k, N_TORQUE_NONE]:
+                bad = True
+    return bad
 
 
 def jit_all(njit) -> None:
