@@ -54,6 +54,8 @@ import numpy as np
 
 from mrm_cosim.cosim.gateware_side import GatewareSide, Observed, PlantLines, Reply
 from mrm_cosim.cosim.model_link import LINK_UP_CYCLE, LinkTiming
+from mrm_cosim.cosim.model_kernel import (KernelArrays, KernelEncoder, KernelNode,
+                                          kernel_choice, load)
 from mrm_cosim.cosim.model_node import EncoderEvents, FastNode
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.protocol import packet as ref
@@ -90,6 +92,11 @@ class ModelBackend(GatewareSide):
         <cosim.model_node.FastNode.lazy>`) and feed the encoder interfaces the plant's count
         changes instead of per-cycle arrays. ``False`` is the eager path: every tick computed,
         per-cycle counts; both give the same results bit for bit.
+    kernel : {"numba", "python"}, optional
+        Where the plain part of each plant step runs (lazy only): the compiled inner loop
+        (:mod:`cosim.model_kernel`, the default; the pure-Python path with a warning where
+        numba cannot run) or the references in Python. Default ``$MRM_MODEL_KERNEL``, else
+        numba. Same results bit for bit.
 
     Attributes
     ----------
@@ -101,7 +108,10 @@ class ModelBackend(GatewareSide):
 
     name = "model"
 
-    def __init__(self, encoder=None, strict: bool = False, lazy: bool = True, pid_shift=0):
+    def __init__(self, encoder=None, strict: bool = False, lazy: bool = True, pid_shift=0,
+                 kernel: str | None = None):
+        self.kernel = kernel_choice(kernel)
+        self._kern = None
         self._encoder = encoder
         self._pid_shift = pid_shift
         self.strict = strict
@@ -124,17 +134,30 @@ class ModelBackend(GatewareSide):
         counts = [int(c) for c in counts]
         self.n = len(counts)
         encs = encoders_per_node(self._encoder, self.n)
-        self.nodes = [FastNode(encoder=enc, joint=JointModel(JointParams.zero(pid_shift=s)))
+        kern = load() if self.lazy and self.kernel == "numba" else None
+        self._kern = kern
+        node_cls = FastNode if kern is None else KernelNode
+        self.nodes = [node_cls(encoder=enc, joint=JointModel(JointParams.zero(pid_shift=s)))
                       for enc, s in zip(encs, pid_shifts_per_node(self._pid_shift, self.n),
                                         strict=True)]
-        self.encoders = [EncoderEvents(enc, c) for enc, c in zip(encs, counts, strict=True)]
+        if kern is None:
+            self.encoders = [EncoderEvents(enc, c) for enc, c in zip(encs, counts, strict=True)]
+        else:
+            self._arrays = arrays = KernelArrays(self.n)
+            self.encoders = [KernelEncoder(kern, arrays, k, enc, c)
+                             for k, (enc, c) in enumerate(zip(encs, counts, strict=True))]
+            for k, node in enumerate(self.nodes):
+                node.bind(arrays, k)
+            self._plain = np.zeros(self.n, dtype=np.bool_)
+            self._no_changes = (np.zeros(0, dtype=np.int64),) * 3
+            self._fed = 0
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
             node.lazy = self.lazy
             node.events = []                    # the observation port, for the timeline
             node.attach(encoder)
         self._samplers = [e.sample for e in self.encoders]
         self._link = LinkTiming(self.n)
-        self._torque = np.zeros(self.n)
+        self._torque = np.zeros(self.n)         # (the kernel writes the plain nodes' torques)
 
     @property
     def link_up(self) -> bool:
@@ -150,7 +173,9 @@ class ModelBackend(GatewareSide):
     async def advance(self, n: int, lines: PlantLines, offset: int = 0) -> Observed:
         start = self.cycle
         end = start + n
-        if self.lazy:
+        if self._kern is not None:
+            events = self._run_kernel(start, n, lines, offset)
+        elif self.lazy:
             changes = lines.changes()
             whole = offset == 0 and (lines.at_rest or n == self._step_len(lines))
             for k, enc in enumerate(self.encoders):
@@ -161,7 +186,8 @@ class ModelBackend(GatewareSide):
             for k, enc in enumerate(self.encoders):
                 enc.feed(start, np.full(n, lines.counts[k]) if lines.at_rest
                          else lines.cycles().counts[offset:offset + n, k])
-        events = self._run_nodes(end)
+        if self._kern is None:
+            events = self._run_nodes(end)
         replies = [Reply(c, src, ptype, seq, bytes(payload))
                    for c, src, ptype, payload, seq in self._link.replies_before(end)]
         self.cycle = end
@@ -180,6 +206,9 @@ class ModelBackend(GatewareSide):
                               f"at cycle {cycle} are not the master's grid")
 
     def finish(self) -> None:
+        if self._kern is not None:
+            for node in self.nodes:
+                node.pull()
         for k, node in enumerate(self.nodes):
             if node.tripped:
                 self._violate(f"node {k + 1}: the watchdog tripped")
@@ -225,12 +254,67 @@ class ModelBackend(GatewareSide):
     def _step_len(lines: PlantLines) -> int:
         return lines.plant.cycles_per_step
 
-    def _run_nodes(self, end: int) -> list:
+    def _run_kernel(self, start: int, n: int, lines: PlantLines, offset: int) -> list:
+        """:meth:`advance`'s work with the compiled kernel: the count changes into every
+        encoder and the nodes without an event in the piece in one call, the others by the
+        reference event loop (:meth:`_run_nodes`)."""
+        end = start + n
+        if start != self._fed:
+            raise ValueError(f"feed must continue at cycle {self._fed}, not {start}")
+        self._fed = end
+        chg = self._no_changes
+        if not lines.at_rest:
+            changes = lines.changes()
+            if any(changes):
+                nodes_k, cyc, cnt = [], [], []
+                whole = offset == 0 and n == lines.plant.cycles_per_step
+                for k, ch in enumerate(changes):
+                    for i, c in ch:
+                        if whole or offset <= i < offset + n:
+                            nodes_k.append(k)
+                            cyc.append(i - offset)
+                            cnt.append(c)
+                if nodes_k:
+                    chg = (np.array(nodes_k, dtype=np.int64), np.array(cyc, dtype=np.int64),
+                           np.array(cnt, dtype=np.int64))
+        plain = self._plain
+        inbox = self._link.inbox
+        others = None
+        last = end - 1
+        for k, node in enumerate(self.nodes):
+            box = inbox[k]
+            if node.next_special() >= last and not (box and min(e[0] for e in box) < end):
+                plain[k] = True
+                if not node.in_kernel:
+                    node.push()
+                if node._done < last:
+                    node._done = last
+            else:
+                plain[k] = False
+                node.pull()
+                others = [k] if others is None else others + [k]
+        a = self._arrays
+        if self._kern.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, plain, start, n,
+                                 *chg, self._torque):
+            raise RuntimeError("model kernel: an unobserved torque word was sampled")
+        if others is None:
+            out = []
+            for k, node in enumerate(self.nodes):
+                if node.events:
+                    self._collect(k, node, end, out)
+            return out
+        return self._run_nodes(end, others)
+
+    def _run_nodes(self, end: int, which=None) -> list:
         """Every node's events of cycles < ``end``; torque words output in cycle ``end − 1``.
-        Returns the observation-port strobes before ``end`` ``(cycle, node, name)``."""
+        Returns the observation-port strobes before ``end`` ``(cycle, node, name)``.
+        ``which``: only these nodes (the others' events are still collected)."""
         out = []
         start = self._start
         for k, node in enumerate(self.nodes):
+            if which is not None and k not in which:
+                self._collect(k, node, end, out)
+                continue
             sample = self._samplers[k]
             box = self._link.inbox[k]
             if box:
@@ -261,12 +345,17 @@ class ModelBackend(GatewareSide):
                 del box[:i]
             node.run(end - 1, sample)
             self._torque[k] = FORCE.decode(node.torque_at(end - 1))
-            if node.events:
-                later = []
-                for c, flag in node.events:
-                    if c < end:
-                        out.append((c, k + 1, flag.name))
-                    else:           # (a MARK still ahead waits for its chunk)
-                        later.append((c, flag))
-                node.events = later
+            self._collect(k, node, end, out)
         return out
+
+    @staticmethod
+    def _collect(k: int, node, end: int, out: list) -> None:
+        """Node ``k``'s observation-port strobes before ``end`` into ``out``."""
+        if node.events:
+            later = []
+            for c, flag in node.events:
+                if c < end:
+                    out.append((c, k + 1, flag.name))
+                else:           # (a MARK still ahead waits for its chunk)
+                    later.append((c, flag))
+            node.events = later

@@ -95,16 +95,7 @@ class FastNode(NodeModel):
         count_only = self._defer_sample or (lambda c: fast(c)[0])
         batch = self._defer_sample is not None
         while True:
-            nb = self._nb
-            special = nb
-            if self._commit_seen != self._lb:
-                commit = self._lb + cfg[_COMMIT]
-                if commit < special:
-                    special = commit
-            if self.arm_pending and self._pre_seen != nb and nb - 1 < special:
-                special = nb - 1
-            if self.dmp_running and self._dmp_due < special:
-                special = self._dmp_due                # a step of the generator
+            special = self.next_special()
             lim = special if special < until else until
             if dead is not None:
                 step = cfg[_TICK]
@@ -140,6 +131,23 @@ class FastNode(NodeModel):
         if until > self._done:
             self._done = until
 
+    def next_special(self) -> int:
+        """The cycle of the next event of the node's timer that is not a plain tick (the
+        boundary, the commit point, the cycle before an arming boundary): :meth:`run` hands
+        it to the reference event loop, and the compiled kernel (:mod:`cosim.model_kernel`)
+        runs only pieces that end before it. A step of the primitive generator is one."""
+        nb = self._nb
+        special = nb
+        if self._commit_seen != self._lb:
+            commit = self._lb + self.config[_COMMIT]
+            if commit < special:
+                special = commit
+        if self.arm_pending and self._pre_seen != nb and nb - 1 < special:
+            special = nb - 1
+        if self.dmp_running and self._dmp_due < special:
+            special = self._dmp_due                     # a step of the generator
+        return special
+
     def _dead_run(self, first: int, k: int, step: int, cyc: int) -> None:
         """``k`` dead ticks from cycle ``first``, ``step`` apart, at once: the state
         :meth:`_dead_tick` would leave (not tripped, no PRIME pending, the landing before
@@ -169,16 +177,9 @@ class FastNode(NodeModel):
         j = self.joint
         integral, part_b = j.pid_integral, j.part_b
         qd0, vd0, ad0 = d[1], d[2], d[3]
-        enc = self._encoder
-        vis = enc._visible
-        nv = len(vis)
-        i = enc._vi
-        count = enc.count
+        count_at = self._encoder.count_at
         for t in range(first, last + 1, step):
-            while i < nv and vis[i][0] <= t:
-                count += vis[i][1]
-                i += 1
-            integral(count)
+            integral(count_at(t))
             tn = t - lb + step
             part_b(tn if tn < _TIME_MAX else _TIME_MAX, qd0, vd0, ad0)
         self._defer_many(first, last, step)
@@ -406,6 +407,16 @@ class EncoderEvents:
         if due and c - due[-1] < self._due_gap:
             self._due_gap = c - due[-1]
         due.append(c)
+        vis = self._visible
+        i = self._vi
+        count = self.count
+        while i < len(vis) and vis[i][0] <= c:
+            count += vis[i][1]
+            i += 1
+        return count
+
+    def count_at(self, c: int) -> int:
+        """The count visible in cycle ``c`` (no strobe, nothing taken)."""
         vis = self._visible
         i = self._vi
         count = self.count

@@ -1,0 +1,136 @@
+"""The ``model`` backend's speed, compiled inner loop against pure Python, side by side.
+
+    python benchmarks/model_speed.py [--robot mrm3 --robot mrm6] [--cycles 2500000] [--rounds 3]
+
+For each robot, ``mrm bench``'s window (the VDC loop on the paper's quintic, after start-up)
+runs alternately with ``kernel="numba"`` and ``kernel="python"``; it prints the real-time factor
+of each (CPU time of this process over simulated time: the machine is shared, wall time is
+noisier), best and median of the rounds, their ratio, and that the two trace hashes are equal.
+Then one more run of each with the loop's parts timed (``--breakdown``, on by default): CPU
+µs per simulated 1 ms period spent in the plant step, the master, the gateware side (nodes,
+encoders, link) and the rest of the loop.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+from mrm_cosim.cosim.closed_loop import ClosedLoop
+from mrm_cosim.cosim.model import ModelBackend
+from mrm_cosim.cosim.preview import paper_test_profile
+from mrm_cosim.master.cycle import Master, MasterTiming
+from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains, pid_shifts
+from mrm_cosim.models.plant import Plant
+from mrm_cosim.models.robot import load_robot
+from mrm_cosim.units import CLOCK_HZ
+
+START = 50_000          # period 0, as mrm bench
+
+
+def _loop(robot, kernel: str):
+    import numpy as np
+
+    profile = paper_test_profile(robot)
+
+    def trajectory(t):
+        q, qd, qdd, _ = profile.evaluate(np.array([t]))
+        return q[0], qd[0], qdd[0]
+
+    master = Master(robot, "vdc", trajectory, robot.counts_per_rev, MasterTiming(),
+                    pid=pid_gains(robot, 5.0))
+    plant = Plant(robot, seed=0)
+    plant.reset(robot.home)
+    backend = ModelBackend(kernel=kernel, pid_shift=pid_shifts(robot))
+    return ClosedLoop(robot, backend, master, plant, START, node_uploads(robot, "vdc", Gains()))
+
+
+def _timed(obj, name: str, acc: dict, key: str) -> None:
+    """Wrap ``obj.name`` to add its CPU time to ``acc[key]``."""
+    f = getattr(obj, name)
+    clock = time.process_time
+
+    if name == "advance":                       # a coroutine function
+        async def wrapped(*a, **kw):
+            t = clock()
+            out = await f(*a, **kw)
+            acc[key] += clock() - t
+            return out
+    else:
+        def wrapped(*a, **kw):
+            t = clock()
+            out = f(*a, **kw)
+            acc[key] += clock() - t
+            return out
+    setattr(obj, name, wrapped)
+
+
+def run(robot_name: str, kernel: str, cycles: int, breakdown: bool = False):
+    """One window; returns ``(rtf, trace hash, parts)`` (CPU s per part if ``breakdown``)."""
+    robot = load_robot(robot_name)
+    loop = _loop(robot, kernel)
+    acc = dict.fromkeys(("plant", "master", "gateware side"), 0.0)
+    if breakdown:
+        _timed(loop.plant, "step", acc, "plant")
+        _timed(loop.plant, "encoder_changes", acc, "plant")
+        for name in ("poll", "on_packet", "on_node_event", "next_due"):
+            _timed(loop.master, name, acc, "master")
+        _timed(loop.backend, "advance", acc, "gateware side")
+    # the loop's own window timer is wall time: time the CPU from period 0 to the end instead
+    begin = loop.master.begin
+    marks = {}
+
+    def mark(cycle):
+        marks["t0"] = time.process_time()
+        return begin(cycle)
+
+    loop.master.begin = mark
+    result = loop.run(cycles)
+    cpu = time.process_time() - marks["t0"]
+    if breakdown:
+        acc["loop and the rest"] = cpu - sum(acc.values())
+    return cpu / (cycles / CLOCK_HZ), result.trace_sha256, acc, result.violations
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--robot", action="append", help="robot(s) (default mrm3 and mrm6)")
+    ap.add_argument("--cycles", type=int, default=2_500_000, help="window after period 0")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--no-breakdown", action="store_true")
+    args = ap.parse_args(argv)
+    robots = args.robot or ["mrm3", "mrm6"]
+    for robot in robots:                        # compile / load the kernel, warm caches
+        run(robot, "numba", 100_000)
+        run(robot, "python", 100_000)
+    periods = args.cycles / (CLOCK_HZ / 1000)
+    for robot in robots:
+        rtf = {"numba": [], "python": []}
+        hashes = {}
+        for _ in range(args.rounds):
+            for kernel in ("numba", "python"):
+                r, h, _, v = run(robot, kernel, args.cycles)
+                rtf[kernel].append(r)
+                hashes[kernel] = h
+                if v:
+                    print(f"  ({kernel}: violations {v[:2]})")
+        same = "same" if hashes["numba"] == hashes["python"] else "DIFFERENT"
+        print(f"{robot}: {args.cycles:,} cycles ({periods:.0f} periods), CPU RTF best / median "
+              f"of {args.rounds}")
+        for kernel in ("numba", "python"):
+            print(f"  {kernel:7s} {min(rtf[kernel]):6.2f} / {statistics.median(rtf[kernel]):6.2f}")
+        print(f"  python / numba: x{min(rtf['python']) / min(rtf['numba']):.2f} (best), "
+              f"trace hashes {same} ({hashes['numba'][:16]})")
+        if not args.no_breakdown:
+            print("  CPU µs per simulated 1 ms period:")
+            parts = {k: run(robot, k, args.cycles, breakdown=True)[2]
+                     for k in ("numba", "python")}
+            for name in parts["numba"]:
+                print(f"    {name:20s} numba {parts['numba'][name] / periods * 1e6:8.0f}   "
+                      f"python {parts['python'][name] / periods * 1e6:8.0f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

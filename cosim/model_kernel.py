@@ -1,0 +1,332 @@
+"""The ``model`` backend's compiled inner loop: what runs it, and the nodes and encoders on it.
+
+The plain part of a plant step — every node's encoder taking the plant's count changes, and for
+every node with no event in the piece (no packet or time-code reaching it, no boundary, commit
+or pre-arm cycle, :meth:`FastNode.next_special <cosim.model_node.FastNode.next_special>`) its
+control ticks and the torque word the plant samples — is one call of
+:func:`cosim.model_kernel_src.plain_step`, compiled with numba (``cache=True``). The functions
+there are translations of the references, line by line; the references stay the readable
+source of truth and the pure-Python path (``ModelBackend(kernel="python")``), and the tests run
+both and require the same trace hashes.
+
+* :class:`KernelEncoder` — :class:`~cosim.model_node.EncoderEvents`' interface on the kernel's
+  arrays (one row of the backend's). Its state lives there only, so the nodes' Python event
+  loop and the kernel share it without copies.
+* :class:`KernelNode` — :class:`~cosim.model_node.FastNode` whose plain steps run in the kernel.
+  Between two plain steps its tick state stays in the kernel's row; before the Python event
+  loop takes the node (a packet, a time-code, a boundary, a commit) the row is copied back
+  into the object (:meth:`KernelNode.pull`), and the other way round (:meth:`KernelNode.push`)
+  before the next plain step. The event loop itself is the reference's, unchanged.
+
+Selection: :func:`load` returns the compiled functions, or None with a one-line
+:class:`RuntimeWarning` when numba is missing or fails (the pure-Python path then runs);
+``MRM_MODEL_KERNEL=python`` selects the pure-Python path.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from functools import cache
+
+import numpy as np
+
+from mrm_cosim.cosim.model_node import FastNode
+from mrm_cosim.cosim import model_kernel_src as src
+from mrm_cosim.protocol.fixed import CNT, FORCE, IHI, POS, SGN, TIME, VEL
+from mrm_cosim.protocol.fixed import ACC, ANG, CT, IM, IVLC, IVS, KC, LAM, LAMC, TS, VISC, GAIN
+from mrm_cosim.protocol.joint_program import MODES, joint_microcode, pid_formats
+from mrm_cosim.protocol.regs import Config
+
+__all__ = ["load", "kernel_choice", "KernelEncoder", "KernelNode", "KernelArrays",
+           "point_shifts", "param_row"]
+
+#: Buffer sizes per node (changes of one plant step are ≤ 500 per line; the queues empty at
+#: every observed tick, at least once a plant step). Overflow raises.
+PEND_CAP, VIS_CAP, PIPE_CAP, DUE_CAP = 2048, 2048, 64, 4096
+
+_loaded = None          # the compiled module, False if it cannot be, None before trying
+
+
+def kernel_choice(kernel: str | None = None) -> str:
+    """``"numba"`` or ``"python"``: ``kernel``, else ``$MRM_MODEL_KERNEL``, else numba."""
+    choice = kernel or os.environ.get("MRM_MODEL_KERNEL") or "numba"
+    if choice not in ("numba", "python"):
+        raise ValueError(f"model kernel must be 'numba' or 'python', not {choice!r}")
+    return choice
+
+
+def load():
+    """The compiled kernel module (:mod:`cosim.model_kernel_src` with its functions jitted),
+    or None, after one warning, if numba is missing or cannot compile it here."""
+    global _loaded
+    if _loaded is None:
+        try:
+            import numba
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")             # numba's own notices
+                src.jit_all(numba.njit(cache=True))
+                _warm_up(src)
+            _loaded = src
+        except Exception as e:          # noqa: BLE001 — any failure: the Python path runs
+            _loaded = False
+            warnings.warn(f"model backend: compiled inner loop unavailable "
+                          f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}); "
+                          "running the pure-Python path", RuntimeWarning, stacklevel=2)
+    return _loaded or None
+
+
+def _warm_up(k) -> None:
+    """Compile (or load from numba's cache) every entry point once, on throw-away arrays."""
+    a = KernelArrays(1)
+    a.E[0, src.E_KNOWN] = -1
+    a.E[0, src.E_MINWIN] = a.E[0, src.E_STOP] = 10
+    a.E[0, src.E_KV] = 100
+    a.E[0, src.E_FILTER] = 2
+    a.E[0, src.E_DUE_GAP] = src.NEVER
+    a.E[0, src.E_LAST_C] = a.E[0, src.E_TAKEN] = -1
+    a.N[0, src.N_TICK] = 50
+    a.P[0, src.P_CYC:src.P_CYC + 3] = 40
+    z = np.zeros(0, dtype=np.int64)
+    tau = np.zeros(1)
+    k.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, np.ones(1, dtype=np.bool_), 0,
+                 500, z, z, z, tau)
+    e = a.rows(0)
+    k.enc_tick_sample(e[0], e[2], e[3], e[4], 600)
+    k.enc_defer(e[0], e[2], e[4], 650)
+    k.enc_defer_range(e[0], e[4], 700, 800, 50)
+    k.enc_count_at(e[0], e[2], 800)
+    k.enc_preset(e[0], e[2], e[3], e[4], 900, 0)
+    k.enc_feed_changes(e[0], e[1], e[2], 500, 500, z, z)
+    k.materialize(a.N[0], a.P[0])
+
+
+def point_shifts(fmt, *lsbs) -> tuple[int, ...]:
+    """The 6 slots of one rounding point ``fx_point(fmt, *lsbs)``: each summand's left shift
+    onto the finest LSB (0 for unused slots), then the rounding shift."""
+    low = min(*lsbs, fmt.lsb)
+    shifts = [lsb - low for lsb in lsbs] + [0] * (5 - len(lsbs))
+    return (*shifts, fmt.lsb - low)
+
+
+@cache
+def _points(pid_shift: int) -> tuple[int, ...]:
+    """The rounding points of hdl/node/joint_ref.py, in :data:`src.POINTS` order, their 6
+    slots each one after the other."""
+    f = pid_formats(pid_shift)
+    return sum([
+        point_shifts(POS, POS.lsb, CNT.lsb),                                        # E
+        point_shifts(VEL, VEL.lsb, LAMC.lsb + POS.lsb),                             # QDR
+        point_shifts(ACC, ACC.lsb, LAM.lsb + VEL.lsb),                              # QDDR
+        point_shifts(SGN, IVS.lsb + VEL.lsb, IVLC.lsb + POS.lsb),                   # SG
+        point_shifts(FORCE, FORCE.lsb, IM.lsb + ACC.lsb, VISC.lsb + VEL.lsb,
+                     FORCE.lsb + SGN.lsb, GAIN.lsb + VEL.lsb),                      # TAU_VDC
+        point_shifts(FORCE, FORCE.lsb, f["kp"].lsb + POS.lsb, f["ki"].lsb + POS.lsb,
+                     f["ki"].lsb + IHI.lsb, f["kd"].lsb + VEL.lsb),                 # TAU_PID
+        point_shifts(IHI, POS.lsb, POS.lsb, CNT.lsb),                               # I_CARRY
+        point_shifts(POS, POS.lsb, POS.lsb, CNT.lsb, IHI.lsb),                      # I_LO
+        point_shifts(IHI, IHI.lsb, IHI.lsb),                                        # I_HI
+        point_shifts(FORCE, FORCE.lsb),                                             # TAU_D
+        point_shifts(TS, TIME.lsb + CT.lsb),                                        # TS
+        point_shifts(VEL, VEL.lsb, ACC.lsb + TS.lsb),                               # VD
+        point_shifts(ANG, VEL.lsb + TS.lsb),                                        # DQ
+        point_shifts(POS, POS.lsb, ANG.lsb + KC.lsb),                               # QD
+    ], ())
+
+
+def param_row(params, out: np.ndarray | None = None) -> np.ndarray:
+    """The kernel's parameter row of :class:`~protocol.joint_program.JointParams` ``params``."""
+    row = np.zeros(src.P_SIZE, dtype=np.int64) if out is None else out
+    for i, name in enumerate(src.PARAM_WORDS):
+        row[i] = getattr(params, name)
+    mc = joint_microcode(params.pid_shift)
+    row[src.P_CYC:src.P_CYC + 3] = [mc.cycles(m) for m in MODES]
+    row[src.P_SH:] = _points(params.pid_shift)
+    return row
+
+
+class KernelArrays:
+    """The kernel's state for ``n`` nodes: node rows ``N``, parameter rows ``P``, encoder rows
+    ``E`` and the encoders' queues."""
+
+    def __init__(self, n: int):
+        self.N = np.zeros((n, src.N_SIZE), dtype=np.int64)
+        self.P = np.zeros((n, src.P_SIZE), dtype=np.int64)
+        self.E = np.zeros((n, src.E_SIZE), dtype=np.int64)
+        self.PEND = np.zeros((n, 2, PEND_CAP, 2), dtype=np.int64)
+        self.VIS = np.zeros((n, VIS_CAP, 2), dtype=np.int64)
+        self.PIPE = np.zeros((n, PIPE_CAP, 4), dtype=np.int64)
+        self.DUE = np.zeros((n, DUE_CAP), dtype=np.int64)
+
+    def rows(self, k: int) -> tuple:
+        """Node ``k``'s encoder views ``(E, PEND, VIS, PIPE, DUE)``."""
+        return self.E[k], self.PEND[k], self.VIS[k], self.PIPE[k], self.DUE[k]
+
+
+class KernelEncoder:
+    """:class:`~cosim.model_node.EncoderEvents` on row ``k`` of :class:`KernelArrays` (same
+    methods, same results; tests/test_model_kernel.py)."""
+
+    def __init__(self, kern, arrays: KernelArrays, k: int, params, count0: int):
+        self._k = kern
+        self.p = params
+        E, self._pend, self._vis, self._pipe, self._due = arrays.rows(k)
+        self._E = E
+        count0 = int(count0)
+        a, b = (((count0 & 3) >> 1) ^ (count0 & 1)), (count0 & 3) >> 1
+        E[:] = 0
+        E[src.E_RAW] = count0
+        E[src.E_KNOWN] = -1
+        E[src.E_FILT0], E[src.E_FILT1] = a, b
+        E[src.E_PAIR0], E[src.E_PAIR1] = a, b
+        E[src.E_MOVED_C] = -1
+        E[src.E_TAKEN] = -2
+        E[src.E_LAST_C] = -1
+        E[src.E_MINWIN] = params.min_window
+        E[src.E_STOP] = params.stop_cycles
+        E[src.E_DUE_GAP] = src.NEVER
+        E[src.E_KV] = params.kv
+        E[src.E_FILTER] = params.filter_cycles
+
+    @property
+    def count(self) -> int:
+        return int(self._E[src.E_COUNT])
+
+    @property
+    def velocity(self) -> int:
+        return int(self._E[src.E_VEL])
+
+    @property
+    def errors(self) -> int:
+        return int(self._E[src.E_ERRORS])
+
+    def feed(self, start: int, counts) -> None:
+        """:meth:`EncoderEvents.feed`."""
+        counts = np.asarray(counts, dtype=np.int64)
+        prev = np.empty_like(counts)
+        prev[0] = self._E[src.E_RAW]
+        prev[1:] = counts[:-1]
+        idx = np.flatnonzero(counts != prev)
+        self.feed_arrays(start, len(counts), idx.astype(np.int64), counts[idx])
+
+    def feed_changes(self, start: int, n: int, changes) -> None:
+        """:meth:`EncoderEvents.feed_changes`."""
+        if changes:
+            arr = np.array(changes, dtype=np.int64)
+            self.feed_arrays(start, n, arr[:, 0].copy(), arr[:, 1].copy())
+        else:
+            z = np.zeros(0, dtype=np.int64)
+            self.feed_arrays(start, n, z, z)
+
+    def feed_arrays(self, start: int, n: int, cycles, counts) -> None:
+        known = int(self._E[src.E_KNOWN])
+        if start != known + 1:
+            raise ValueError(f"feed must continue at cycle {known + 1}, not {start}")
+        self._k.enc_feed_changes(self._E, self._pend, self._vis, start, n, cycles, counts)
+
+    def sample(self, c: int) -> tuple[int, int, int]:
+        """:meth:`EncoderEvents.sample`."""
+        E = self._E
+        self._k.enc_tick_sample(E, self._vis, self._pipe, self._due, c)
+        return int(E[src.E_LAST_COUNT]), int(E[src.E_LAST_VEL]), int(E[src.E_ERR_LAST])
+
+    def tick_sample(self, c: int) -> tuple[int, int]:
+        """:meth:`EncoderEvents.tick_sample`."""
+        E = self._E
+        self._k.enc_tick_sample(E, self._vis, self._pipe, self._due, c)
+        return int(E[src.E_LAST_COUNT]), int(E[src.E_LAST_VEL])
+
+    def defer(self, c: int) -> int:
+        """:meth:`EncoderEvents.defer`."""
+        return int(self._k.enc_defer(self._E, self._vis, self._due, c))
+
+    def defer_range(self, first: int, last: int, step: int) -> None:
+        """:meth:`EncoderEvents.defer_range`."""
+        self._k.enc_defer_range(self._E, self._due, first, last, step)
+
+    def count_at(self, c: int) -> int:
+        """:meth:`EncoderEvents.count_at`."""
+        return int(self._k.enc_count_at(self._E, self._vis, c))
+
+    def preset(self, c: int, value: int) -> None:
+        """:meth:`EncoderEvents.preset`."""
+        value = ((int(value) + 2**31) % 2**32) - 2**31
+        self._k.enc_preset(self._E, self._vis, self._pipe, self._due, c, value)
+
+
+_TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX, _RAMP = (int(c) for c in (
+    Config.TICK, Config.MODE, Config.TIMEOUT, Config.TAU_MIN, Config.TAU_MAX, Config.RAMP))
+
+
+class KernelNode(FastNode):
+    """:class:`~cosim.model_node.FastNode` whose plain steps run in the compiled kernel, on
+    row ``_row`` of the backend's :class:`KernelArrays` (module docstring). While
+    :attr:`in_kernel`, the row holds the tick state, not the object: :meth:`pull` first."""
+
+    in_kernel = False
+    _row = None
+    _prow = None
+
+    def bind(self, arrays: KernelArrays, k: int) -> None:
+        self._row = arrays.N[k]
+        self._prow = arrays.P[k]
+
+    def push(self) -> None:
+        """The object's tick state into the kernel's row; the kernel owns it from now."""
+        N = self._row
+        N[src.N_NT] = self._nt
+        t = self.torque
+        N[src.N_TORQUE_NONE] = t is None
+        N[src.N_TORQUE] = 0 if t is None else t
+        land = self._landing
+        if land is None:
+            N[src.N_LAND] = 0
+        else:
+            N[src.N_LAND_C] = land[0]
+            N[src.N_LAND] = 2 if land[1] is None else 1
+            N[src.N_LAND_V] = 0 if land[1] is None else land[1]
+        N[src.N_STARTED] = self._started
+        N[src.N_BUSY] = self._busy_until
+        N[src.N_OVERRUNS] = self.overruns
+        d = self._deferred
+        N[src.N_DEF] = d is not None
+        if d is not None:
+            N[src.N_DEF_TN:src.N_DEF_A + 1] = d
+        j = self.joint
+        N[src.N_QDES], N[src.N_VDES], N[src.N_ILO], N[src.N_IHI] = \
+            j.q_des, j.v_des, j.i_lo, j.i_hi
+        N[src.N_ARMED], N[src.N_TRIPPED], N[src.N_PRIME] = self.armed, self.tripped, self.prime
+        pd = self._prime_due
+        N[src.N_PRIME_SET] = pd is not None
+        N[src.N_PRIME_DUE] = 0 if pd is None else pd
+        N[src.N_LAST_PACKET] = self.last_packet
+        N[src.N_DBASE] = self.d_base
+        N[src.N_D0:src.N_D0 + 4] = self.d_words
+        cfg = self.config
+        N[src.N_TICK], N[src.N_MODE], N[src.N_TIMEOUT] = cfg[_TICK], cfg[_MODE], cfg[_TIMEOUT]
+        N[src.N_TAU_MIN], N[src.N_TAU_MAX], N[src.N_RAMP] = \
+            cfg[_TAU_MIN], cfg[_TAU_MAX], cfg[_RAMP]
+        param_row(j.params, self._prow)
+        self.in_kernel = True
+
+    def pull(self) -> None:
+        """The kernel's row back into the object (what the plain ticks changed)."""
+        if not self.in_kernel:
+            return
+        self.in_kernel = False
+        N = self._row.tolist()
+        self._nt = N[src.N_NT]
+        self.torque = None if N[src.N_TORQUE_NONE] else N[src.N_TORQUE]
+        kind = N[src.N_LAND]
+        self._landing = None if kind == 0 else \
+            (N[src.N_LAND_C], N[src.N_LAND_V] if kind == 1 else None)
+        self._started = N[src.N_STARTED]
+        self._busy_until = N[src.N_BUSY]
+        self.overruns = N[src.N_OVERRUNS]
+        self._deferred = tuple(N[src.N_DEF_TN:src.N_DEF_A + 1]) if N[src.N_DEF] else None
+        j = self.joint
+        j.q_des, j.v_des, j.i_lo, j.i_hi = N[src.N_QDES:src.N_IHI + 1]
+        self.tripped = bool(N[src.N_TRIPPED])
+        self.prime = bool(N[src.N_PRIME])
+        self._prime_due = N[src.N_PRIME_DUE] if N[src.N_PRIME_SET] else None

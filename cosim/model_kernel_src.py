@@ -1,0 +1,679 @@
+"""The ``model`` backend's inner loop as integer code numba can compile: a node's plain control
+ticks, its joint engine's arithmetic and its encoder interface, on arrays.
+
+These functions are line-for-line translations of the readable references, which stay the
+source of truth and the oracle: :class:`~hdl.node.joint_ref.JointModel` (``part_a``,
+``part_b``, ``pid_integral``), :class:`cosim.model_node.EncoderEvents` and the lazy tick loop of
+:meth:`cosim.model_node.FastNode.run`. Every name below says which method it stands for.
+:mod:`cosim.model_kernel` compiles them (``numba.njit``) and wires them to the backend; its
+tests run them against the references bit for bit.
+
+Exactness. Every value is a Python ``int`` in the references and an ``int64`` here. The widest
+intermediate is the PID torque's sum, ``k_i · I_hi`` (two 24-bit words, ≤ 2^46) shifted 14
+bits left, ≤ 2^60 with the other four summands below 2^55 (checked for every rounding point and
+PID gain shift by ``tests/test_model_kernel.py``); the velocity word's ``num · y1 · K_v`` is
+below 2^46. Right shifts of negative values are arithmetic in both (floor), the ``& 3`` of a
+negative count is two's complement in both, and the one float expression (the encoder's
+``_clip`` pre-check) is the same IEEE operations in the same order.
+
+State layout: one ``int64`` row per node (the ``N_*`` and ``E_*`` indices), the joint's words
+and rounding points in a parameter row (``P_*``), and the encoder's queues in fixed buffers
+with a length in the state row (overflow raises, it is never silent).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from mrm_cosim.hdl.node.encoder_ref import VEL_LATENCY as _VEL_LATENCY
+from mrm_cosim.protocol.encoder import AGE_MAX as _AGE_MAX
+from mrm_cosim.protocol.encoder import DC_MAX as _DC_MAX
+from mrm_cosim.protocol.encoder import RECIP_TABLE
+from mrm_cosim.protocol.fixed import FORCE as _FORCE
+
+# --- node state row (FastNode / NodeModel fields the plain ticks read or write) -------------
+N_NT, N_TORQUE, N_TORQUE_NONE = 0, 1, 2
+N_LAND_C, N_LAND_V, N_LAND = 3, 4, 5            # N_LAND: 0 none, 1 a word, 2 a dead tick's None
+N_STARTED, N_BUSY, N_OVERRUNS = 6, 7, 8
+N_DEF, N_DEF_TN, N_DEF_Q, N_DEF_V, N_DEF_A = 9, 10, 11, 12, 13      # the deferred Part B
+N_QDES, N_VDES, N_ILO, N_IHI = 14, 15, 16, 17
+N_ARMED, N_TRIPPED, N_PRIME, N_PRIME_DUE, N_PRIME_SET = 18, 19, 20, 21, 22
+N_LAST_PACKET, N_DBASE = 23, 24
+N_D0 = 25                                       # d_words: 25..28
+N_TICK, N_MODE, N_TIMEOUT, N_TAU_MIN, N_TAU_MAX, N_RAMP = 29, 30, 31, 32, 33, 34
+N_SIZE = 35
+
+# --- joint parameter row ---------------------------------------------------------------------
+P_CT, P_CTH, P_KC, P_LAMC, P_LAM, P_IVS, P_IVLC, P_KJ = 0, 1, 2, 3, 4, 5, 6, 7
+P_TH0, P_TH1, P_TH2, P_TH3, P_KP, P_KI, P_KD, P_ILO, P_IHI = 8, 9, 10, 11, 12, 13, 14, 15, 16
+P_CYC = 17                                      # cycles of the three modes: 17..19
+P_SH = 20                                       # rounding points: shifts then r, 6 slots each
+PARAM_WORDS = ("cT", "cTh", "Kc", "lamc", "lam", "ivs", "ivlc", "kj", "th0", "th1", "th2",
+               "th3", "kp", "ki", "kd", "ilo", "ihi")
+#: The rounding points of hdl/node/joint_ref.py, in this order (6 slots each: 5 shifts, r).
+POINTS = ("E", "QDR", "QDDR", "SG", "TAU_VDC", "TAU_PID", "I_CARRY", "I_LO", "I_HI", "TAU_D",
+          "TS", "VD", "DQ", "QD")
+(X_E, X_QDR, X_QDDR, X_SG, X_TAU_VDC, X_TAU_PID, X_I_CARRY, X_I_LO, X_I_HI, X_TAU_D, X_TS,
+ X_VD, X_DQ, X_QD) = (P_SH + 6 * i for i in range(len(POINTS)))
+P_SIZE = P_SH + 6 * len(POINTS)
+
+# --- encoder state row (EncoderEvents fields) -------------------------------------------------
+E_RAW, E_KNOWN, E_FILT0, E_FILT1, E_PAIR0, E_PAIR1, E_VI, E_NVIS = 0, 1, 2, 3, 4, 5, 6, 7
+E_COUNT, E_ERRORS, E_VEL, E_ELAST, E_REFT, E_CREF, E_MOVED_C, E_MOVED_R = \
+    8, 9, 10, 11, 12, 13, 14, 15
+E_NPIPE, E_TAKEN, E_LAST_COUNT, E_LAST_VEL, E_LAST_C, E_ERR_LAST = 16, 17, 18, 19, 20, 21
+E_MINWIN, E_STOP, E_NDUE, E_DUE_GAP, E_KV, E_FILTER, E_NPEND0, E_NPEND1 = \
+    22, 23, 24, 25, 26, 27, 28, 29
+E_SIZE = 30
+
+WORD_MIN, WORD_MAX = -(1 << 23), (1 << 23) - 1
+TIME_MAX = (1 << 23) - 1
+FORCE_LSB = 2.0 ** _FORCE.lsb           # FORCE.decode(w) = ldexp(w, lsb): exact, as w · 2^lsb
+NEVER = 1 << 62
+AGE_MAX = _AGE_MAX
+DC_MAX = _DC_MAX
+VEL_LATENCY = _VEL_LATENCY
+RECIP = np.array(RECIP_TABLE, dtype=np.int64)
+
+
+# --- the joint engine (JointModel) ----------------------------------------------------------
+def fx(P, x, v0, v1, v2, v3, v4):
+    """One rounding point (``fx_point`` of joint_ref.py): summands aligned on the finest LSB,
+    one rounding half up, saturation (slots ``x … x + 4`` the shifts, ``x + 5`` the rounding
+    shift). Unused summands are 0."""
+    r = P[x + 5]
+    v = ((v0 << P[x]) + (v1 << P[x + 1]) + (v2 << P[x + 2]) + (v3 << P[x + 3])
+         + (v4 << P[x + 4]) + _half(r)) >> r
+    return WORD_MIN if v < WORD_MIN else WORD_MAX if v > WORD_MAX else v
+
+
+def _half(r):
+    return (1 << (r - 1)) if r else 0
+
+
+def saturate(v):
+    return WORD_MIN if v < WORD_MIN else WORD_MAX if v > WORD_MAX else v
+
+
+def part_a(N, P, mode, q, qd, tau_d, ad0):
+    """:meth:`JointModel.part_a`: the torque (and PID's integral update)."""
+    q = saturate(q)
+    vdes = N[N_VDES]
+    e = fx(P, X_E, N[N_QDES], -q, 0, 0, 0)
+    qdr = fx(P, X_QDR, vdes, P[P_LAMC] * e, 0, 0, 0)
+    if mode == 0:
+        qddr = fx(P, X_QDDR, ad0, P[P_LAM] * (vdes - qd), 0, 0, 0)
+        sg = fx(P, X_SG, P[P_IVS] * vdes, P[P_IVLC] * e, 0, 0, 0)
+        return fx(P, X_TAU_VDC, tau_d + P[P_TH3], P[P_TH0] * qddr, P[P_TH1] * qdr,
+                  P[P_TH2] * sg, P[P_KJ] * (qdr - qd))
+    if mode == 1:
+        tau = fx(P, X_TAU_PID, tau_d, P[P_KP] * e, P[P_KI] * N[N_ILO], P[P_KI] * N[N_IHI],
+                 P[P_KD] * (vdes - qd))
+        pid_integral(N, P, q)
+        return tau
+    return fx(P, X_TAU_D, tau_d, 0, 0, 0, 0)
+
+
+def pid_integral(N, P, q):
+    """:meth:`JointModel.pid_integral`."""
+    q = saturate(q)
+    c = fx(P, X_I_CARRY, N[N_ILO], N[N_QDES], -q, 0, 0)
+    N[N_ILO] = fx(P, X_I_LO, N[N_ILO], N[N_QDES], -q, -c, 0)
+    ihi = fx(P, X_I_HI, N[N_IHI], c, 0, 0, 0)
+    lo, hi = P[P_ILO], P[P_IHI]
+    N[N_IHI] = min(max(ihi, lo), hi)
+
+
+def part_b(N, P, tn, qd0, vd0, ad0):
+    """:meth:`JointModel.part_b`: the reference for the next tick."""
+    ts = fx(P, X_TS, tn * P[P_CT], 0, 0, 0, 0)
+    tsh = fx(P, X_TS, tn * P[P_CTH], 0, 0, 0, 0)
+    N[N_VDES] = fx(P, X_VD, vd0, ad0 * ts, 0, 0, 0)
+    h = fx(P, X_VD, vd0, ad0 * tsh, 0, 0, 0)
+    dq = fx(P, X_DQ, h * ts, 0, 0, 0, 0)
+    N[N_QDES] = fx(P, X_QD, qd0, dq * P[P_KC], 0, 0, 0)
+
+
+# --- the encoder interface (EncoderEvents) --------------------------------------------------
+def velocity_word(num, den, kv):
+    """:func:`hdl.node.encoder_ref.velocity_word` (with :func:`~.reciprocal`)."""
+    den = max(1, min(den, AGE_MAX))
+    p = 0
+    while den >> (p + 1):
+        p += 1
+    m17 = (den << (25 - p)) >> 9
+    y0 = RECIP[(m17 >> 8) & 0xFF]
+    d = (1 << 17) - ((m17 * y0) >> 16)
+    y1 = y0 + ((y0 * d) >> 17)
+    s = p + 6
+    return saturate(((num * y1) * kv + (1 << (s - 1))) >> s)
+
+
+def _phase(a, b):
+    return 2 * b + (a ^ b)              # (0,0) 0, (1,0) 1, (1,1) 2, (0,1) 3
+
+
+def enc_feed_changes(E, pend, vis, start, n, cyc, cnt):
+    """:meth:`EncoderEvents.feed_changes` (``start`` already checked by the caller); the
+    changes as two arrays, cycles in the step and new counts."""
+    m = cyc.shape[0]
+    if m:
+        o = E[E_RAW]
+        for j in range(m):
+            n_ = cnt[j]
+            lo = n_ if n_ < o else o
+            line = 0 if (lo & 3) == 0 or (lo & 3) == 2 else 1
+            k = E[E_NPEND0 + line]
+            if k >= pend.shape[1]:
+                raise RuntimeError("encoder kernel: pending-change buffer full")
+            pend[line, k, 0] = start + cyc[j]
+            pend[line, k, 1] = (((n_ & 3) >> 1) ^ (n_ & 1)) if line == 0 else (n_ & 3) >> 1
+            E[E_NPEND0 + line] = k + 1
+            o = n_
+        E[E_RAW] = o
+    E[E_KNOWN] = start + n - 1
+    if E[E_NPEND0] or E[E_NPEND1]:
+        _enc_resolve(E, pend, vis)
+
+
+def _enc_resolve(E, pend, vis):
+    f = E[E_FILTER]
+    known = E[E_KNOWN]
+    cap = pend.shape[1]
+    com = np.empty((2, cap, 2), dtype=np.int64)     # per line: (cycle, level) committed
+    ncom = np.zeros(2, dtype=np.int64)
+    for line in range(2):
+        m = E[E_NPEND0 + line]
+        keep = 0
+        for j in range(m):
+            t = pend[line, j, 0]
+            level = pend[line, j, 1]
+            has_next = j + 1 < m
+            if not has_next and t + f - 1 > known:
+                keep = j
+                break
+            keep = j + 1
+            if level != E[E_FILT0 + line] and (not has_next or pend[line, j + 1, 0] - t >= f):
+                E[E_FILT0 + line] = level
+                com[line, ncom[line], 0] = t + f + 1
+                com[line, ncom[line], 1] = level
+                ncom[line] += 1
+        for j in range(keep, m):
+            pend[line, j - keep, 0] = pend[line, j, 0]
+            pend[line, j - keep, 1] = pend[line, j, 1]
+        E[E_NPEND0 + line] = m - keep
+    # commits in (cycle, line) order, grouped by cycle
+    i0 = 0
+    i1 = 0
+    while i0 < ncom[0] or i1 < ncom[1]:
+        if i1 >= ncom[1] or (i0 < ncom[0] and com[0, i0, 0] <= com[1, i1, 0]):
+            k = com[0, i0, 0]
+        else:
+            k = com[1, i1, 0]
+        a, b = E[E_PAIR0], E[E_PAIR1]
+        if i0 < ncom[0] and com[0, i0, 0] == k:
+            a = com[0, i0, 1]
+            i0 += 1
+        if i1 < ncom[1] and com[1, i1, 0] == k:
+            b = com[1, i1, 1]
+            i1 += 1
+        d = (_phase(a, b) - _phase(E[E_PAIR0], E[E_PAIR1])) % 4
+        E[E_PAIR0] = a
+        E[E_PAIR1] = b
+        nv = E[E_NVIS]
+        if nv >= vis.shape[0]:
+            _enc_compact(E, vis)
+            nv = E[E_NVIS]
+            if nv >= vis.shape[0]:
+                raise RuntimeError("encoder kernel: visible-step buffer full")
+        vis[nv, 0] = k + 1
+        vis[nv, 1] = 0 if d == 2 else (1 if d == 1 else -1)
+        E[E_NVIS] = nv + 1
+
+
+def _enc_compact(E, vis):
+    vi = E[E_VI]
+    nv = E[E_NVIS]
+    for j in range(vi, nv):
+        vis[j - vi, 0] = vis[j, 0]
+        vis[j - vi, 1] = vis[j, 1]
+    E[E_NVIS] = nv - vi
+    E[E_VI] = 0
+
+
+def enc_tick_sample(E, vis, pipe, due, c):
+    """:meth:`EncoderEvents.tick_sample`; the result in ``E[E_LAST_COUNT]``, ``E[E_LAST_VEL]``."""
+    if c == E[E_LAST_C]:
+        return
+    if E[E_NDUE]:
+        _enc_flush(E, vis, pipe, due, c)
+        if c == E[E_LAST_C]:
+            return
+    _enc_strobe(E, vis, pipe, c)
+
+
+def enc_count_at(E, vis, c):
+    """The count visible in cycle ``c``, without taking anything (``defer``'s count)."""
+    i = E[E_VI]
+    count = E[E_COUNT]
+    nv = E[E_NVIS]
+    while i < nv and vis[i, 0] <= c:
+        count += vis[i, 1]
+        i += 1
+    return count
+
+
+def enc_defer(E, vis, due, c):
+    """:meth:`EncoderEvents.defer`."""
+    nd = E[E_NDUE]
+    if nd and c - due[nd - 1] < E[E_DUE_GAP]:
+        E[E_DUE_GAP] = c - due[nd - 1]
+    if nd >= due.shape[0]:
+        raise RuntimeError("encoder kernel: deferred-strobe buffer full")
+    due[nd] = c
+    E[E_NDUE] = nd + 1
+    return enc_count_at(E, vis, c)
+
+
+def enc_defer_range(E, due, first, last, step):
+    """:meth:`EncoderEvents.defer_range`."""
+    nd = E[E_NDUE]
+    gap = first - due[nd - 1] if nd else NEVER
+    if last > first and step < gap:
+        gap = step
+    if gap < E[E_DUE_GAP]:
+        E[E_DUE_GAP] = gap
+    k = (last - first) // step + 1
+    if nd + k > due.shape[0]:
+        raise RuntimeError("encoder kernel: deferred-strobe buffer full")
+    for j in range(k):
+        due[nd + j] = first + j * step
+    E[E_NDUE] = nd + k
+
+
+def _enc_flush(E, vis, pipe, due, upto):
+    """:meth:`EncoderEvents._flush`."""
+    m = E[E_NDUE]
+    p = E[E_TAKEN]
+    last = due[m - 1]
+    vi = E[E_VI]
+    nv = E[E_NVIS]
+    if p == E[E_LAST_C] and E[E_DUE_GAP] >= VEL_LATENCY and \
+            due[0] - p >= VEL_LATENCY and upto - last >= VEL_LATENCY and \
+            last - E[E_REFT] <= AGE_MAX and last - E[E_ELAST] <= AGE_MAX and \
+            (vi >= nv or upto < vis[vi, 0]):
+        E[E_NDUE] = 0
+        E[E_DUE_GAP] = NEVER
+        _enc_fold(E, pipe, due[0], last)
+        return
+    E[E_NDUE] = 0
+    E[E_DUE_GAP] = NEVER
+    i = 0
+    while i < m:
+        p = E[E_TAKEN]
+        if p == E[E_LAST_C]:
+            vi = E[E_VI]
+            nxt = vis[vi, 0] if vi < E[E_NVIS] else NEVER
+            g = i
+            prev = p
+            while g < m and due[g] < nxt and due[g] - prev >= VEL_LATENCY:
+                prev = due[g]
+                g += 1
+            if g > i and prev - E[E_REFT] <= AGE_MAX and prev - E[E_ELAST] <= AGE_MAX:
+                if g == m and upto < nxt and upto - prev >= VEL_LATENCY:
+                    _enc_fold(E, pipe, due[i], prev)
+                    return
+                if g - i >= 2:
+                    _enc_fold(E, pipe, due[i], due[g - 2])
+                    i = g - 1
+                    continue
+        _enc_strobe(E, vis, pipe, due[i])
+        i += 1
+
+
+def _enc_fold(E, pipe, first, last):
+    """:meth:`EncoderEvents._fold`."""
+    _enc_apply_pipe(E, pipe, first)
+    if last - E[E_ELAST] >= E[E_STOP]:
+        E[E_VEL] = 0
+    else:
+        dc = E[E_COUNT] - E[E_CREF]
+        if dc > DC_MAX:
+            dc = DC_MAX
+        elif dc < -DC_MAX - 1:
+            dc = -DC_MAX - 1
+        _enc_clip(E, abs(dc) + 1, last - E[E_REFT])
+    E[E_TAKEN] = last
+    E[E_LAST_C] = last
+    E[E_LAST_COUNT] = E[E_COUNT]
+    E[E_LAST_VEL] = E[E_VEL]
+
+
+def _enc_apply_pipe(E, pipe, c):
+    """:meth:`EncoderEvents._apply_pipe`."""
+    n = E[E_NPIPE]
+    j = 0
+    while j < n and pipe[j, 0] <= c:
+        case = pipe[j, 1]
+        if case == 0:
+            E[E_VEL] = 0
+        elif case == 1:
+            E[E_VEL] = velocity_word(pipe[j, 2], pipe[j, 3], E[E_KV])
+        else:
+            _enc_clip(E, pipe[j, 2], pipe[j, 3])
+        j += 1
+    if j:
+        for i in range(j, n):
+            for f in range(4):
+                pipe[i - j, f] = pipe[i, f]
+        E[E_NPIPE] = n - j
+
+
+def _enc_clip(E, num, den):
+    """:meth:`EncoderEvents._clip`."""
+    vel = E[E_VEL]
+    mag = abs(vel)
+    kv_scale = float(E[E_KV]) * 2048.0
+    if mag >= WORD_MAX or mag > float(num) * kv_scale / float(den or 1) * 0.999 - 2:
+        v = velocity_word(num, den, E[E_KV])
+        if mag > v:
+            E[E_VEL] = v if vel > 0 else -v
+
+
+def enc_decode(E, vis, upto):
+    """:meth:`EncoderEvents._decode`."""
+    vi = E[E_VI]
+    nv = E[E_NVIS]
+    while vi < nv and vis[vi, 0] <= upto:
+        t = vis[vi, 0]
+        st = vis[vi, 1]
+        vi += 1
+        if st:
+            E[E_COUNT] += st
+            E[E_ELAST] = t
+        else:
+            E[E_ERRORS] = min(E[E_ERRORS] + 1, 0xFFFF)
+    E[E_VI] = vi
+    if vi > 64:
+        _enc_compact(E, vis)
+
+
+def _enc_strobe(E, vis, pipe, c):
+    """:meth:`EncoderEvents._strobe` (its result in ``E[E_LAST_COUNT]``, ``E[E_LAST_VEL]``)."""
+    if E[E_VI] < E[E_NVIS] and vis[E[E_VI], 0] <= c:
+        enc_decode(E, vis, c)
+    if E[E_NPIPE] and pipe[0, 0] <= c:
+        _enc_apply_pipe(E, pipe, c)
+    count = E[E_COUNT]
+    E[E_LAST_COUNT] = count
+    E[E_LAST_VEL] = E[E_VEL]
+    E[E_LAST_C] = c
+    E[E_ERR_LAST] = E[E_ERRORS]
+    if c != E[E_TAKEN] + 1:
+        E[E_TAKEN] = c
+        age_edge = min(c - E[E_ELAST], AGE_MAX)
+        age_ref = min(c - E[E_REFT], AGE_MAX)
+        dc = count - E[E_CREF]
+        if dc > DC_MAX:
+            dc = DC_MAX
+        elif dc < -DC_MAX - 1:
+            dc = -DC_MAX - 1
+        window = age_ref - age_edge
+        due = c + VEL_LATENCY
+        n = E[E_NPIPE]
+        if n >= pipe.shape[0]:
+            raise RuntimeError("encoder kernel: velocity pipeline buffer full")
+        pipe[n, 0] = due
+        if dc != 0 and window >= E[E_MINWIN]:
+            pipe[n, 1] = 1
+            pipe[n, 2] = dc
+            pipe[n, 3] = window
+            E[E_CREF] = count
+            E[E_MOVED_C] = c
+            E[E_MOVED_R] = E[E_REFT]
+            E[E_REFT] = c + 2 - min(age_edge + 2, AGE_MAX)
+        elif age_edge >= E[E_STOP]:
+            pipe[n, 1] = 0
+            pipe[n, 2] = 0
+            pipe[n, 3] = 1
+        else:
+            pipe[n, 1] = 2
+            pipe[n, 2] = abs(dc) + 1
+            pipe[n, 3] = age_ref
+        E[E_NPIPE] = n + 1
+
+
+def enc_preset(E, vis, pipe, due, c, value):
+    """:meth:`EncoderEvents.preset` (``value`` already wrapped to 32 bits)."""
+    if E[E_NDUE]:
+        _enc_flush(E, vis, pipe, due, c)
+    if E[E_VI] < E[E_NVIS] and vis[E[E_VI], 0] <= c + 1:
+        enc_decode(E, vis, c + 1)
+    if E[E_MOVED_C] == c:
+        E[E_REFT] = E[E_MOVED_R]
+    E[E_COUNT] = value
+    E[E_CREF] = value
+
+
+# --- the node's plain ticks (FastNode, lazy) -------------------------------------------------
+def _land(N, now):
+    if N[N_LAND] and now >= N[N_LAND_C]:
+        if N[N_LAND] == 1:
+            N[N_TORQUE] = N[N_LAND_V]
+            N[N_TORQUE_NONE] = 0
+        else:
+            N[N_TORQUE_NONE] = 1
+        N[N_LAND] = 0
+
+
+def _watch(N, now):
+    """:meth:`NodeModel._watch`."""
+    _land(N, now)
+    if N[N_ARMED] and not N[N_TRIPPED]:
+        trip = N[N_LAST_PACKET] + 2 + N[N_TIMEOUT]
+        if now >= trip:
+            N[N_TRIPPED] = 1
+            N[N_PRIME_DUE] = trip + 1
+            N[N_PRIME_SET] = 1
+    if N[N_PRIME_SET] and now >= N[N_PRIME_DUE]:
+        N[N_PRIME] = 1
+        N[N_PRIME_SET] = 0
+
+
+def _ramp(N):
+    """:meth:`NodeModel._ramp` (never on a dead tick's unobserved torque: a tripped node has
+    no dead ticks)."""
+    ramp = N[N_RAMP]
+    t = N[N_TORQUE]
+    N[N_TORQUE] = 0 if abs(t) <= ramp else t - ramp if t > 0 else t + ramp
+
+
+def _tick_begin(N, now):
+    """:meth:`FastNode._tick_begin` (not ramped: the boundary's tick is the event loop's)."""
+    _land(N, now)
+    if (N[N_ARMED] and not N[N_TRIPPED] and now >= N[N_LAST_PACKET] + 2 + N[N_TIMEOUT]) \
+            or N[N_PRIME_SET]:
+        _watch(N, now)
+    tick = N[N_TICK]
+    N[N_NT] = now + tick
+    if N[N_ARMED] and N[N_TRIPPED]:
+        _ramp(N)
+    return tick
+
+
+def _tick_end(N, P, now, mode, tau, dead):
+    """:meth:`FastNode._tick_end` (``dead``: the torque is a dead tick's None)."""
+    done = now + P[P_CYC + mode]
+    N[N_STARTED] = now
+    N[N_BUSY] = done + 1
+    if not N[N_ARMED]:
+        N[N_LAND_C] = done + 1
+        N[N_LAND_V] = 0
+        N[N_LAND] = 1
+    elif not (N[N_TRIPPED] or done >= N[N_LAST_PACKET] + 2 + N[N_TIMEOUT]):
+        N[N_LAND_C] = done + 1
+        if dead:
+            N[N_LAND] = 2
+        else:
+            lo, hi = N[N_TAU_MIN], N[N_TAU_MAX]
+            N[N_LAND_V] = lo if tau < lo else hi if tau > hi else tau
+            N[N_LAND] = 1
+
+
+def materialize(N, P):
+    """:meth:`FastNode._materialize`."""
+    if N[N_DEF]:
+        N[N_DEF] = 0
+        part_b(N, P, N[N_DEF_TN], N[N_DEF_Q], N[N_DEF_V], N[N_DEF_A])
+
+
+def _defer_b(N, tn):
+    N[N_DEF] = 1
+    N[N_DEF_TN] = tn
+    N[N_DEF_Q] = N[N_D0 + 1]
+    N[N_DEF_V] = N[N_D0 + 2]
+    N[N_DEF_A] = N[N_D0 + 3]
+
+
+def _dead_tick(N, P, E, vis, due, now, tt):
+    """:meth:`FastNode._dead_tick`."""
+    tick = _tick_begin(N, now)
+    count = enc_defer(E, vis, due, now)
+    if now < N[N_BUSY]:
+        N[N_OVERRUNS] = min(N[N_OVERRUNS] + 1, 0xFFFF)
+        return
+    mode = N[N_MODE]
+    tn = min(tt + tick, TIME_MAX)
+    if mode == 1:
+        materialize(N, P)
+        pid_integral(N, P, count)
+        part_b(N, P, tn, N[N_D0 + 1], N[N_D0 + 2], N[N_D0 + 3])
+    else:
+        _defer_b(N, tn)
+    _tick_end(N, P, now, mode, 0, True)
+
+
+def _fast_tick(N, P, E, vis, pipe, due, now, tt):
+    """:meth:`FastNode._fast_tick` (lazy: Part B deferred)."""
+    tick = _tick_begin(N, now)
+    enc_tick_sample(E, vis, pipe, due, now)
+    if now < N[N_BUSY]:
+        N[N_OVERRUNS] = min(N[N_OVERRUNS] + 1, 0xFFFF)
+        return
+    mode = N[N_MODE]
+    tn = min(tt + tick, TIME_MAX)
+    materialize(N, P)
+    tau = part_a(N, P, mode, E[E_LAST_COUNT], E[E_LAST_VEL], N[N_D0], N[N_D0 + 3])
+    _defer_b(N, tn)
+    _tick_end(N, P, now, mode, tau, False)
+
+
+def _dead_run(N, P, E, vis, due, first, k, step, cyc):
+    """:meth:`FastNode._dead_run`."""
+    last = first + (k - 1) * step
+    if N[N_LAND]:
+        if N[N_LAND] == 1:
+            N[N_TORQUE] = N[N_LAND_V]
+            N[N_TORQUE_NONE] = 0
+        else:
+            N[N_TORQUE_NONE] = 1
+    armed = N[N_ARMED]
+    if k >= 2:
+        N[N_TORQUE_NONE] = 1 if armed else 0
+        if not armed:
+            N[N_TORQUE] = 0
+    N[N_LAND_C] = last + cyc + 1
+    N[N_LAND] = 2 if armed else 1
+    N[N_LAND_V] = 0
+    N[N_NT] = last + step
+    N[N_STARTED] = last
+    N[N_BUSY] = last + cyc + 1
+    lb = N[N_DBASE]
+    if N[N_MODE] != 1:
+        enc_defer_range(E, due, first, last, step)
+        N[N_DEF] = 1
+        N[N_DEF_TN] = min(last - lb + step, TIME_MAX)
+        N[N_DEF_Q] = N[N_D0 + 1]
+        N[N_DEF_V] = N[N_D0 + 2]
+        N[N_DEF_A] = N[N_D0 + 3]
+        return
+    materialize(N, P)
+    qd0, vd0, ad0 = N[N_D0 + 1], N[N_D0 + 2], N[N_D0 + 3]
+    i = E[E_VI]
+    nv = E[E_NVIS]
+    count = E[E_COUNT]
+    for t in range(first, last + 1, step):
+        while i < nv and vis[i, 0] <= t:
+            count += vis[i, 1]
+            i += 1
+        pid_integral(N, P, count)
+        part_b(N, P, min(t - lb + step, TIME_MAX), qd0, vd0, ad0)
+    enc_defer_range(E, due, first, last, step)
+
+
+def node_plain(N, P, E, vis, pipe, due, lim):
+    """The lazy branch of :meth:`FastNode.run`'s loop for the plain ticks before ``lim``."""
+    step = N[N_TICK]
+    cyc = P[P_CYC + N[N_MODE]]
+    safe = step > cyc and (not N[N_ARMED] or N[N_TRIPPED])
+    trip = N[N_LAST_PACKET] + 2 + N[N_TIMEOUT] - step - cyc
+    land = lim - step - cyc - 1
+    if trip - 1 < land:
+        land = trip - 1
+    while N[N_NT] < lim:
+        nt = N[N_NT]
+        if nt + step < lim and step > cyc and (safe or nt <= land):
+            if not N[N_TRIPPED] and not N[N_PRIME_SET] and \
+                    (N[N_LAND] == 0 or N[N_LAND_C] <= nt):
+                last = lim - step - 1 if safe else land
+                _dead_run(N, P, E, vis, due, nt, (last - nt) // step + 1, step, cyc)
+            else:
+                _dead_tick(N, P, E, vis, due, nt, nt - N[N_DBASE])
+        else:
+            _fast_tick(N, P, E, vis, pipe, due, nt, nt - N[N_DBASE])
+
+
+def torque_at(N, now):
+    """:meth:`FastNode.torque_at`."""
+    _land(N, now)
+    if (N[N_ARMED] and not N[N_TRIPPED] and now >= N[N_LAST_PACKET] + 2 + N[N_TIMEOUT]) \
+            or N[N_PRIME_SET]:
+        _watch(N, now)
+    return N[N_TORQUE]
+
+
+def plain_step(NS, PS, ES, VIS, PIPE, DUE, PEND, plain, start, n, chg_node, chg_cyc,
+               chg_cnt, tau_out):
+    """One piece of a plant step for every node: the count changes into each encoder
+    (:meth:`EncoderEvents.feed_changes`), then, for the nodes marked ``plain`` (no event but
+    plain ticks before ``start + n − 1``), :meth:`FastNode.run` to ``start + n − 1`` and
+    the torque output in that cycle into ``tau_out`` (N·m: the FORCE word times 2^−13, as
+    ``FORCE.decode``). Returns True if a plain node's torque there is a dead tick's, which
+    nothing may observe (a bug: the caller raises)."""
+    end = start + n
+    j = 0
+    m = chg_node.shape[0]
+    bad = False
+    for k in range(NS.shape[0]):
+        j0 = j
+        while j < m and chg_node[j] == k:
+            j += 1
+        enc_feed_changes(ES[k], PEND[k], VIS[k], start, n, chg_cyc[j0:j], chg_cnt[j0:j])
+        if plain[k]:
+            node_plain(NS[k], PS[k], ES[k], VIS[k], PIPE[k], DUE[k], end - 1)
+            tau_out[k] = float(torque_at(NS[k], end - 1)) * FORCE_LSB
+            if NS[k, N_TORQUE_NONE]:
+                bad = True
+    return bad
+
+
+def jit_all(njit) -> None:
+    """Replace every function of this module by ``njit(function)`` (they call each other
+    through the module's globals, so all of them compile)."""
+    import types
+
+    g = globals()
+    for name, obj in list(g.items()):
+        if isinstance(obj, types.FunctionType) and obj.__module__ == __name__ and \
+                name != "jit_all":
+            g[name] = njit(obj)

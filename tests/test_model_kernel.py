@@ -1,0 +1,206 @@
+"""The ``model`` backend's compiled inner loop (cosim.model_kernel) against the references it
+was translated from: the joint engine's tick (:class:`~hdl.node.joint_ref.JointModel`) over
+random words, the encoder interface (:class:`~cosim.model_node.EncoderEvents`) over random
+walks, and whole closed loops — the same trace hashes, reply payloads and node state on the
+compiled and the pure-Python path, three controllers, ``mrm3`` and ``mrm6``."""
+
+import sys
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from mrm_cosim.cosim import model_kernel as mk
+from mrm_cosim.cosim import model_kernel_src as src
+from mrm_cosim.cosim.model_node import EncoderEvents
+from mrm_cosim.hdl.node.encoder_ref import EncoderParams
+from mrm_cosim.hdl.node.joint_ref import JointModel
+from mrm_cosim.protocol.fixed import WORD_MAX, WORD_MIN
+from mrm_cosim.protocol.joint_program import PID_SHIFT_MAX, JointParams
+
+from .test_model_backend import _walk
+
+kern = mk.load()
+needs_numba = pytest.mark.skipif(kern is None, reason="numba cannot run here")
+
+words = st.one_of(st.integers(WORD_MIN, WORD_MAX), st.sampled_from([WORD_MIN, WORD_MAX, 0, -1]))
+
+
+@pytest.mark.parametrize("pid_shift", range(PID_SHIFT_MAX + 1))
+def test_no_rounding_point_leaves_int64(pid_shift):
+    """The largest sum each rounding point can form, with every word at its extreme, stays
+    below 2^63: summands are products of two 24-bit words (≤ 2^46) or of a word and a
+    difference of two (≤ 2^47), or a sum of two words (≤ 2^24), shifted left by the point's
+    alignment."""
+    pts = mk._points(pid_shift)
+    w, p, pd = 2**23, 2**46, 2**47         # a word, word × word, word × (word − word)
+    bound = {"E": [w, w], "QDR": [w, p], "QDDR": [w, pd], "SG": [p, p],
+             "TAU_VDC": [2 * w, p, p, p, pd], "TAU_PID": [w, p, p, p, pd],
+             "I_CARRY": [w, w, w], "I_LO": [w, w, w, w], "I_HI": [w, w], "TAU_D": [w],
+             "TS": [p], "VD": [w, p], "DQ": [p], "QD": [w, p]}
+    assert set(bound) == set(src.POINTS)
+    for i, name in enumerate(src.POINTS):
+        shifts, r = pts[6 * i:6 * i + 5], pts[6 * i + 5]
+        assert not any(shifts[len(bound[name]):])
+        total = sum(m << s for m, s in zip(bound[name], shifts, strict=False)) + (1 << r)
+        assert total < 2**63, (name, pid_shift, total.bit_length())
+
+
+@needs_numba
+@settings(max_examples=400, deadline=None)
+@given(params=st.lists(words, min_size=17, max_size=17),
+       state=st.lists(words, min_size=4, max_size=4),
+       mode=st.integers(0, 2), pid_shift=st.integers(0, PID_SHIFT_MAX),
+       q=st.integers(-(1 << 31), (1 << 31) - 1), qd=words, tau_d=words,
+       d=st.lists(words, min_size=3, max_size=3), tn=st.integers(0, (1 << 23) - 1))
+def test_compiled_tick_equals_the_joint_reference(params, state, mode, pid_shift, q, qd, tau_d,
+                                                  d, tn):
+    """Part A (torque, PID integral), the integral alone and Part B of the compiled kernel
+    equal :class:`JointModel`'s bit for bit, over any words."""
+    p = JointParams(*params, pid_shift=pid_shift)
+    ref = JointModel(p, *state)
+    N = np.zeros(src.N_SIZE, dtype=np.int64)
+    N[src.N_QDES:src.N_IHI + 1] = state
+    P = mk.param_row(p)
+    qd0, vd0, ad0 = d
+    tau = ref.part_a(mode, q, qd, tau_d, ad0)[0]
+    assert kern.part_a(N, P, mode, q, qd, tau_d, ad0) == tau
+    ref.pid_integral(q - 7)
+    kern.pid_integral(N, P, q - 7)
+    ref.part_b(tn, qd0, vd0, ad0)
+    kern.part_b(N, P, tn, qd0, vd0, ad0)
+    assert N[src.N_QDES:src.N_IHI + 1].tolist() == [ref.q_des, ref.v_des, ref.i_lo, ref.i_hi]
+
+
+@needs_numba
+@pytest.mark.parametrize("seed, params", [
+    (0, EncoderParams()),
+    (1, EncoderParams(min_window=256, stop_cycles=5_000)),
+    (2, EncoderParams(filter_cycles=1, min_window=64, stop_cycles=3_000)),
+])
+def test_compiled_encoder_equals_encoder_events(seed, params):
+    """Same count changes, same strobes, deferred strobes and presets: the compiled encoder
+    answers what :class:`EncoderEvents` answers, cycle for cycle."""
+    rng = np.random.default_rng(seed)
+    n = 40_000
+    counts = _walk(rng, n)
+    ref = EncoderEvents(params, int(counts[0]))
+    fast = mk.KernelEncoder(kern, mk.KernelArrays(1), 0, params, int(counts[0]))
+    pos = 0
+    seen = set()
+    for t in range(0, n, 50):
+        if t >= pos:
+            size = int(rng.integers(50, 700))
+            ref.feed(pos, counts[pos:pos + size])
+            fast.feed(pos, counts[pos:pos + size])
+            pos = min(n, pos + size)
+        kind = rng.integers(0, 10)
+        if kind < 5:
+            got = (ref.defer(t), fast.defer(t))
+        elif kind < 8:
+            got = (ref.sample(t), fast.sample(t))
+            seen.add(got[0][1])
+        elif kind < 9:
+            got = (ref.count_at(t), fast.count_at(t))
+        else:
+            value = int(rng.integers(-1000, 1000))
+            ref.preset(t, value)
+            fast.preset(t, value)
+            got = ((ref.count, ref.velocity, ref.errors), (fast.count, fast.velocity,
+                                                           fast.errors))
+        assert got[0] == got[1], f"cycle {t}"
+    assert len(seen) > 20                       # velocities measured, bounded, stopped
+
+
+def _wiggle(robot):
+    """A 25 Hz swing from rest, a few mrad on every joint: thousands of counts."""
+    amp = 2e-3 + 1e-3 * np.arange(robot.n) / max(1, robot.n - 1)
+    w = 2 * np.pi * 25.0
+    home = np.asarray(robot.home, dtype=float)
+
+    def trajectory(t):
+        return (home + amp * (1 - np.cos(w * t)), amp * w * np.sin(w * t),
+                amp * w * w * np.cos(w * t))
+
+    return trajectory
+
+
+def _run(robot_name, controller, kernel, cycles):
+    from mrm_cosim.cosim.closed_loop import ClosedLoop
+    from mrm_cosim.cosim.model import ModelBackend
+    from mrm_cosim.master.cycle import Master, MasterTiming
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains, pid_shifts
+    from mrm_cosim.models.plant import Plant
+    from mrm_cosim.models.robot import load_robot
+
+    robot = load_robot(robot_name)
+    gains = Gains()
+    master = Master(robot, controller, _wiggle(robot), robot.counts_per_rev, MasterTiming(),
+                    lam=gains.lam, pid=pid_gains(robot, gains.pid_1khz_hz))
+    payloads = []
+    on_packet = master.on_packet
+
+    def record(now, src_, ptype, payload):
+        payloads.append((now, src_, ptype, bytes(payload)))
+        on_packet(now, src_, ptype, payload)
+
+    master.on_packet = record
+    plant = Plant(robot, seed=1)
+    plant.reset(robot.home)
+    backend = ModelBackend(kernel=kernel, pid_shift=pid_shifts(robot))
+    loop = ClosedLoop(robot, backend, master, plant, 50_000,
+                      node_uploads(robot, controller, gains))
+    result = loop.run(cycles)
+    state = [(n._nt, n.torque, n.overruns, n._landing, n._deferred, n.joint.q_des,
+              n.joint.v_des, n.joint.i_lo, n.joint.i_hi, n.tripped, n.prime)
+             for n in backend.nodes]
+    enc = [(e.count, e.velocity, e.errors) for e in backend.encoders]
+    return result, payloads, state, enc, backend
+
+
+@needs_numba
+@pytest.mark.parametrize("robot", ["mrm3", "mrm6"])
+@pytest.mark.parametrize("controller", ["vdc", "pid-fpga", "pid-1khz"])
+def test_compiled_and_python_paths_give_the_same_trace(robot, controller):
+    """8 ms of closed loop with every joint swinging: the compiled inner loop and the
+    pure-Python references give the same trace hash, reply payloads, node and encoder
+    state."""
+    cycles = 400_000
+    fast = _run(robot, controller, "numba", cycles)
+    slow = _run(robot, controller, "python", cycles)
+    assert type(fast[4].nodes[0]).__name__ == "KernelNode"
+    assert type(slow[4].nodes[0]).__name__ == "FastNode"
+    assert fast[0].violations == slow[0].violations == []
+    assert fast[0].trace_sha256 == slow[0].trace_sha256
+    assert fast[1] == slow[1] and len(fast[1]) > 0
+    assert fast[2] == slow[2]
+    assert fast[3] == slow[3]
+    assert np.ptp(fast[0].q, axis=0).min() > 2e-5                 # every joint moved (counts)
+    # the torques changed (torque-only nodes hold the master's torque for a period)
+    assert max(len(np.unique(col)) for col in fast[0].tau.T) > \
+        (5 if controller == "pid-1khz" else 15)
+
+
+def test_without_numba_the_python_path_runs_with_one_warning(monkeypatch):
+    """numba missing (or failing): one warning line, then the pure-Python path."""
+    from mrm_cosim.cosim.model import ModelBackend
+
+    monkeypatch.setitem(sys.modules, "numba", None)          # import numba raises
+    monkeypatch.setattr(mk, "_loaded", None)
+    with pytest.warns(RuntimeWarning, match="pure-Python path") as record:
+        backend = ModelBackend(kernel="numba")
+        backend.power_on([0, 0, 0])
+        ModelBackend(kernel="numba").power_on([0, 0])          # warned once only
+    assert len(record) == 1 and "\n" not in str(record[0].message)
+    assert type(backend.nodes[0]).__name__ == "FastNode"
+
+
+def test_the_kernel_is_chosen_by_name_or_environment(monkeypatch):
+    monkeypatch.setenv("MRM_MODEL_KERNEL", "python")
+    assert mk.kernel_choice() == "python"
+    assert mk.kernel_choice("numba") == "numba"
+    monkeypatch.delenv("MRM_MODEL_KERNEL")
+    assert mk.kernel_choice() == "numba"
+    with pytest.raises(ValueError, match="'numba' or 'python', not 'c'"):
+        mk.kernel_choice("c")
