@@ -79,6 +79,7 @@ class DmpTableConfig:
     basis: int = 30
     alpha: float = 25.0
     alpha_s: float = 4.0
+    scaling_min: float = 0.2
     step_cycles: int = 50_000
     e1: tuple = (-1.0, 0.0, 0.0)
     e2: tuple = (0.0, 1.0, 0.0)
@@ -130,7 +131,7 @@ def _from_dict(data: dict, base_dir) -> DmpTableConfig:
     if "hold" in exp:
         out["hold"] = ec._duration(exp["hold"], "experiment.hold")
     dmp = ec._table(data, "dmp")
-    ec._keys(dmp, "dmp", {"basis", "alpha", "alpha_s", "step_cycles"})
+    ec._keys(dmp, "dmp", {"basis", "alpha", "alpha_s", "scaling_min", "step_cycles"})
     if "basis" in dmp:
         b = dmp["basis"]
         if isinstance(b, bool) or not isinstance(b, int) or not 2 <= b:
@@ -139,6 +140,11 @@ def _from_dict(data: dict, base_dir) -> DmpTableConfig:
     for k in ("alpha", "alpha_s"):
         if k in dmp:
             out[k] = require_positive(ec._number(dmp[k], f"dmp.{k}"), f"dmp.{k}")
+    if "scaling_min" in dmp:
+        v = ec._number(dmp["scaling_min"], "dmp.scaling_min")
+        if not 0.0 <= v < 1.0:
+            raise InputError("dmp.scaling_min", f"must be in [0, 1), not {v!r}")
+        out["scaling_min"] = float(v)
     if "step_cycles" in dmp:
         s = dmp["step_cycles"]
         if isinstance(s, bool) or not isinstance(s, int) or not 1_000 <= s <= 1_000_000:
@@ -249,7 +255,7 @@ def prepare_path(cfg: DmpTableConfig, spec: PathSpec, robot=None):
                           field=f"path {spec.name}")
     ref = joint_reference(robot, plan, 1e-3, q_seed=robot.home)
     dmp = learn_dmp(ref.q, float(ref.t[1] - ref.t[0]), cfg.basis, alpha=cfg.alpha,
-                    alpha_s=cfg.alpha_s)
+                    alpha_s=cfg.alpha_s, scaling_min=cfg.scaling_min)
     step = cfg.step_cycles / CLOCK_HZ
     roll = dmp.rollout(step, duration=float(ref.t[-1]))
     fit = float(np.abs(roll.x - ref.evaluate(roll.t)[0]).max())
@@ -302,39 +308,66 @@ def run_architecture(cfg: DmpTableConfig, robot, ref: JointReference, dmp: Dmp,
                errs.tool_desired, errs.tool_actual, summary)
 
 
-def run_dmp_table2(cfg: DmpTableConfig, backend: str | None = None, paths=None,
-                   progress=None) -> dict:
-    """Every path × architecture × period of ``cfg`` (and the 1 ms reference).
+def _point(ctx, item, report) -> Run:
+    """One run of :func:`run_dmp_table2` in an executor's process."""
+    cfg, prepared, backend = ctx
+    name, arch, period = item
+    _, ref, dmp, _ = prepared[name]
+    t0 = time.perf_counter()
+    run = run_architecture(cfg, cfg.robot, ref, dmp, arch, period, backend)
+    run.summary["wall_s"] = time.perf_counter() - t0
+    return run
 
-    ``paths``: names to run (default all). ``progress(text)``: called before each run.
+
+def run_dmp_table2(cfg: DmpTableConfig, backend: str | None = None, paths=None,
+                   progress=None, jobs: int = 1) -> dict:
+    """Every path × architecture × period of ``cfg`` (and the 1 ms reference), ``jobs`` runs
+    at a time on this machine's processes (:class:`cosim.executors.LocalExecutor`; each run
+    is independent, the results do not depend on ``jobs``).
+
+    ``paths``: names to run (default all). ``progress(text)``: called as each run ends.
 
     Returns
     -------
     dict of str to PathResult
     """
+    from functools import partial
+
+    from mrm_cosim.cosim.executors import LocalExecutor, SerialExecutor
+
     robot = load_robot(cfg.robot)
     if robot.n != 6:
         raise InputError("robot", f"the paths fix the tool's pose: {robot.name} has {robot.n} "
                                   "joints, the comparison needs 6")
-    chosen = cfg.paths if paths is None else [p for p in cfg.paths if p.name in paths]
     if paths is not None:
         unknown = sorted(set(paths) - {p.name for p in cfg.paths})
         if unknown:
             raise InputError("path", f"{unknown[0]!r} is not a path of the configuration "
                              f"({', '.join(p.name for p in cfg.paths)})")
+    chosen = cfg.paths if paths is None else [p for p in cfg.paths if p.name in paths]
+    # every reference and primitive is computed and checked before any run
+    prepared = {spec.name: prepare_path(cfg, spec, robot) for spec in chosen}
+    plan = [(a, p) for p in cfg.periods_ms for a in ARCHITECTURES] + [("reference", 1)]
+    items = [(spec.name, a, p) for spec in chosen for a, p in plan]
+    runs = {}
+    executor = LocalExecutor(jobs) if jobs > 1 else SerialExecutor()
+    with executor as ex:
+        for i, status, value in ex.run(partial(_point, (cfg, prepared, backend)), items):
+            name, arch, period = items[i]
+            if status == "input":
+                raise InputError(*value)
+            if status == "error":
+                raise RuntimeError(f"the {name} {arch} {period} ms run failed:\n{value}")
+            runs[items[i]] = value
+            if progress is not None:
+                progress(f"{name}: {arch} at {period} ms done ({len(runs)}/{len(items)}, "
+                         f"{value.summary['wall_s']:.0f} s)")
     out = {}
     for spec in chosen:
-        plan, ref, dmp, fit = prepare_path(cfg, spec, robot)
-        runs = {}
-        plan = [(a, p) for p in cfg.periods_ms for a in ARCHITECTURES] + [("reference", 1)]
-        for arch, period in plan:
-            if progress is not None:
-                progress(f"{spec.name}: {arch} at {period} ms")
-            t0 = time.perf_counter()
-            run = run_architecture(cfg, robot, ref, dmp, arch, period, backend)
-            run.summary["wall_s"] = time.perf_counter() - t0
-            runs[(arch, period)] = run
-        out[spec.name] = PathResult(spec, ref, dmp, fit, runs, plan.e1, plan.e2)
+        plan_, ref, dmp, fit = prepared[spec.name]
+        out[spec.name] = PathResult(spec, ref, dmp, fit,
+                                    {(a, p): runs[(spec.name, a, p)] for a, p in plan},
+                                    plan_.e1, plan_.e2)
     return out
 
 

@@ -270,7 +270,8 @@ def forcing_targets(y: np.ndarray, dt: float, *, tau: float, alpha: float, beta:
 
 def learn_dmp(y, dt: float, n_basis: int = 10, *, alpha: float = 25.0,
               beta: float | None = None, alpha_s: float = 2.0, overlap: float = 0.2,
-              tau: float | None = None, xd0=None) -> Dmp:
+              tau: float | None = None, xd0=None,
+              scaling_min: float = AMPLITUDE_RATIO_MIN) -> Dmp:
     """Learn a DMP from a uniformly sampled demonstration.
 
     Parameters
@@ -291,6 +292,12 @@ def learn_dmp(y, dt: float, n_basis: int = 10, *, alpha: float = 25.0,
         Time constant; defaults to the demo's duration ``(n_samples − 1)·dt``.
     xd0 : array_like, shape (n_dof,), optional
         Initial velocity of the demo (units/s); zeros (a start at rest) by default.
+    scaling_min : float
+        A DOF whose ``|g − x0|`` is at most this fraction of its demo's range is learned
+        without the ``(g − x0)`` factor (``goal_scaling`` False). The default only avoids a
+        division by ~0; a larger one (e.g. 0.2) keeps the weights of DOFs that end near their
+        start small, as a fixed-point generator needs (Ijspeert's amplitude scaling blows the
+        weights up by the ratio).
 
     Returns
     -------
@@ -320,7 +327,10 @@ def learn_dmp(y, dt: float, n_basis: int = 10, *, alpha: float = 25.0,
     x0, g = y[0].copy(), y[-1].copy()
     amplitude = g - x0
     span = np.ptp(y, axis=0)
-    goal_scaling = np.abs(amplitude) > AMPLITUDE_RATIO_MIN * span
+    scaling_min = require_finite(scaling_min, "scaling_min")
+    if not 0.0 <= scaling_min < 1.0:
+        raise InputError("scaling_min", f"must be in [0, 1), not {scaling_min!r}")
+    goal_scaling = np.abs(amplitude) > max(scaling_min, AMPLITUDE_RATIO_MIN) * span
     scale = np.where(goal_scaling, amplitude, 1.0)
 
     # Basis: centres at the phases of equally spaced times, σ from the spacing.

@@ -160,6 +160,9 @@ def register(subparsers) -> None:
     pd.add_argument("--seed", type=_seed, default=None, help="override the plant seed")
     pd.add_argument("--path", action="append", default=None, metavar="NAME",
                     help="run only this path of the config (repeatable)")
+    pd.add_argument("--jobs", type=int, default=None,
+                    help="runs side by side (default: as many as there are CPU cores); the "
+                    "results do not depend on it")
     pd.add_argument("--out", default="results/dmp-table2", help="result folder (replaced)")
     pd.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     pd.set_defaults(func=_dmp_table2)
@@ -535,7 +538,10 @@ def _dmp_table2(args) -> int:
         if not args.quiet:
             sys.stderr.write(f"mrm run dmp-table2: {text}\n")
 
-    results = run_dmp_table2(config, paths=args.path, progress=progress)
+    jobs = default_jobs() if args.jobs is None else args.jobs
+    if isinstance(jobs, bool) or jobs < 1:
+        raise InputError("jobs", f"must be a whole number ≥ 1, not {args.jobs!r}")
+    results = run_dmp_table2(config, paths=args.path, progress=progress, jobs=jobs)
     summary = {"command": "mrm run dmp-table2", "config": str(config_path.resolve()),
                "overrides": {k: str(v) for k, v in overrides.items()},
                "robot": robot.name, "backend": config.backend, "seed": config.seed,
