@@ -108,7 +108,7 @@ def _from_dict(data: dict, base_dir) -> DmpTableConfig:
 
     ec._keys(data, "", {"experiment", "dmp", "plane", "path", "plant", "gains"})
     exp = ec._table(data, "experiment")
-    ec._keys(exp, "experiment", {"name", "robot", "backend", "seed", "controller",
+    ec._keys(exp, "experiment.", {"name", "robot", "backend", "seed", "controller",
                                  "periods_ms", "hold"})
     out = {}
     if "robot" in exp:
@@ -131,7 +131,7 @@ def _from_dict(data: dict, base_dir) -> DmpTableConfig:
     if "hold" in exp:
         out["hold"] = ec._duration(exp["hold"], "experiment.hold")
     dmp = ec._table(data, "dmp")
-    ec._keys(dmp, "dmp", {"basis", "alpha", "alpha_s", "scaling_min", "step_cycles"})
+    ec._keys(dmp, "dmp.", {"basis", "alpha", "alpha_s", "scaling_min", "step_cycles"})
     if "basis" in dmp:
         b = dmp["basis"]
         if isinstance(b, bool) or not isinstance(b, int) or not 2 <= b:
@@ -151,7 +151,7 @@ def _from_dict(data: dict, base_dir) -> DmpTableConfig:
             raise InputError("dmp.step_cycles", f"must be an integer 1000..1000000, not {s!r}")
         out["step_cycles"] = s
     plane = ec._table(data, "plane")
-    ec._keys(plane, "plane", {"e1", "e2"})
+    ec._keys(plane, "plane.", {"e1", "e2"})
     for k in ("e1", "e2"):
         if k in plane:
             v = plane[k]
@@ -170,7 +170,7 @@ def _from_dict(data: dict, base_dir) -> DmpTableConfig:
         if shape not in SHAPES:
             raise InputError(f"{name}.shape", f"must be one of {', '.join(SHAPES)}, "
                                               f"not {shape!r}")
-        ec._keys(p, name, {"name", "shape", "duration", *SIZES[shape]})
+        ec._keys(p, f"{name}.", {"name", "shape", "duration", *SIZES[shape]})
         label = ec._string(p.get("name", shape), f"{name}.name")
         if label in names:
             raise InputError(f"{name}.name", f"{label!r} is used by another path")
@@ -253,10 +253,22 @@ def prepare_path(cfg: DmpTableConfig, spec: PathSpec, robot=None):
     T0 = robot.tip_pose(robot.home)
     plan = PathPlan.build(spec.shape, T0, cfg.e1, cfg.e2, spec.size, spec.duration,
                           field=f"path {spec.name}")
-    ref = joint_reference(robot, plan, 1e-3, q_seed=robot.home)
+    try:
+        ref = joint_reference(robot, plan, 1e-3, q_seed=robot.home)
+    except InputError as exc:           # the path leaves the arm's workspace, limits, ...
+        raise InputError(f"path {spec.name}", f"{exc.field}: {exc.message}") from None
     dmp = learn_dmp(ref.q, float(ref.t[1] - ref.t[0]), cfg.basis, alpha=cfg.alpha,
                     alpha_s=cfg.alpha_s, scaling_min=cfg.scaling_min)
     step = cfg.step_cycles / CLOCK_HZ
+    try:
+        dmp.check_step(step)
+    except InputError as exc:
+        raise InputError("dmp.alpha", f"{cfg.alpha!r}: {exc.message}") from None
+    # what the nodes must hold: the deploy's checks (word formats, limits, the period grid)
+    from mrm_cosim.master.uploads import dmp_uploads
+
+    for period_ms in cfg.periods_ms:
+        dmp_uploads(robot, dmp, cfg.step_cycles, period_ms * (CLOCK_HZ // 1000))
     roll = dmp.rollout(step, duration=float(ref.t[-1]))
     fit = float(np.abs(roll.x - ref.evaluate(roll.t)[0]).max())
     return plan, ref, dmp, fit
@@ -342,7 +354,7 @@ def run_dmp_table2(cfg: DmpTableConfig, backend: str | None = None, paths=None,
     if paths is not None:
         unknown = sorted(set(paths) - {p.name for p in cfg.paths})
         if unknown:
-            raise InputError("path", f"{unknown[0]!r} is not a path of the configuration "
+            raise InputError("paths", f"{unknown[0]!r} is not a path of the configuration "
                              f"({', '.join(p.name for p in cfg.paths)})")
     chosen = cfg.paths if paths is None else [p for p in cfg.paths if p.name in paths]
     # every reference and primitive is computed and checked before any run

@@ -30,7 +30,7 @@ RUN_TABLE2 = {**OUT, "backend": "--backend", "duration": "--duration", "seed": "
               "config": "--config", "jobs": "--jobs"}
 RUN_LINE = {**RUN_TRACK, "profile": "--profile", "file": "FILE"}
 RUN_DMP_TABLE2 = {**OUT, "robot": "--robot", "backend": "--backend", "seed": "--seed",
-                  "config": "--config", "path": "--path", "jobs": "--jobs"}
+                  "config": "--config", "paths": "--path", "jobs": "--jobs"}
 HDL = {**OUT, "top": "--top", "family": "--family", "params": "--param"}
 PLAN_SAMPLES = {"out": "--samples"}
 BENCH = {"robot": "--robot", "backend": "--backend"}

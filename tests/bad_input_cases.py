@@ -473,3 +473,50 @@ DMP_FILES = [
 ]
 for id_, text, field in DMP_FILES:
     case(f"dmp-file-{id_}", _ROLL, field, dmp=text)
+
+# --- the motion-primitive comparison, through `mrm run dmp-table2` -------------------------
+# Every refusal comes before any run: the configuration, the paths through IK, the primitives
+# against the node's word formats.
+DMP_TABLE2 = (ROOT / "configs" / "dmp_table2.toml").read_text()
+
+
+def _dmp_table2_with(old: str, new: str) -> str:
+    assert old in DMP_TABLE2, old
+    return DMP_TABLE2.replace(old, new, 1)
+
+
+DMP_TABLE2_EDITS = [
+    ("periods_ms = [50, 10]", "periods_ms = [50, 50]", "experiment.periods_ms"),
+    ("periods_ms = [50, 10]", "periods_ms = [0]", "experiment.periods_ms"),
+    ("periods_ms = [50, 10]", "periods_ms = 50", "experiment.periods_ms"),
+    ('controller = "pid-fpga"', 'controller = "vdc"', "experiment.controller"),
+    ("hold = 0.2", "hold = -1", "experiment.hold"),
+    ("basis = 30", "basis = 1", "dmp.basis"),
+    ("basis = 30", "basis = 40", "dmp.joint1.weights"),
+    ("alpha = 25.0", "alpha = -25.0", "dmp.alpha"),
+    ("alpha = 25.0", "alpha = 5000.0", "dmp.alpha"),
+    ("scaling_min = 0.2", "scaling_min = 1.5", "dmp.scaling_min"),
+    ("scaling_min = 0.2", "scaling_min = 0.0", "dmp.joint3.weights"),
+    ("step_cycles = 50000", "step_cycles = 30000", "dmp.step_cycles"),
+    ("step_cycles = 50000", "step_cycles = 10", "dmp.step_cycles"),
+    ("e1 = [-1.0, 0.0, 0.0]", "e1 = [-1.0, 0.0]", "plane.e1"),
+    ("e2 = [0.0, 1.0, 0.0]", "e2 = [-1.0, 1.0, 0.0]", "path half8.e2"),
+    ('shape = "half8"', 'shape = "spiral"', "path[0].shape"),
+    ("size = 0.06 ", "radius = 0.06 ", "path[0].radius"),
+    ("size = 0.06 ", "size = -0.06 ", "path half8.size"),
+    ("size = 0.06 ", "size = 0.6 ", "path"),
+    ("radius = 0.04", "radius = 0.4", "path"),
+    ('name = "circle"', 'name = "half8"', "path[1].name"),
+    ("duration = 2.5 ", "duration = 0 ", "path[0].duration"),
+    ("[plane]", "[planes]", "planes"),
+    ("[gains]", "[gains]\nlam = -1", "gains.lam"),
+]
+for i, (old, new, field) in enumerate(DMP_TABLE2_EDITS):
+    case(f"dmp-table2-config-{i}", ["run", "dmp-table2", "--config", "{cfg}", "--out", "{out}"],
+         field, cfg=_dmp_table2_with(old, new))
+for i, (flags, field) in enumerate([
+        (["--robot", "mrm3"], "--robot"), (["--robot", "mrm99"], "--robot"),
+        (["--path", "spiral"], "--path"), (["--jobs", "0"], "--jobs"),
+        (["--backend", "fpga"], "--backend"), (["--seed", "-1"], "--seed"),
+        (["--config", "/nonexistent/dmp.toml"], "--config")]):
+    case(f"dmp-table2-flag-{i}", ["run", "dmp-table2", *flags, "--out", "{out}"], field)

@@ -529,7 +529,10 @@ def _dmp_table2(args) -> int:
     config = load_dmp_config(config_path)
     overrides = {k: v for k, v in (("backend", args.backend), ("seed", args.seed)) if v is not None}
     if args.robot is not None:
-        overrides["robot"] = _robot(args.robot, Path.cwd())
+        try:
+            overrides["robot"] = _robot(args.robot, Path.cwd())
+        except InputError as exc:
+            raise InputError("robot", exc.message) from None
     config = _replace(config, **overrides)
     robot = load_robot(config.robot)
     check_robot_fits(robot, "robot")
