@@ -287,7 +287,16 @@ class Master:
         self._pending = []
         request = self._packet(BROADCAST, PacketType.COMM_A, b"\0")
         self._req = {PacketType.COMM_A: request.seq}
-        return [Send("timecode", time=index & 0x3F), request]
+        if getattr(self, "_expect_next", False):     # the uploads sent last period are in
+            errors = dict(self.upload_errors)
+            self.expect_uploads(self._uploads)
+            self.upload_errors = errors
+            self._expect_next = False
+        extra, self._extra = getattr(self, "_extra", []), []
+        # this period's Comm A is taken before they arrive (the request goes first): it is
+        # judged against the uploads as they were, the next ones against all of them
+        self._expect_next = bool(extra) and self._uploads is not None
+        return [Send("timecode", time=index & 0x3F), request, *extra]
 
     # --- what the nodes did (their observation ports) -------------------------------------
     def on_node_event(self, now: int, node: int, name: str) -> None:
@@ -380,6 +389,15 @@ class Master:
         if self.references == "hold":
             return q_d, np.zeros_like(qd_d), np.zeros_like(qdd_d)
         return q_d, qd_d, qdd_d
+
+    def send_uploads(self, packets) -> None:
+        """Send ``packets`` ``[(dest, type, payload), ...]`` (e.g. a primitive's new goal or τ,
+        :func:`master.uploads.dmp_retarget`) at the next period's start, after its Comm A
+        request; CONFIG and PARAM ones join what every later Comm A must read back."""
+        self._extra = getattr(self, "_extra", []) + [
+            self._packet(d, PacketType(t), p) for d, t, p in packets]
+        if self._uploads is not None:
+            self._uploads += [(d, PacketType(t), bytes(p)) for d, t, p in packets]
 
     def _dmp_check(self, now: int) -> None:
         """Primitives: start them after period 0's Comm A confirmed every node's uploads;

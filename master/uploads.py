@@ -25,7 +25,7 @@ from mrm_cosim.protocol.regs import MODES, Config, config_payloads, joint_upload
 from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["Gains", "pid_gains", "node_uploads", "check_node_period", "startup_sends",
-           "dmp_uploads"]
+           "dmp_uploads", "dmp_retarget"]
 
 
 @dataclass(frozen=True)
@@ -247,3 +247,50 @@ def dmp_uploads(robot: Robot, dmp, step_cycles: int = 50_000,
         out += [(k + 1, ref.PacketType.CONFIG, p)
                 for p in config_payloads({Config.DMP_STEP: step_cycles})]
     return out
+
+
+def dmp_retarget(robot: Robot, dmp, goals=None, tau: float | None = None,
+                 step_cycles: int = 50_000) -> list[tuple[int, int, bytes]]:
+    """``(dest, type, payload)`` packets that change running primitives: a new goal per joint
+    (rad, shape (n,)) and/or a new time constant τ (s) for every joint, one PARAM word each
+    (bank DMP: GOAL, INVTAU), taken by each generator at the start of its next step
+    (docs/dmp.md). ``dmp`` is the deployed primitive (for the stability of the new τ).
+
+    Checked like the deploy, each refusal naming its field: a goal outside the joint's limits
+    or its word (``goals[k]``), a τ of zero or below, too long for the INVTAU word, or too
+    short for the step (``tau``).
+    """
+    import math
+
+    from mrm_cosim.errors import require_positive
+    from mrm_cosim.protocol.dmp import INVTAU, Reg
+    from mrm_cosim.protocol.fixed import POS
+    from mrm_cosim.protocol.regs import Bank, param_payloads
+
+    words: dict[int, dict[int, int]] = {k: {} for k in range(robot.n)}
+    if goals is not None:
+        g = np.asarray(goals, dtype=float)
+        if g.shape != (robot.n,):
+            raise InputError("goals", f"must have one goal per joint ({robot.n}), not "
+                                      f"shape {g.shape}")
+        lim = robot.joint_limits
+        for k, mod in enumerate(robot.modules):
+            if not (np.isfinite(g[k]) and abs(g[k]) <= lim[k]):
+                raise InputError(f"goals[{k}]", f"{g[k]!r} rad is outside joint {k + 1}'s "
+                                 f"limits (±{lim[k]:.4g} rad)")
+            kc = mod.type.counts_per_rev / (2 * math.pi)
+            words[k][int(Reg.GOAL)] = POS.encode_checked(g[k] * kc, f"goals[{k}]")
+    if tau is not None:
+        tau = require_positive(tau, "tau")
+        try:
+            dmp.with_tau(tau).check_step(step_cycles / CLOCK_HZ)
+        except InputError as exc:
+            raise InputError("tau", exc.message) from None
+        w = INVTAU.encode_checked(1.0 / tau, "tau")
+        if w <= 0:
+            raise InputError("tau", f"{tau!r} s is too long for the INVTAU word "
+                                    f"(1/τ ≥ {INVTAU.resolution:g} /s)")
+        for k in range(robot.n):
+            words[k][int(Reg.INVTAU)] = w
+    return [(k + 1, ref.PacketType.PARAM, p) for k in range(robot.n) if words[k]
+            for p in param_payloads(Bank.DMP, words[k])]

@@ -136,3 +136,39 @@ def test_deploy_refuses_what_the_nodes_cannot_run():
     with pytest.raises(InputError) as e:
         dmp_uploads(robot, big)
     assert e.value.field.startswith("dmp.joint1.weights[")
+
+
+def test_a_new_goal_and_tau_are_one_word_each_read_back_from_the_next_period():
+    from mrm_cosim.master.uploads import dmp_retarget
+    from mrm_cosim.protocol.dmp import INVTAU, Reg
+    from mrm_cosim.protocol.regs import Bank, unpack_words
+
+    robot = load_robot("mrm3")
+    m, _ = _master_after_period0_comm_a()
+    _, dmp = _primitive(robot)
+    goals = dmp.g + 0.01
+    packets = dmp_retarget(robot, dmp, goals=goals, tau=0.5)
+    written = {}                                     # (node, address) -> word
+    for d, t, p in packets:
+        assert t == PacketType.PARAM and p[0] == Bank.DMP and len(p) == 6
+        written[(d, int.from_bytes(p[1:3], "little"))] = unpack_words(p, 1, 3)[0]
+    cpr = robot.counts_per_rev
+    assert written == {
+        **{(k + 1, Reg.GOAL): round(goals[k] * cpr[k] / (2 * np.pi) * 16) for k in range(3)},
+        **{(k + 1, Reg.INVTAU): INVTAU.encode(2.0) for k in range(3)}}
+    before = dict(m.expected_uploads)
+    m.send_uploads(packets)
+    sends = m.poll(50_000 + 50_000)                 # period 1 starts: request, then the words
+    kinds = [(s.kind, s.ptype) for s in sends]
+    assert kinds[:2] == [("timecode", 0), ("packet", PacketType.COMM_A)]
+    assert [s.payload for s in sends if s.ptype == PacketType.PARAM] == [p for _, _, p in packets]
+    assert m.expected_uploads == before              # period 1's Comm A: taken before them
+    m.poll(150_000)                                  # period 2: judged against them too
+    assert m.expected_uploads != before
+    with pytest.raises(InputError) as e:
+        dmp_retarget(robot, dmp, goals=dmp.g + np.array([0.0, 9.0, 0.0]))
+    assert e.value.field == "goals[1]"
+    for bad in (0.0, -1.0, 0.01, 1e9):
+        with pytest.raises(InputError) as e:
+            dmp_retarget(robot, dmp, tau=bad)
+        assert e.value.field == "tau"
