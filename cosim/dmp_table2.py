@@ -9,6 +9,9 @@ node's PID mode (its own 1 MHz position loop, "the same joint PID parameters"):
 
 * ``traditional`` at each slow master period P: every period the master sends the joints their
   position reference at the period start and the joint holds it (``references="hold"``);
+* ``feedforward`` at the same P: the master sends ``q_d, q̇_d, q̈_d`` at the period start and
+  the joint extrapolates them over the period (``references="full"``, the node's own
+  interpolation) — what any velocity and acceleration feedforward buys without a primitive;
 * ``modularized`` at the same P: the primitives are deployed to the nodes before the run and
   started by the master; every joint generates its position, velocity and acceleration
   references itself, one generator step every millisecond (``references="dmp"``);
@@ -52,7 +55,9 @@ DMP_CONFIG = Path(configs.__file__).resolve().parent / "dmp_table2.toml"
 #: The paper's Table 2: RMSE of eq. (11), (traditional, modularized), 50 ms master period.
 PAPER_RMSE = {"half8": (0.0154, 0.0084), "circle": (0.0112, 0.0091), "line": (0.0070, 0.0068),
               "sinusoid": (0.0115, 0.0100)}
-ARCHITECTURES = ("traditional", "modularized")
+ARCHITECTURES = ("traditional", "feedforward", "modularized")
+#: Which column of :data:`PAPER_RMSE` each architecture compares with.
+PAPER_COLUMN = {"traditional": 0, "modularized": 1}
 ERROR_STEP = 1e-3           # s between the error samples
 
 
@@ -292,7 +297,8 @@ def run_architecture(cfg: DmpTableConfig, robot, ref: JointReference, dmp: Dmp,
     from mrm_cosim.cosim.track import run_track
 
     robot = load_robot(robot)
-    references = {"traditional": "hold", "modularized": "dmp", "reference": "full"}
+    references = {"traditional": "hold", "feedforward": "full", "modularized": "dmp",
+                  "reference": "full"}
     if architecture not in references:
         raise InputError("architecture", f"must be one of {', '.join(references)}, "
                                          f"not {architecture!r}")
@@ -393,8 +399,8 @@ def table_markdown(results: dict, cfg: DmpTableConfig) -> str:
         for (arch, period), run in res.runs.items():
             r = run.rmse()
             printed = "—"
-            if paper is not None and period == 50 and arch in ARCHITECTURES:
-                printed = f"{paper[ARCHITECTURES.index(arch)]:.4f}"
+            if paper is not None and period == 50 and arch in PAPER_COLUMN:
+                printed = f"{paper[PAPER_COLUMN[arch]]:.4f}"
             lines.append(f"| {name} | {arch} | {period} ms | {r['paper']:.2e} | {printed} "
                          f"| {r['relative']:.2e} | {r['rms_position_mm']:.3f} / "
                          f"{r['max_position_mm']:.3f} |")

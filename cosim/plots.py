@@ -458,7 +458,8 @@ def plot_dmp_paths(path, results: dict, period_ms: int, title: str):
 
         d = uv(first.tool_desired)
         ax.plot(d[:, 0], d[:, 1], "k-", lw=2.0, label="desired")
-        for arch, style in (("traditional", "C3--"), ("modularized", "C0-")):
+        for arch, style in (("traditional", "C3--"), ("feedforward", "C2-."),
+                            ("modularized", "C0-")):
             run = runs.get((arch, period_ms))
             if run is not None:
                 a = uv(run.tool_actual)
@@ -480,7 +481,8 @@ def plot_dmp_errors(path, results: dict, title: str):
     axes = np.atleast_1d(axes)
     for ax_row, (name, res) in zip(axes, results.items(), strict=True):
         for (arch, period), run in res.runs.items():
-            style = {"traditional": "--", "modularized": "-", "reference": ":"}[arch]
+            style = {"traditional": "--", "feedforward": "-.", "modularized": "-",
+                     "reference": ":"}[arch]
             ax_row.semilogy(run.t, np.maximum(run.position_mm, 1e-6), style, lw=0.9,
                             label=f"{arch} {period} ms")
         ax_row.set_ylabel(f"{name}\nposition error (mm)")

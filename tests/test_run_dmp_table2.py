@@ -64,7 +64,8 @@ def test_run_writes_the_table_and_the_plots(tmp_path, capsys):
         assert (out / name).stat().st_size > 0
     s = json.loads((out / "summary.json").read_text())
     runs = {(r["architecture"], r["period_ms"]): r for r in s["paths"]["line"]["runs"]}
-    assert set(runs) == {("traditional", 10), ("modularized", 10), ("reference", 1)}
+    assert set(runs) == {("traditional", 10), ("feedforward", 10), ("modularized", 10),
+                         ("reference", 1)}
     assert all(r["dmp_errors"] == 0 and r["upload_errors"] == 0 for r in runs.values())
     assert runs[("modularized", 10)]["paper"] < runs[("traditional", 10)]["paper"]
     assert runs[("modularized", 10)]["relative"] < runs[("traditional", 10)]["relative"]
