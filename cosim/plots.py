@@ -458,13 +458,18 @@ def plot_dmp_paths(path, results: dict, period_ms: int, title: str):
 
         d = uv(first.tool_desired)
         ax.plot(d[:, 0], d[:, 1], "k-", lw=2.0, label="desired")
+        lo, hi = d.min(axis=0), d.max(axis=0)
+        pad = np.maximum(0.3 * (hi - lo).max(), 5.0)
         for arch, style in (("traditional", "C3--"), ("feedforward", "C2-."),
                             ("modularized", "C0-")):
             run = runs.get((arch, period_ms))
             if run is not None:
                 a = uv(run.tool_actual)
                 ax.plot(a[:, 0], a[:, 1], style, lw=1.0, label=f"{arch}, {period_ms} ms")
-        ax.set_aspect("equal", adjustable="datalim")
+        # the desired path's extent: a run that leaves it is drawn up to the frame
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+        ax.set_aspect("equal", adjustable="box")
         ax.set_xlabel("e1 (mm)")
         ax.set_ylabel("e2 (mm)")
         ax.set_title(name)

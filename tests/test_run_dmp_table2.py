@@ -60,7 +60,8 @@ def test_run_writes_the_table_and_the_plots(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["run", "dmp-table2", "--config", str(cfg), "--out", str(out), "--jobs", "1",
                  "-q"]) == 0
-    for name in ("summary.json", "dmp_table2.md", "config.toml", "paths.png", "errors.png"):
+    for name in ("summary.json", "dmp_table2.md", "config.toml", "paths_10ms.png",
+                 "errors.png"):
         assert (out / name).stat().st_size > 0
     s = json.loads((out / "summary.json").read_text())
     runs = {(r["architecture"], r["period_ms"]): r for r in s["paths"]["line"]["runs"]}

@@ -558,14 +558,15 @@ def _dmp_table2(args) -> int:
             f"# {robot.name}: motion primitives on the joints vs the traditional master "
             f"({config.backend}, seed {config.seed})\n\n{table}\n")
         title = f"{robot.name}, {config.backend}, seed {config.seed}"
-        plot_dmp_paths(tmp / "paths.png", results, max(config.periods_ms), title)
+        for period in config.periods_ms:
+            plot_dmp_paths(tmp / f"paths_{period}ms.png", results, period, title)
         plot_dmp_errors(tmp / "errors.png", results, title)
     if args.json:
         _print_json(summary)
     elif not args.quiet:
         print((Path(args.out) / "dmp_table2.md").read_text(), end="")
-        print(f"results in {args.out}/ (summary.json, dmp_table2.md, config.toml, paths.png, "
-              "errors.png)")
+        print(f"results in {args.out}/ (summary.json, dmp_table2.md, config.toml, "
+              "paths_<period>ms.png, errors.png)")
     reasons = [f"{name} {arch} {period} ms: {r}" for name, res in results.items()
                for (arch, period), run in res.runs.items() for r in run_faults(run.summary)]
     return _not_clean("dmp-table2", reasons)
