@@ -42,8 +42,21 @@ def _rs(v, n):
 
 
 def _sat(v, width):
-    lo, hi = -(1 << (width - 1)), (1 << (width - 1)) - 1
-    return Mux(v > hi, hi, Mux(v < lo, lo, v))
+    """Clamp the signed value ``v`` to ``width`` bits. It fits iff its bits from ``width − 1``
+    up all equal its sign: a reduction, not two full-width comparisons with the bounds."""
+    v = Value.cast(v)
+    if len(v) <= width:
+        return v
+    top = v[width - 1:]
+    fits = top.all() | ~top.any()
+    sign = v[-1]
+    return Mux(fits, v[:width], Cat((~sign).replicate(width - 1), sign)).as_signed()
+
+
+def _over(v, width):
+    """Whether the non-negative value ``v`` is ``2^width`` or more (its high bits)."""
+    v = Value.cast(v)
+    return v[width:].any() if len(v) > width else C(0, 1)
 
 
 class DmpGenerator(wiring.Component):
@@ -207,7 +220,7 @@ class DmpGenerator(wiring.Component):
             m.next = "Exp-Table"
         with self._state(m, "Phase"):
             m.d.sync += [d.s.eq(_rs(d.eout, 6)), d.i.eq(0), d.num.eq(0), d.den.eq(0),
-                         d.umin.eq(-1), d.pass2.eq(0)]
+                         d.pass2.eq(0)]
             with m.If(d.n == 0):
                 m.next = "Div-Init"
             with m.Else():
@@ -262,13 +275,18 @@ class DmpGenerator(wiring.Component):
             m.next = "Basis-Square-Wait"
         self._wait(m, "Basis-Square-Wait", "Basis-Exp")
         with self._state(m, "Basis-Exp"):
+            # One subtractor: its borrow is u < u_min (first pass), its value u − u_min ≥ 0
+            # (second pass).
             u = d.p.as_unsigned()
+            diff = u - d.umin
             with m.If(d.pass2):
-                diff = u - d.umin
-                m.d.sync += [d.ein.eq(Mux(diff > PHI_MAX, PHI_MAX, diff)), d.ret.eq(1)]
+                m.d.sync += [d.ein.eq(Mux(_over(diff[:-1], PHI_WIDTH), PHI_MAX, diff[:-1])),
+                             d.ret.eq(1)]
                 m.next = "Exp-Table"
             with m.Else():
-                m.d.sync += [d.umin.eq(Mux(u < d.umin, u, d.umin)), d.i.eq(d.i + 1)]
+                with m.If(diff[-1] | (d.i == 0)):
+                    m.d.sync += d.umin.eq(u)
+                m.d.sync += d.i.eq(d.i + 1)
                 with m.If(d.i == d.n - 1):
                     m.d.sync += [d.i.eq(0), d.pass2.eq(1)]
                 m.next = "Basis-Centre"
@@ -295,8 +313,9 @@ class DmpGenerator(wiring.Component):
             m.next = "Div-Step"
         with self._state(m, "Div-Step"):
             trial = Cat(d.nlow[-1], d.rem)
-            fits = trial >= d.den
-            m.d.sync += [d.rem.eq(Mux(fits, trial - d.den, trial)), d.nlow.eq(d.nlow << 1),
+            diff = trial - d.den                    # one subtractor: its borrow is the compare
+            fits = ~diff[-1]
+            m.d.sync += [d.rem.eq(Mux(fits, diff, trial)), d.nlow.eq(d.nlow << 1),
                          d.q.eq(Cat(fits, d.q)), d.cnt.eq(d.cnt + 1)]
             with m.If(d.cnt == QBITS - 1):
                 m.next = "Div-Round"
@@ -369,7 +388,7 @@ class DmpGenerator(wiring.Component):
         with self._state(m, "Update-Phase"):
             phi = d.phi + d.dphi
             m.d.sync += [d.x.eq(_sat(d.x + (d.p >> 32), 40)),
-                         d.phi.eq(Mux(phi < 0, 0, Mux(phi > PHI_MAX, PHI_MAX, phi)))]
+                         d.phi.eq(Mux(phi[-1], 0, Mux(_over(phi, PHI_WIDTH), PHI_MAX, phi)))]
             m.next = "Ready"
 
     def _control(self, m, d, fsm):
