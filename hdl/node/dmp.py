@@ -42,15 +42,8 @@ def _rs(v, n):
 
 
 def _sat(v, width):
-    """Clamp the signed value ``v`` to ``width`` bits. It fits iff its bits from ``width − 1``
-    up all equal its sign: a reduction, not two full-width comparisons with the bounds."""
-    v = Value.cast(v)
-    if len(v) <= width:
-        return v
-    top = v[width - 1:]
-    fits = top.all() | ~top.any()
-    sign = v[-1]
-    return Mux(fits, v[:width], Cat((~sign).replicate(width - 1), sign)).as_signed()
+    lo, hi = -(1 << (width - 1)), (1 << (width - 1)) - 1
+    return Mux(v > hi, hi, Mux(v < lo, lo, v))
 
 
 def _over(v, width):
