@@ -33,6 +33,7 @@ from mrm_cosim.protocol.fixed import WORD
 
 __all__ = ["DmpGenerator"]
 
+_IN_MEMORY = (Reg.ALPHA, Reg.ALPHA_BETA, Reg.PHASE_RATE, Reg.AMPLITUDE, Reg.RADC)
 QBITS = 34      # quotient bits of the divider: |f| ≤ max|w| bounds q = |num|·2^10/den < 2^34
 
 
@@ -112,13 +113,18 @@ class DmpGenerator(wiring.Component):
         m = Module()
         mb = self._mb
         d = SimpleNamespace()
+        # Words used at any time or in the first cycle of a computation are registers; the
+        # others (_IN_MEMORY) are read from the parameter memory in the cycle before their
+        # product is issued (a wait state of the previous one), so they share the
+        # multiplier operand's memory input instead of one multiplexer input each.
         d.reg = {r: Signal(signed(WORD), name=f"r_{r.name.lower()}") for r in Reg
-                 if r != Reg.N_BASIS}
+                 if r != Reg.N_BASIS and r not in _IN_MEMORY}
         d.n = Signal(range(mb + 1))
-        m.submodules.params = params = Memory(shape=signed(WORD), depth=3 * mb, init=[])
+        m.submodules.params = params = Memory(shape=signed(WORD), depth=N_SCALARS + 3 * mb,
+                                              init=[])
         m.submodules.table = table = Memory(shape=unsigned(31), depth=len(EXP_TABLE),
                                             init=EXP_TABLE)
-        d.rd = params.read_port()
+        d.rd = self._rd = params.read_port()
         d.trd = table.read_port()
         self._host(m, params.write_port(), d)
 
@@ -158,9 +164,9 @@ class DmpGenerator(wiring.Component):
     def _host(self, m, wr, d):
         addr, data = self.host_addr, self.host_data
         m.d.comb += [
-            wr.addr.eq(addr - N_SCALARS),
+            wr.addr.eq(addr),
             wr.data.eq(data),
-            wr.en.eq(self.host_we & (addr >= N_SCALARS) & (addr < N_SCALARS + 3 * self._mb)),
+            wr.en.eq(self.host_we & (addr < N_SCALARS + 3 * self._mb)),
         ]
         with m.If(self.host_we):
             with m.Switch(addr):
@@ -180,9 +186,12 @@ class DmpGenerator(wiring.Component):
             with m.Elif(self.start):
                 m.next = "Latch"
 
-    def _wait(self, m, name, nxt):
-        """A cycle for the multiplier's product register."""
+    def _wait(self, m, name, nxt, read=None):
+        """A cycle for the multiplier's product register; ``read``: a scalar in the parameter
+        memory that the next state takes from its read port."""
         with self._state(m, name):
+            if read is not None:
+                m.d.comb += self._rd.addr.eq(read)
             m.next = nxt
 
     def _mul(self, m, d, a, b, shift=0):
@@ -201,11 +210,11 @@ class DmpGenerator(wiring.Component):
             m.d.sync += [d.gl.eq(d.reg[Reg.GOAL]), d.itl.eq(d.reg[Reg.INVTAU])]
             self._mul(m, d, d.reg[Reg.DT], d.reg[Reg.INVTAU], 12)
             m.next = "K-Wait"
-        self._wait(m, "K-Wait", "K")
+        self._wait(m, "K-Wait", "K", Reg.PHASE_RATE)
         with self._state(m, "K"):
             k = d.p >> 12
             m.d.sync += d.k.eq(k)
-            self._mul(m, d, k, d.reg[Reg.PHASE_RATE], 14)
+            self._mul(m, d, k, d.rd.data, 14)
             m.next = "Dphi-Wait"
         self._wait(m, "Dphi-Wait", "Dphi")
         with self._state(m, "Dphi"):
@@ -239,8 +248,10 @@ class DmpGenerator(wiring.Component):
             m.d.sync += d.y.eq(d.t0 - (d.p >> 24))
             m.next = "Exp-Shift"
         with self._state(m, "Exp-Shift"):
-            shifted = (d.y >> (n + 1)) + 1
-            m.d.sync += d.eout.eq(Mux(n >= 31, 0, shifted >> 1))
+            # rs(y, n + 2) = (w >> 2) + w[1] with w = y >> n: a 5-bit shift amount (n ≤ 30
+            # here), not the 7-bit n + 1 and a rounding adder behind it.
+            w = d.y >> n[:5]
+            m.d.sync += d.eout.eq(Mux(n >= 31, 0, (w >> 2) + w[1]))
             with m.If(d.ret):
                 m.next = "Basis-Psi"
             with m.Else():
@@ -249,14 +260,14 @@ class DmpGenerator(wiring.Component):
     def _basis(self, m, d):
         mb = self._mb
         with self._state(m, "Basis-Centre"):
-            m.d.comb += d.rd.addr.eq(mb + d.i)
+            m.d.comb += d.rd.addr.eq(N_SCALARS + mb + d.i)
             m.next = "Basis-Width"
         with self._state(m, "Basis-Width"):
-            m.d.comb += d.rd.addr.eq(2 * mb + d.i)
+            m.d.comb += d.rd.addr.eq(N_SCALARS + 2 * mb + d.i)
             m.d.sync += d.cc.eq(d.rd.data)
             m.next = "Basis-Diff"
         with self._state(m, "Basis-Diff"):
-            m.d.comb += d.rd.addr.eq(d.i)
+            m.d.comb += d.rd.addr.eq(N_SCALARS + d.i)
             self._mul(m, d, d.s - d.cc, d.rd.data, 14)
             m.next = "Basis-Weight"
         with self._state(m, "Basis-Weight"):
@@ -313,30 +324,31 @@ class DmpGenerator(wiring.Component):
             with m.If(d.cnt == QBITS - 1):
                 m.next = "Div-Round"
         with self._state(m, "Div-Round"):
-            half = ((d.q + 1) >> 1).as_signed()
-            m.d.sync += d.f.eq(Mux(d.den == 0, 0, Mux(d.neg, -half, half)))  # den = 0: n = 0
+            # ±((q + 1) >> 1) in one adder: −((q + 1) >> 1) = (~q + 1) >> 1.
+            qx = Cat(d.q ^ d.neg.replicate(QBITS), d.neg).as_signed()
+            m.d.sync += d.f.eq(Mux(d.den == 0, 0, (qx + 1) >> 1))  # den = 0: n = 0
             m.next = "Force-Gate"
 
     def _forcing(self, m, d):
         """``F = s f A`` and ``v̇ = α β (g − x) − α v + F``."""
         gs = (d.reg[Reg.FLAGS] & FLAG_GOAL_SCALING) != 0
-        amp = Mux(gs, d.gl - d.reg[Reg.X0], d.reg[Reg.AMPLITUDE])
+        amp = Mux(gs, d.gl - d.reg[Reg.X0], d.rd.data)
         with self._state(m, "Force-Gate"):
             self._mul(m, d, d.s, d.f, 22)
             m.next = "Force-Gate-Wait"
-        self._wait(m, "Force-Gate-Wait", "Force-Scale")
+        self._wait(m, "Force-Gate-Wait", "Force-Scale", Reg.AMPLITUDE)
         with self._state(m, "Force-Scale"):
             self._mul(m, d, (d.p >> 22), amp, 20)
             m.next = "Force-Scale-Wait"
-        self._wait(m, "Force-Scale-Wait", "Spring")
+        self._wait(m, "Force-Scale-Wait", "Spring", Reg.ALPHA_BETA)
         with self._state(m, "Spring"):
             m.d.sync += d.force.eq(d.p >> 20)
-            self._mul(m, d, _rs((d.gl << 12) - d.x, 8), d.reg[Reg.ALPHA_BETA], 12)
+            self._mul(m, d, _rs((d.gl << 12) - d.x, 8), d.rd.data, 12)
             m.next = "Spring-Wait"
-        self._wait(m, "Spring-Wait", "Damper")
+        self._wait(m, "Spring-Wait", "Damper", Reg.ALPHA)
         with self._state(m, "Damper"):
             m.d.sync += d.t1.eq(d.p >> 12)
-            self._mul(m, d, d.v, d.reg[Reg.ALPHA], 20)
+            self._mul(m, d, d.v, d.rd.data, 20)
             m.next = "Damper-Wait"
         self._wait(m, "Damper-Wait", "Accel")
         with self._state(m, "Accel"):
@@ -348,26 +360,33 @@ class DmpGenerator(wiring.Component):
 
     def _outputs(self, m, d):
         """Pending outputs from (x, v, v̇), then the state update."""
-        radc = d.reg[Reg.RADC]
+        radc = d.rd.data
+        # One saturation of the product serves the chain: sat35(p >> 20) or sat35(p >> 22);
+        # the output words saturate it again to 24 bits, which equals sat24(p >> 26) and
+        # sat24(p >> 25) (both clamps are monotone and the 35-bit range covers the 24-bit).
+        sel22 = Signal()
+        zs = _sat(Mux(sel22, d.p >> 22, d.p >> 20), 35)
         with self._state(m, "Accel-Tau2"):
-            self._mul(m, d, _sat(d.p >> 20, 35), d.itl, 20)
+            self._mul(m, d, zs, d.itl, 20)
             m.next = "Accel-Tau2-Wait"
-        self._wait(m, "Accel-Tau2-Wait", "Accel-Out")
+        self._wait(m, "Accel-Tau2-Wait", "Accel-Out", Reg.RADC)
         with self._state(m, "Accel-Out"):
-            self._mul(m, d, _sat(d.p >> 20, 35), radc, 26)
+            self._mul(m, d, zs, radc, 26)
             m.next = "Accel-Out-Wait"
         self._wait(m, "Accel-Out-Wait", "Vel-Tau")
         with self._state(m, "Vel-Tau"):
-            m.d.sync += d.pad.eq(_sat(d.p >> 26, WORD))
+            m.d.sync += d.pad.eq(_sat(zs >> 6, WORD))
             self._mul(m, d, d.v, d.itl, 22)
             m.next = "Vel-Tau-Wait"
-        self._wait(m, "Vel-Tau-Wait", "Vel-Out")
+        self._wait(m, "Vel-Tau-Wait", "Vel-Out", Reg.RADC)
         with self._state(m, "Vel-Out"):
-            self._mul(m, d, _sat(d.p >> 22, 35), radc, 25)
+            m.d.comb += sel22.eq(1)
+            self._mul(m, d, zs, radc, 25)
             m.next = "Vel-Out-Wait"
         self._wait(m, "Vel-Out-Wait", "Update-V")
         with self._state(m, "Update-V"):
-            m.d.sync += [d.pvd.eq(_sat(d.p >> 25, WORD)),
+            m.d.comb += sel22.eq(1)
+            m.d.sync += [d.pvd.eq(_sat(zs >> 3, WORD)),
                          d.pqd.eq(_sat(_rs(d.x, 12), WORD))]
             self._mul(m, d, d.k, d.vdot, 32)
             m.next = "Update-V-Wait"
