@@ -145,7 +145,7 @@ class DmpGenerator(wiring.Component):
                             ("nlow", unsigned(QBITS)), ("q", unsigned(QBITS)), ("neg", 1),
                             ("f", signed(QBITS)), ("force", signed(40)), ("t1", signed(48)),
                             ("vdot", signed(35)), ("ein", unsigned(PHI_WIDTH)),
-                            ("eout", unsigned(29)), ("t0", unsigned(31)), ("y", unsigned(31)),
+                            ("eout", unsigned(29)), ("t0", unsigned(31)),
                             ("ret", 1), ("i", range(mb)), ("cnt", range(QBITS)),
                             ("pqd", signed(WORD)), ("pvd", signed(WORD)),
                             ("pad", signed(WORD))):
@@ -245,13 +245,14 @@ class DmpGenerator(wiring.Component):
             m.next = "Exp-Wait"
         self._wait(m, "Exp-Wait", "Exp-Interp")
         with self._state(m, "Exp-Interp"):
-            m.d.sync += d.y.eq(d.t0 - (d.p >> 24))
-            m.next = "Exp-Shift"
+            # rs(y, n + 2) = rs(y · 2^(30 − n), 32) for n ≤ 30: the shift is a product, with
+            # a one-hot operand, not a 31-bit barrel shifter.
+            scale = Mux(n >= 31, 0, C(1, 31) << (30 - n[:5]).as_unsigned())
+            self._mul(m, d, d.t0 - (d.p >> 24), scale, 32)
+            m.next = "Exp-Shift-Wait"
+        self._wait(m, "Exp-Shift-Wait", "Exp-Shift")
         with self._state(m, "Exp-Shift"):
-            # rs(y, n + 2) = (w >> 2) + w[1] with w = y >> n: a 5-bit shift amount (n ≤ 30
-            # here), not the 7-bit n + 1 and a rounding adder behind it.
-            w = d.y >> n[:5]
-            m.d.sync += d.eout.eq(Mux(n >= 31, 0, (w >> 2) + w[1]))
+            m.d.sync += d.eout.eq(d.p >> 32)
             with m.If(d.ret):
                 m.next = "Basis-Psi"
             with m.Else():
