@@ -7,9 +7,11 @@
 A sequential datapath: one signed 35×35 multiplier (four MULT18X18) shared by every product,
 a restoring divider (one quotient bit per cycle) for ``f = Σψw / Σψ``, and an exp unit
 ``2^(−φ)`` — a 257-entry table of ``2^(−j/256)`` in block RAM, linear interpolation on the
-multiplier, then a rounding shift by the integer part — used for the phase ``s = 2^(−φ)``
-(the accumulated exponent, not a product of decays) and for every Gaussian. Parameters live in
-registers (scalars) and one block RAM (weights, centres, inverse widths). The arithmetic is
+multiplier, then a rounding shift by the integer part as a second product with a one-hot
+operand — used for the phase ``s = 2^(−φ)`` (the accumulated exponent, not a product of
+decays) and for every Gaussian. Parameters live in one block RAM (weights, centres, inverse
+widths, and the scalars used only as operands, at their register addresses) and registers (the
+scalars needed at a strobe or in a computation's first cycle). The arithmetic is
 specified bit for bit by :mod:`.dmp_ref`, the register map and formats by
 :mod:`mrm_cosim.protocol.dmp`; docs/dmp.md "The joint-side generator".
 
