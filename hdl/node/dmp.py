@@ -7,9 +7,11 @@
 A sequential datapath: one signed 35×35 multiplier (four MULT18X18) shared by every product,
 a restoring divider (one quotient bit per cycle) for ``f = Σψw / Σψ``, and an exp unit
 ``2^(−φ)`` — a 257-entry table of ``2^(−j/256)`` in block RAM, linear interpolation on the
-multiplier, then a rounding shift by the integer part — used for the phase ``s = 2^(−φ)``
-(the accumulated exponent, not a product of decays) and for every Gaussian. Parameters live in
-registers (scalars) and one block RAM (weights, centres, inverse widths). The arithmetic is
+multiplier, then a rounding shift by the integer part as a second product with a one-hot
+operand — used for the phase ``s = 2^(−φ)`` (the accumulated exponent, not a product of
+decays) and for every Gaussian. Parameters live in one block RAM (weights, centres, inverse
+widths, and the scalars used only as operands, at their register addresses) and registers (the
+scalars needed at a strobe or in a computation's first cycle). The arithmetic is
 specified bit for bit by :mod:`.dmp_ref`, the register map and formats by
 :mod:`mrm_cosim.protocol.dmp`; docs/dmp.md "The joint-side generator".
 
@@ -33,6 +35,7 @@ from mrm_cosim.protocol.fixed import WORD
 
 __all__ = ["DmpGenerator"]
 
+_IN_MEMORY = (Reg.ALPHA, Reg.ALPHA_BETA, Reg.PHASE_RATE, Reg.AMPLITUDE, Reg.RADC)
 QBITS = 34      # quotient bits of the divider: |f| ≤ max|w| bounds q = |num|·2^10/den < 2^34
 
 
@@ -44,6 +47,12 @@ def _rs(v, n):
 def _sat(v, width):
     lo, hi = -(1 << (width - 1)), (1 << (width - 1)) - 1
     return Mux(v > hi, hi, Mux(v < lo, lo, v))
+
+
+def _over(v, width):
+    """Whether the non-negative value ``v`` is ``2^width`` or more (its high bits)."""
+    v = Value.cast(v)
+    return v[width:].any() if len(v) > width else C(0, 1)
 
 
 class DmpGenerator(wiring.Component):
@@ -106,13 +115,18 @@ class DmpGenerator(wiring.Component):
         m = Module()
         mb = self._mb
         d = SimpleNamespace()
+        # Words used at any time or in the first cycle of a computation are registers; the
+        # others (_IN_MEMORY) are read from the parameter memory in the cycle before their
+        # product is issued (a wait state of the previous one), so they share the
+        # multiplier operand's memory input instead of one multiplexer input each.
         d.reg = {r: Signal(signed(WORD), name=f"r_{r.name.lower()}") for r in Reg
-                 if r != Reg.N_BASIS}
+                 if r != Reg.N_BASIS and r not in _IN_MEMORY}
         d.n = Signal(range(mb + 1))
-        m.submodules.params = params = Memory(shape=signed(WORD), depth=3 * mb, init=[])
+        m.submodules.params = params = Memory(shape=signed(WORD), depth=N_SCALARS + 3 * mb,
+                                              init=[])
         m.submodules.table = table = Memory(shape=unsigned(31), depth=len(EXP_TABLE),
                                             init=EXP_TABLE)
-        d.rd = params.read_port()
+        d.rd = self._rd = params.read_port()
         d.trd = table.read_port()
         self._host(m, params.write_port(), d)
 
@@ -133,7 +147,7 @@ class DmpGenerator(wiring.Component):
                             ("nlow", unsigned(QBITS)), ("q", unsigned(QBITS)), ("neg", 1),
                             ("f", signed(QBITS)), ("force", signed(40)), ("t1", signed(48)),
                             ("vdot", signed(35)), ("ein", unsigned(PHI_WIDTH)),
-                            ("eout", unsigned(29)), ("t0", unsigned(31)), ("y", unsigned(31)),
+                            ("eout", unsigned(29)), ("t0", unsigned(31)),
                             ("ret", 1), ("i", range(mb)), ("cnt", range(QBITS)),
                             ("pqd", signed(WORD)), ("pvd", signed(WORD)),
                             ("pad", signed(WORD))):
@@ -152,9 +166,9 @@ class DmpGenerator(wiring.Component):
     def _host(self, m, wr, d):
         addr, data = self.host_addr, self.host_data
         m.d.comb += [
-            wr.addr.eq(addr - N_SCALARS),
+            wr.addr.eq(addr),
             wr.data.eq(data),
-            wr.en.eq(self.host_we & (addr >= N_SCALARS) & (addr < N_SCALARS + 3 * self._mb)),
+            wr.en.eq(self.host_we & (addr < N_SCALARS + 3 * self._mb)),
         ]
         with m.If(self.host_we):
             with m.Switch(addr):
@@ -174,9 +188,12 @@ class DmpGenerator(wiring.Component):
             with m.Elif(self.start):
                 m.next = "Latch"
 
-    def _wait(self, m, name, nxt):
-        """A cycle for the multiplier's product register."""
+    def _wait(self, m, name, nxt, read=None):
+        """A cycle for the multiplier's product register; ``read``: a scalar in the parameter
+        memory that the next state takes from its read port."""
         with self._state(m, name):
+            if read is not None:
+                m.d.comb += self._rd.addr.eq(read)
             m.next = nxt
 
     def _mul(self, m, d, a, b, shift=0):
@@ -195,11 +212,11 @@ class DmpGenerator(wiring.Component):
             m.d.sync += [d.gl.eq(d.reg[Reg.GOAL]), d.itl.eq(d.reg[Reg.INVTAU])]
             self._mul(m, d, d.reg[Reg.DT], d.reg[Reg.INVTAU], 12)
             m.next = "K-Wait"
-        self._wait(m, "K-Wait", "K")
+        self._wait(m, "K-Wait", "K", Reg.PHASE_RATE)
         with self._state(m, "K"):
             k = d.p >> 12
             m.d.sync += d.k.eq(k)
-            self._mul(m, d, k, d.reg[Reg.PHASE_RATE], 14)
+            self._mul(m, d, k, d.rd.data, 14)
             m.next = "Dphi-Wait"
         self._wait(m, "Dphi-Wait", "Dphi")
         with self._state(m, "Dphi"):
@@ -207,7 +224,7 @@ class DmpGenerator(wiring.Component):
             m.next = "Exp-Table"
         with self._state(m, "Phase"):
             m.d.sync += [d.s.eq(_rs(d.eout, 6)), d.i.eq(0), d.num.eq(0), d.den.eq(0),
-                         d.umin.eq(-1), d.pass2.eq(0)]
+                         d.pass2.eq(0)]
             with m.If(d.n == 0):
                 m.next = "Div-Init"
             with m.Else():
@@ -230,11 +247,14 @@ class DmpGenerator(wiring.Component):
             m.next = "Exp-Wait"
         self._wait(m, "Exp-Wait", "Exp-Interp")
         with self._state(m, "Exp-Interp"):
-            m.d.sync += d.y.eq(d.t0 - (d.p >> 24))
-            m.next = "Exp-Shift"
+            # rs(y, n + 2) = rs(y · 2^(30 − n), 32) for n ≤ 30: the shift is a product, with
+            # a one-hot operand, not a 31-bit barrel shifter.
+            scale = Mux(n >= 31, 0, C(1, 31) << (30 - n[:5]).as_unsigned())
+            self._mul(m, d, d.t0 - (d.p >> 24), scale, 32)
+            m.next = "Exp-Shift-Wait"
+        self._wait(m, "Exp-Shift-Wait", "Exp-Shift")
         with self._state(m, "Exp-Shift"):
-            shifted = (d.y >> (n + 1)) + 1
-            m.d.sync += d.eout.eq(Mux(n >= 31, 0, shifted >> 1))
+            m.d.sync += d.eout.eq(d.p >> 32)
             with m.If(d.ret):
                 m.next = "Basis-Psi"
             with m.Else():
@@ -243,14 +263,14 @@ class DmpGenerator(wiring.Component):
     def _basis(self, m, d):
         mb = self._mb
         with self._state(m, "Basis-Centre"):
-            m.d.comb += d.rd.addr.eq(mb + d.i)
+            m.d.comb += d.rd.addr.eq(N_SCALARS + mb + d.i)
             m.next = "Basis-Width"
         with self._state(m, "Basis-Width"):
-            m.d.comb += d.rd.addr.eq(2 * mb + d.i)
+            m.d.comb += d.rd.addr.eq(N_SCALARS + 2 * mb + d.i)
             m.d.sync += d.cc.eq(d.rd.data)
             m.next = "Basis-Diff"
         with self._state(m, "Basis-Diff"):
-            m.d.comb += d.rd.addr.eq(d.i)
+            m.d.comb += d.rd.addr.eq(N_SCALARS + d.i)
             self._mul(m, d, d.s - d.cc, d.rd.data, 14)
             m.next = "Basis-Weight"
         with self._state(m, "Basis-Weight"):
@@ -262,13 +282,18 @@ class DmpGenerator(wiring.Component):
             m.next = "Basis-Square-Wait"
         self._wait(m, "Basis-Square-Wait", "Basis-Exp")
         with self._state(m, "Basis-Exp"):
+            # One subtractor: its borrow is u < u_min (first pass), its value u − u_min ≥ 0
+            # (second pass).
             u = d.p.as_unsigned()
+            diff = u - d.umin
             with m.If(d.pass2):
-                diff = u - d.umin
-                m.d.sync += [d.ein.eq(Mux(diff > PHI_MAX, PHI_MAX, diff)), d.ret.eq(1)]
+                m.d.sync += [d.ein.eq(Mux(_over(diff[:-1], PHI_WIDTH), PHI_MAX, diff[:-1])),
+                             d.ret.eq(1)]
                 m.next = "Exp-Table"
             with m.Else():
-                m.d.sync += [d.umin.eq(Mux(u < d.umin, u, d.umin)), d.i.eq(d.i + 1)]
+                with m.If(diff[-1] | (d.i == 0)):
+                    m.d.sync += d.umin.eq(u)
+                m.d.sync += d.i.eq(d.i + 1)
                 with m.If(d.i == d.n - 1):
                     m.d.sync += [d.i.eq(0), d.pass2.eq(1)]
                 m.next = "Basis-Centre"
@@ -295,36 +320,38 @@ class DmpGenerator(wiring.Component):
             m.next = "Div-Step"
         with self._state(m, "Div-Step"):
             trial = Cat(d.nlow[-1], d.rem)
-            fits = trial >= d.den
-            m.d.sync += [d.rem.eq(Mux(fits, trial - d.den, trial)), d.nlow.eq(d.nlow << 1),
+            diff = trial - d.den                    # one subtractor: its borrow is the compare
+            fits = ~diff[-1]
+            m.d.sync += [d.rem.eq(Mux(fits, diff, trial)), d.nlow.eq(d.nlow << 1),
                          d.q.eq(Cat(fits, d.q)), d.cnt.eq(d.cnt + 1)]
             with m.If(d.cnt == QBITS - 1):
                 m.next = "Div-Round"
         with self._state(m, "Div-Round"):
-            half = ((d.q + 1) >> 1).as_signed()
-            m.d.sync += d.f.eq(Mux(d.den == 0, 0, Mux(d.neg, -half, half)))  # den = 0: n = 0
+            # ±((q + 1) >> 1) in one adder: −((q + 1) >> 1) = (~q + 1) >> 1.
+            qx = Cat(d.q ^ d.neg.replicate(QBITS), d.neg).as_signed()
+            m.d.sync += d.f.eq(Mux(d.den == 0, 0, (qx + 1) >> 1))  # den = 0: n = 0
             m.next = "Force-Gate"
 
     def _forcing(self, m, d):
         """``F = s f A`` and ``v̇ = α β (g − x) − α v + F``."""
         gs = (d.reg[Reg.FLAGS] & FLAG_GOAL_SCALING) != 0
-        amp = Mux(gs, d.gl - d.reg[Reg.X0], d.reg[Reg.AMPLITUDE])
+        amp = Mux(gs, d.gl - d.reg[Reg.X0], d.rd.data)
         with self._state(m, "Force-Gate"):
             self._mul(m, d, d.s, d.f, 22)
             m.next = "Force-Gate-Wait"
-        self._wait(m, "Force-Gate-Wait", "Force-Scale")
+        self._wait(m, "Force-Gate-Wait", "Force-Scale", Reg.AMPLITUDE)
         with self._state(m, "Force-Scale"):
             self._mul(m, d, (d.p >> 22), amp, 20)
             m.next = "Force-Scale-Wait"
-        self._wait(m, "Force-Scale-Wait", "Spring")
+        self._wait(m, "Force-Scale-Wait", "Spring", Reg.ALPHA_BETA)
         with self._state(m, "Spring"):
             m.d.sync += d.force.eq(d.p >> 20)
-            self._mul(m, d, _rs((d.gl << 12) - d.x, 8), d.reg[Reg.ALPHA_BETA], 12)
+            self._mul(m, d, _rs((d.gl << 12) - d.x, 8), d.rd.data, 12)
             m.next = "Spring-Wait"
-        self._wait(m, "Spring-Wait", "Damper")
+        self._wait(m, "Spring-Wait", "Damper", Reg.ALPHA)
         with self._state(m, "Damper"):
             m.d.sync += d.t1.eq(d.p >> 12)
-            self._mul(m, d, d.v, d.reg[Reg.ALPHA], 20)
+            self._mul(m, d, d.v, d.rd.data, 20)
             m.next = "Damper-Wait"
         self._wait(m, "Damper-Wait", "Accel")
         with self._state(m, "Accel"):
@@ -336,26 +363,33 @@ class DmpGenerator(wiring.Component):
 
     def _outputs(self, m, d):
         """Pending outputs from (x, v, v̇), then the state update."""
-        radc = d.reg[Reg.RADC]
+        radc = d.rd.data
+        # One saturation of the product serves the chain: sat35(p >> 20) or sat35(p >> 22);
+        # the output words saturate it again to 24 bits, which equals sat24(p >> 26) and
+        # sat24(p >> 25) (both clamps are monotone and the 35-bit range covers the 24-bit).
+        sel22 = Signal()
+        zs = _sat(Mux(sel22, d.p >> 22, d.p >> 20), 35)
         with self._state(m, "Accel-Tau2"):
-            self._mul(m, d, _sat(d.p >> 20, 35), d.itl, 20)
+            self._mul(m, d, zs, d.itl, 20)
             m.next = "Accel-Tau2-Wait"
-        self._wait(m, "Accel-Tau2-Wait", "Accel-Out")
+        self._wait(m, "Accel-Tau2-Wait", "Accel-Out", Reg.RADC)
         with self._state(m, "Accel-Out"):
-            self._mul(m, d, _sat(d.p >> 20, 35), radc, 26)
+            self._mul(m, d, zs, radc, 26)
             m.next = "Accel-Out-Wait"
         self._wait(m, "Accel-Out-Wait", "Vel-Tau")
         with self._state(m, "Vel-Tau"):
-            m.d.sync += d.pad.eq(_sat(d.p >> 26, WORD))
+            m.d.sync += d.pad.eq(_sat(zs >> 6, WORD))
             self._mul(m, d, d.v, d.itl, 22)
             m.next = "Vel-Tau-Wait"
-        self._wait(m, "Vel-Tau-Wait", "Vel-Out")
+        self._wait(m, "Vel-Tau-Wait", "Vel-Out", Reg.RADC)
         with self._state(m, "Vel-Out"):
-            self._mul(m, d, _sat(d.p >> 22, 35), radc, 25)
+            m.d.comb += sel22.eq(1)
+            self._mul(m, d, zs, radc, 25)
             m.next = "Vel-Out-Wait"
         self._wait(m, "Vel-Out-Wait", "Update-V")
         with self._state(m, "Update-V"):
-            m.d.sync += [d.pvd.eq(_sat(d.p >> 25, WORD)),
+            m.d.comb += sel22.eq(1)
+            m.d.sync += [d.pvd.eq(_sat(zs >> 3, WORD)),
                          d.pqd.eq(_sat(_rs(d.x, 12), WORD))]
             self._mul(m, d, d.k, d.vdot, 32)
             m.next = "Update-V-Wait"
@@ -369,7 +403,7 @@ class DmpGenerator(wiring.Component):
         with self._state(m, "Update-Phase"):
             phi = d.phi + d.dphi
             m.d.sync += [d.x.eq(_sat(d.x + (d.p >> 32), 40)),
-                         d.phi.eq(Mux(phi < 0, 0, Mux(phi > PHI_MAX, PHI_MAX, phi)))]
+                         d.phi.eq(Mux(phi[-1], 0, Mux(_over(phi, PHI_WIDTH), PHI_MAX, phi)))]
             m.next = "Ready"
 
     def _control(self, m, d, fsm):
