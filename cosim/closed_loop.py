@@ -176,6 +176,7 @@ class ClosedLoop:
         self._seq = 0
         self._rest = PlantLines(counts=plant.encoder_counts())
         backend.power_on(self._rest.counts)
+        backend.attach_plant(plant)
 
     # --- the backend's cycles ----------------------------------------------------------------
     async def _advance(self, n: int, lines: PlantLines, offset: int = 0) -> None:

@@ -173,6 +173,10 @@ class GatewareSide(ABC):
         """Run ``n`` cycles with the encoder lines of cycles ``offset … offset + n − 1`` of
         ``lines``; returns what reached the master in them."""
 
+    def attach_plant(self, plant) -> None:  # noqa: B027 - optional hook
+        """The loop's plant (:class:`models.plant.Plant`), before its first step: a backend
+        may run its step on compiled code (the model backend's kernel does)."""
+
     def begin(self, cycle: int, period_cycles: int) -> None:  # noqa: B027 - optional hook
         """Period 0 of the master's grid (``period_cycles`` long) starts at ``cycle``, the
         current cycle."""

@@ -55,7 +55,7 @@ import numpy as np
 from mrm_cosim.cosim.gateware_side import GatewareSide, Observed, PlantLines, Reply
 from mrm_cosim.cosim.model_link import LINK_UP_CYCLE, LinkTiming
 from mrm_cosim.cosim.model_kernel import (KernelArrays, KernelEncoder, KernelNode,
-                                          kernel_choice, load)
+                                          kernel_choice, load, load_plant)
 from mrm_cosim.cosim.model_node import EncoderEvents, FastNode
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.protocol import packet as ref
@@ -149,7 +149,7 @@ class ModelBackend(GatewareSide):
             for k, node in enumerate(self.nodes):
                 node.bind(arrays, k)
             self._plain = np.zeros(self.n, dtype=np.bool_)
-            self._no_changes = (np.zeros(0, dtype=np.int64),) * 3
+            self._chg_lines = None
             self._fed = 0
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
             node.lazy = self.lazy
@@ -158,6 +158,14 @@ class ModelBackend(GatewareSide):
         self._samplers = [e.sample for e in self.encoders]
         self._link = LinkTiming(self.n)
         self._torque = np.zeros(self.n)         # (the kernel writes the plain nodes' torques)
+
+    def attach_plant(self, plant) -> None:
+        """With the compiled kernel, the plant's step runs on it too
+        (:meth:`Plant.use_kernel <models.plant.Plant.use_kernel>`, same results bit for bit)."""
+        if self._kern is not None and getattr(plant, "_kern", None) is None:
+            kern = load_plant()
+            if kern is not None:
+                plant.use_kernel(kern)
 
     @property
     def link_up(self) -> bool:
@@ -262,21 +270,19 @@ class ModelBackend(GatewareSide):
         if start != self._fed:
             raise ValueError(f"feed must continue at cycle {self._fed}, not {start}")
         self._fed = end
-        chg = self._no_changes
-        if not lines.at_rest:
-            changes = lines.changes()
-            if any(changes):
-                nodes_k, cyc, cnt = [], [], []
-                whole = offset == 0 and n == lines.plant.cycles_per_step
-                for k, ch in enumerate(changes):
-                    for i, c in ch:
-                        if whole or offset <= i < offset + n:
-                            nodes_k.append(k)
-                            cyc.append(i - offset)
-                            cnt.append(c)
-                if nodes_k:
-                    chg = (np.array(nodes_k, dtype=np.int64), np.array(cyc, dtype=np.int64),
-                           np.array(cnt, dtype=np.int64))
+        a = self._arrays
+        if lines is not self._chg_lines:            # a new plant step: its count changes
+            self._chg_lines = lines
+            a.CUR[:] = 0
+            if lines.at_rest:
+                a.NCH[:] = 0
+            else:
+                plant = lines.plant
+                if self._kern.step_changes(np.array(plant.motion()), plant.counts_per_rad,
+                                           plant.dt, plant.cycles_per_step, a.CHC, a.CHN,
+                                           a.NCH):
+                    lines.changes()                 # the reference raises EncoderOverspeed
+                    raise AssertionError("model kernel: an overspeed the reference missed")
         plain = self._plain
         inbox = self._link.inbox
         others = None
@@ -293,9 +299,8 @@ class ModelBackend(GatewareSide):
                 plain[k] = False
                 node.pull()
                 others = [k] if others is None else others + [k]
-        a = self._arrays
         if self._kern.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, plain, start, n,
-                                 *chg, self._torque):
+                                 offset, a.CHC, a.CHN, a.NCH, a.CUR, self._torque):
             raise RuntimeError("model kernel: an unobserved torque word was sampled")
         if others is None:
             out = []

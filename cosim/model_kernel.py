@@ -33,17 +33,20 @@ import numpy as np
 
 from mrm_cosim.cosim.model_node import FastNode
 from mrm_cosim.cosim import model_kernel_src as src
+from mrm_cosim.models import plant_kernel_src as plant_src
 from mrm_cosim.protocol.fixed import CNT, FORCE, IHI, POS, SGN, TIME, VEL
 from mrm_cosim.protocol.fixed import ACC, ANG, CT, IM, IVLC, IVS, KC, LAM, LAMC, TS, VISC, GAIN
 from mrm_cosim.protocol.joint_program import MODES, joint_microcode, pid_formats
 from mrm_cosim.protocol.regs import Config
 
-__all__ = ["load", "kernel_choice", "KernelEncoder", "KernelNode", "KernelArrays",
+__all__ = ["load", "load_plant", "kernel_choice", "KernelEncoder", "KernelNode", "KernelArrays",
            "point_shifts", "param_row"]
 
 #: Buffer sizes per node (changes of one plant step are ≤ 500 per line; the queues empty at
 #: every observed tick, at least once a plant step). Overflow raises.
 PEND_CAP, VIS_CAP, PIPE_CAP, DUE_CAP = 2048, 2048, 64, 4096
+#: Count changes of one joint in one plant step (at most one per cycle: 500 at 10 µs).
+CHANGE_CAP = 1024
 
 _loaded = None          # the compiled module, False if it cannot be, None before trying
 
@@ -67,7 +70,9 @@ def load():
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")             # numba's own notices
                 src.jit_all(numba.njit(cache=True))
+                plant_src.jit_all(numba.njit(cache=True))
                 _warm_up(src)
+                _warm_up_plant(plant_src)
             _loaded = src
         except Exception as e:          # noqa: BLE001 — any failure: the Python path runs
             _loaded = False
@@ -75,6 +80,26 @@ def load():
                           f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}); "
                           "running the pure-Python path", RuntimeWarning, stacklevel=2)
     return _loaded or None
+
+
+def load_plant():
+    """The plant step's compiled functions (:mod:`models.plant_kernel_src`, for
+    :meth:`Plant.use_kernel <models.plant.Plant.use_kernel>`), or None where :func:`load`
+    gives None."""
+    return plant_src if load() is not None else None
+
+
+def _warm_up_plant(k) -> None:
+    """Compile (or load) the plant step's functions once, on a throw-away state."""
+    S = np.zeros((k.S_ROWS, 2))
+    C = np.ones((k.C_ROWS, 2))
+    k.pre(S, C, np.zeros(2), 5e-6)
+    k.free_force(S, 1.0)
+    k.free_end(S, np.zeros(2), 1e-5, True)
+    k.stuck(S, np.zeros(2))
+    S[k.SIGN, 0] = 1.0
+    k.likely_pattern(S, np.eye(2), 1e-5)
+    k.finish(S, 1e-5, 5e-6)
 
 
 def _warm_up(k) -> None:
@@ -90,8 +115,11 @@ def _warm_up(k) -> None:
     a.P[0, src.P_CYC:src.P_CYC + 3] = 40
     z = np.zeros(0, dtype=np.int64)
     tau = np.zeros(1)
+    k.step_changes(np.array([[0.0], [1.0], [-5e4], [1e-5]]), np.array([1.27e5]), 1e-5, 500,
+                   a.CHC, a.CHN, a.NCH)
+    a.CUR[:] = 0
     k.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, np.ones(1, dtype=np.bool_), 0,
-                 500, z, z, z, tau)
+                 500, 0, a.CHC, a.CHN, a.NCH, a.CUR, tau)
     e = a.rows(0)
     k.enc_tick_sample(e[0], e[2], e[3], e[4], 600)
     k.enc_defer(e[0], e[2], e[4], 650)
@@ -158,6 +186,11 @@ class KernelArrays:
         self.VIS = np.zeros((n, VIS_CAP, 2), dtype=np.int64)
         self.PIPE = np.zeros((n, PIPE_CAP, 4), dtype=np.int64)
         self.DUE = np.zeros((n, DUE_CAP), dtype=np.int64)
+        # the count changes of the current plant step (step_changes) and the next one to feed
+        self.CHC = np.zeros((n, CHANGE_CAP), dtype=np.int64)
+        self.CHN = np.zeros((n, CHANGE_CAP), dtype=np.int64)
+        self.NCH = np.zeros(n, dtype=np.int64)
+        self.CUR = np.zeros(n, dtype=np.int64)
 
     def rows(self, k: int) -> tuple:
         """Node ``k``'s encoder views ``(E, PEND, VIS, PIPE, DUE)``."""

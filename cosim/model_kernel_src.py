@@ -23,9 +23,12 @@ with a length in the state row (overflow raises, it is never silent).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from mrm_cosim.hdl.node.encoder_ref import VEL_LATENCY as _VEL_LATENCY
+from mrm_cosim.models.encoder import _FEW_CHANGES
 from mrm_cosim.protocol.encoder import AGE_MAX as _AGE_MAX
 from mrm_cosim.protocol.encoder import DC_MAX as _DC_MAX
 from mrm_cosim.protocol.encoder import RECIP_TABLE
@@ -642,23 +645,137 @@ def torque_at(N, now):
     return N[N_TORQUE]
 
 
-def plain_step(NS, PS, ES, VIS, PIPE, DUE, PEND, plain, start, n, chg_node, chg_cyc,
-               chg_cnt, tau_out):
-    """One piece of a plant step for every node: the count changes into each encoder
-    (:meth:`EncoderEvents.feed_changes`), then, for the nodes marked ``plain`` (no event but
-    plain ticks before ``start + n − 1``), :meth:`FastNode.run` to ``start + n − 1`` and
-    the torque output in that cycle into ``tau_out`` (N·m: the FORCE word times 2^−13, as
-    ``FORCE.decode``). Returns True if a plain node's torque there is a dead tick's, which
+def _count_at(q0, v0, half_acc, k, step, m):
+    """``_count_changes``' ``count(m)``: the count sampled in cycle ``m`` of the step."""
+    s = (m + 1) * step
+    return math.floor((q0 + s * (v0 + half_acc * s)) * k)
+
+
+def _bisect(q0, v0, half_acc, k, step, lo, hi, c_before, c_hi, cyc, cnt, e, stack):
+    """``_count_changes``' recursive ``bisect`` with an explicit stack (same samples, same
+    order): the changes of the monotonic samples ``lo … hi`` into ``cyc``/``cnt`` from
+    ``e``; returns the new length."""
+    top = 0
+    stack[0, 0], stack[0, 1], stack[0, 2], stack[0, 3] = lo, hi, c_before, c_hi
+    top = 1
+    while top:
+        top -= 1
+        lo, hi, c_before, c_hi = stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3]
+        while c_before != c_hi:
+            if lo == hi:
+                cyc[e] = hi
+                cnt[e] = c_hi
+                e += 1
+                break
+            mid = (lo + hi) // 2
+            c_mid = _count_at(q0, v0, half_acc, k, step, mid)
+            # the call bisect(lo, mid, c_before, c_mid) first, then this frame goes on at
+            # (mid + 1, hi, c_mid, c_hi): push the rest, run the call
+            stack[top, 0], stack[top, 1], stack[top, 2], stack[top, 3] = mid + 1, hi, c_mid, c_hi
+            top += 1
+            hi, c_hi = mid, c_mid
+    return e
+
+
+def step_changes(M, K, dt, cycles, CHC, CHN, NCH):
+    """:func:`models.encoder.count_changes_lists` of one plant step, every joint: the changes'
+    cycles into ``CHC[j]``, their counts into ``CHN[j]``, their number into ``NCH[j]``.
+    ``M`` rows: the step's start angles, start velocities, accelerations, end angles; ``K``:
+    counts/rad. The same float operations in the same order as the reference, the same samples
+    (bisection where a joint has few changes, every cycle where it has many). Returns 0, or
+    ``j + 1`` if joint ``j`` moved more than one count in a cycle (the caller then lets the
+    reference raise its :class:`~models.encoder.EncoderOverspeed`)."""
+    n = M.shape[1]
+    step = dt / cycles
+    cap = CHC.shape[1]
+    stack = np.empty((64, 4), dtype=np.int64)
+    explicit = np.empty(5, dtype=np.int64)
+    for j in range(n):
+        NCH[j] = 0
+        q0, v0, acc, q1, k = M[0, j], M[1, j], M[2, j], M[3, j], K[j]
+        c0 = math.floor(q0 * k)
+        c1 = math.floor(q1 * k)
+        turning = acc != 0.0 and 0.0 < -v0 / acc < dt
+        if c0 == c1 and not turning:
+            continue
+        cyc, cnt = CHC[j], CHN[j]
+        e = 0
+        if abs(c1 - c0) > _FEW_CHANGES or (turning and abs(v0) * dt * k > 1.0):
+            # cycle_counts_sampled: q0 + s · (v0 + 0.5 · acc · s), the last sample q1
+            half_acc = 0.5 * acc
+            prev = c0
+            for m in range(cycles):
+                if m == cycles - 1:
+                    c = c1
+                else:
+                    s = (m + 1) * step
+                    c = math.floor((q0 + s * (v0 + half_acc * s)) * k)
+                if c != prev:
+                    if c - prev > 1 or prev - c > 1:
+                        return j + 1
+                    if e >= cap:
+                        raise RuntimeError("model kernel: count-change buffer full")
+                    cyc[e] = m
+                    cnt[e] = c
+                    e += 1
+                    prev = c
+            NCH[j] = e
+            continue
+        half_acc = 0.5 * acc
+        ne = 1
+        explicit[0] = cycles - 1
+        if turning:
+            m_turn = int(-v0 / acc / step) - 1
+            for m in range(m_turn - 1, m_turn + 3):
+                if 0 <= m < cycles and m != cycles - 1:
+                    explicit[ne] = m
+                    ne += 1
+        explicit[:ne].sort()
+        prev, lo = c0, 0
+        for i in range(ne):
+            x = explicit[i]
+            if lo <= x - 1:
+                c_hi = _count_at(q0, v0, half_acc, k, step, x - 1)
+                e = _bisect(q0, v0, half_acc, k, step, lo, x - 1, prev, c_hi, cyc, cnt, e,
+                            stack)
+                prev = c_hi
+            c_x = c1 if x == cycles - 1 else _count_at(q0, v0, half_acc, k, step, x)
+            if c_x != prev:
+                cyc[e] = x
+                cnt[e] = c_x
+                e += 1
+            prev, lo = c_x, x + 1
+        prev = c0
+        for i in range(e):
+            if cnt[i] - prev > 1 or prev - cnt[i] > 1:
+                return j + 1
+            prev = cnt[i]
+        NCH[j] = e
+    return 0
+
+
+def plain_step(NS, PS, ES, VIS, PIPE, DUE, PEND, plain, start, n, offset, CHC, CHN, NCH,
+               CUR, tau_out):
+    """One piece of a plant step for every node: the step's count changes (:func:`step_changes`)
+    in cycles ``offset … offset + n − 1`` into each encoder (:meth:`EncoderEvents.feed_changes`;
+    ``CUR[k]``, the first change not fed yet, moves on), then, for the nodes marked ``plain``
+    (no event but plain ticks before ``start + n − 1``), :meth:`FastNode.run` to ``start + n −
+    1`` and the torque output in that cycle into ``tau_out`` (N·m: the FORCE word times 2^−13,
+    as ``FORCE.decode``). Returns True if a plain node's torque there is a dead tick's, which
     nothing may observe (a bug: the caller raises)."""
     end = start + n
-    j = 0
-    m = chg_node.shape[0]
     bad = False
     for k in range(NS.shape[0]):
-        j0 = j
-        while j < m and chg_node[j] == k:
+        j0 = CUR[k]
+        m = NCH[k]
+        while j0 < m and CHC[k, j0] < offset:
+            j0 += 1
+        j = j0
+        while j < m and CHC[k, j] < offset + n:
             j += 1
-        enc_feed_changes(ES[k], PEND[k], VIS[k], start, n, chg_cyc[j0:j], chg_cnt[j0:j])
+        CUR[k] = j
+        enc_feed_changes(ES[k], PEND[k], VIS[k], start, n, CHC[k, j0:j] - offset,
+                         CHN[k, j0:j])
         if plain[k]:
             node_plain(NS[k], PS[k], ES[k], VIS[k], PIPE[k], DUE[k], end - 1)
             tau_out[k] = float(torque_at(NS[k], end - 1)) * FORCE_LSB

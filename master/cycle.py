@@ -189,6 +189,8 @@ class Master:
         self.node_link: dict[int, dict] = {}
         self._seq = 0
         self._pending: list[tuple[int, list[Send]]] = []   # (cycle, actions)
+        self._wake = 0           # no poll before this cycle has anything to do
+        self._ref_at = None      # (t, references) of the last trajectory evaluation
         self._integral = np.zeros(self.n)
         self._rec: PeriodRecord | None = None
         self._judged: PeriodRecord | None = None     # the last period judged
@@ -228,19 +230,30 @@ class Master:
     def begin(self, start_cycle: int) -> None:
         """Start the cycle: period 0 begins at ``start_cycle``."""
         self.start = start_cycle
+        self._wake = 0
 
     def poll(self, now: int) -> list[Send]:
         """Actions due at cycle ``now`` or before (called by the harness on its time grid, and
-        at :meth:`next_due`)."""
+        at :meth:`next_due`). Before the next period's start and the earliest computed packet
+        (:attr:`_wake`) there is nothing to do and nothing is computed."""
+        if now < self._wake:
+            return []
         out = []
+        period = self.timing.period_cycles
         if self.start is not None and now >= self.start:
-            index = (now - self.start) // self.timing.period_cycles
+            index = (now - self.start) // period
             if self._rec is None or index > self._rec.index:
-                out += self._new_period(index, self.start + index * self.timing.period_cycles)
+                out += self._new_period(index, self.start + index * period)
         due = [a for c, a in self._pending if c <= now]
         self._pending = [(c, a) for c, a in self._pending if c > now]
         for actions in due:
             out += actions
+        wake = None if self.start is None else (
+            self.start + (max(now - self.start, -1) // period + 1) * period)
+        for c, _ in self._pending:
+            if wake is None or c < wake:
+                wake = c
+        self._wake = now + 1 if wake is None else wake
         return out
 
     def next_due(self) -> int | None:
@@ -250,6 +263,8 @@ class Master:
 
     def _later(self, cycle: int, actions: list[Send]) -> None:
         self._pending.append((cycle, actions))
+        if cycle < self._wake:
+            self._wake = cycle
 
     def _packet(self, dest: int, ptype: PacketType, payload: bytes) -> Send:
         self._seq = (self._seq + 1) & 0xFF
@@ -384,10 +399,16 @@ class Master:
             self._after_a(now)
 
     def _references(self, t: float):
+        """The references at ``t``; the trajectory (a function of ``t``) is evaluated once
+        for the Comm B and Comm D of a period (the arrays are only read)."""
+        last = self._ref_at
+        if last is not None and last[0] == t and last[2] is self.trajectory:
+            return last[1]
         q_d, qd_d, qdd_d = self.trajectory(t)
         q_d, qd_d, qdd_d = (np.asarray(x, float) for x in (q_d, qd_d, qdd_d))
         if self.references == "hold":
-            return q_d, np.zeros_like(qd_d), np.zeros_like(qdd_d)
+            qd_d, qdd_d = np.zeros_like(qd_d), np.zeros_like(qdd_d)
+        self._ref_at = (t, (q_d, qd_d, qdd_d), self.trajectory)
         return q_d, qd_d, qdd_d
 
     def send_uploads(self, packets) -> None:

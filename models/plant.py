@@ -390,6 +390,8 @@ class Plant:
         self._sign = [0.0] * n
         self._lower = np.tril_indices(n, -1)
         self._stepped = False
+        self._kern = None                       # use_kernel: the compiled step's functions
+        self._S = None
         home = getattr(robot, "home", None)
         self.reset(np.zeros(n) if home is None else home)
 
@@ -454,6 +456,62 @@ class Plant:
         self._a_prev = [0.0] * self.n
         self._steps = 0
         self._stepped = False
+        if self._kern is not None:
+            self._bind_state()
+
+    # --- the compiled step ---------------------------------------------------------------------
+    def use_kernel(self, kern) -> None:
+        """Run :meth:`step` on compiled code from now on: ``kern`` is
+        :mod:`models.plant_kernel_src` with its functions compiled (numba), the same float
+        operations in the same order, pinocchio called from Python between them; the results
+        are those of the Python step bit for bit. The state moves into one array (the list
+        attributes become views of its rows)."""
+        from mrm_cosim.models import plant_kernel_src as ks
+
+        C = np.zeros((ks.C_ROWS, self.n))
+        C[ks.ALPHA], C[ks.BETA], C[ks.PEAK] = self._alpha, self._beta, self._peak
+        C[ks.FC], C[ks.FSX], C[ks.INV_VS], C[ks.VISC] = \
+            self._fc, self._fs_excess, self._inv_vs, self._visc
+        for i, amp, phase in self._springs:
+            C[ks.AMP, i], C[ks.PHASE, i], C[ks.HAS_SPRING, i] = amp, phase, 1.0
+        self._C = C
+        self._kern = kern
+        self._bind_state()
+
+    def _bind_state(self) -> None:
+        """The state lists into the kernel's array, the list attributes as its rows."""
+        from mrm_cosim.models import plant_kernel_src as ks
+
+        S = self._S = np.zeros((ks.S_ROWS, self.n))
+        for row, name in ((ks.Q, "_q"), (ks.V, "_v"), (ks.TAU, "_tau"), (ks.A_PREV, "_a_prev"),
+                          (ks.Q_START, "_q_start"), (ks.V_START, "_v_start")):
+            S[row] = getattr(self, name)
+            setattr(self, name, S[row])
+        self._qm, self._vm = S[ks.QM], S[ks.VM]
+
+    def _step_kernel(self, arr: np.ndarray) -> None:
+        """:meth:`step` on the compiled functions (:meth:`use_kernel`); ``arr`` of shape (n,)."""
+        from mrm_cosim.models.plant_kernel_src import FORCE, LEVEL, NEW, QM, V, VM
+
+        k, S, h = self._kern, self._S, self.dt
+        hh = 0.5 * h
+        sliding = k.pre(S, self._C, arr, hh)
+        if sliding < 0:
+            raise InputError("tau_cmd", f"must be finite, not {arr.tolist()!r}")
+        model, data = self._model, self._data
+        done = False
+        if not self._has_friction or sliding:
+            k.free_force(S, 1.0 if self._has_friction else 0.0)
+            done = k.free_end(S, pin.aba(model, data, S[QM], S[VM], S[FORCE]), h,
+                              self._has_friction)
+        if not done and not k.stuck(S, pin.nonLinearEffects(model, data, S[QM], S[VM])):
+            M = pin.crba(model, data, S[QM])               # upper triangle filled
+            if k.likely_pattern(S, M, h) != 1:
+                M[self._lower] = M.T[self._lower]
+                S[NEW], _ = solve_stick_slip(M, h * S[FORCE], S[V].copy(), h * S[LEVEL])
+        k.finish(S, h, hh)
+        self._steps += 1
+        self._stepped = True
 
     # --- stepping ----------------------------------------------------------------------------
     def step(self, tau_cmd) -> None:
@@ -475,6 +533,9 @@ class Plant:
             raise InputError("tau_cmd", f"must be {self.n} numbers, not {tau_cmd!r}") from None
         if arr.shape != (self.n,):
             raise InputError("tau_cmd", f"must have shape ({self.n},), not {arr.shape}")
+        if self._kern is not None:
+            self._step_kernel(arr)
+            return
         cmd = arr.tolist()
         for x in cmd:
             if not isfinite(x):
@@ -627,6 +688,27 @@ class Plant:
         return EncoderCycles(c, a, b)
 
 
+    @property
+    def counts_per_rad(self) -> np.ndarray:
+        """Encoder counts per rad of joint angle, float64, shape (n,) (the plant's own array:
+        read it, do not write it)."""
+        return self._k
+
+    def motion(self) -> tuple[list, list, list, list]:
+        """The last step's motion as :meth:`encoder_changes` samples it: start angles (rad),
+        start velocities (rad/s), the step's constant acceleration (rad/s²) and end angles
+        (rad), lists of n floats (for a compiled consumer of the changes,
+        :func:`cosim.model_kernel_src.step_changes`).
+
+        Raises
+        ------
+        RuntimeError
+            Before the first step after a reset.
+        """
+        if not self._stepped:
+            raise RuntimeError("no step taken since the last reset")
+        return self._q_start, self._v_start, self._a_prev, self._q
+
     def encoder_changes(self) -> list:
         """The count changes of the last step, per joint: what :meth:`encoder_cycles` shows,
         as events (no per-cycle arrays; for consumers that only need the changes).
@@ -645,8 +727,8 @@ class Plant:
         """
         if not self._stepped:
             raise RuntimeError("no step taken since the last reset")
-        return count_changes_lists(self._q_start, self._v_start, self._a_prev, self._q, self.dt,
-                                   self.cycles_per_step, self._kl)[1]
+        motion = [x.tolist() if isinstance(x, np.ndarray) else x for x in self.motion()]
+        return count_changes_lists(*motion, self.dt, self.cycles_per_step, self._kl)[1]
 
 def _cholesky_solve(A: list, b: list) -> list | None:
     """Solve ``A x = b`` for a small symmetric positive definite ``A`` (lists); None if not SPD."""

@@ -160,6 +160,41 @@ def _run(robot_name, controller, kernel, cycles):
 
 
 @needs_numba
+@settings(max_examples=400, deadline=None)
+@given(q0=st.floats(-3.0, 3.0), v0=st.one_of(st.floats(-6.0, 6.0), st.just(0.0)),
+       v1=st.one_of(st.floats(-6.0, 6.0), st.just(0.0)),
+       tiny=st.one_of(st.just(1.0), st.just(100.0), st.floats(1e-7, 1e-3)),
+       cpr=st.sampled_from([800_000, 1_600_000, 4096]))
+def test_compiled_count_changes_equal_the_reference(q0, v0, v1, tiny, cpr):
+    """:func:`step_changes` gives the count changes of
+    :func:`models.encoder.count_changes_lists` bit for bit: few changes (bisection), many
+    (every cycle), turning points inside the step, at rest; and flags an overspeed where the
+    reference raises."""
+    from mrm_cosim.models.encoder import EncoderOverspeed, count_changes_lists, counts_per_rad
+
+    dt, cycles = 1e-5, 500
+    v0, v1 = v0 * tiny, v1 * tiny       # slow joints: one change or none; fast: overspeed
+    acc = (v1 - v0) / dt
+    q1 = q0 + 0.5 * dt * (v0 + v1)
+    cols = [(q0, v0, acc, q1), (q1, v1, -acc, q0), (q0, 0.0, 0.0, q0)]
+    M = np.array(cols, dtype=float).T.copy()
+    k = counts_per_rad(np.full(3, cpr))
+    chc = np.zeros((3, 1024), dtype=np.int64)
+    chn = np.zeros((3, 1024), dtype=np.int64)
+    nch = np.zeros(3, dtype=np.int64)
+    flag = kern.step_changes(M, k, dt, cycles, chc, chn, nch)
+    try:
+        _, ref = count_changes_lists(*M.tolist(), dt, cycles, k.tolist())
+    except EncoderOverspeed:
+        assert flag
+        return
+    assert flag == 0
+    for j in range(3):
+        got = list(zip(chc[j, :nch[j]].tolist(), chn[j, :nch[j]].tolist(), strict=True))
+        assert got == ref[j], (j, cols[j])
+
+
+@needs_numba
 @pytest.mark.parametrize("robot", ["mrm3", "mrm6"])
 @pytest.mark.parametrize("controller", ["vdc", "pid-fpga", "pid-1khz"])
 def test_compiled_and_python_paths_give_the_same_trace(robot, controller):

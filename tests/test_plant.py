@@ -514,3 +514,39 @@ def test_time_counts_steps(robot):
     assert plant.steps == 1000 and plant.t == 1000 * 1e-5
     plant.reset(robot.home)
     assert plant.t == 0.0
+
+
+@pytest.mark.parametrize("robot_name", ["mrm3", "mrm6"])
+@pytest.mark.parametrize("friction", [True, False])
+def test_compiled_step_equals_the_python_step(robot_name, friction):
+    """:meth:`Plant.use_kernel`: the compiled step gives the Python step's state and count
+    changes bit for bit — joints at rest, held, breaking away, sliding, reversing (random
+    torques around the holding torque, some of them beyond the peak)."""
+    from mrm_cosim.cosim.model_kernel import load_plant
+
+    kern = load_plant()
+    if kern is None:
+        pytest.skip("numba cannot run here")
+    robot = load_robot(robot_name)
+    config = PlantConfig(friction=friction)
+    ref, fast = Plant(robot, config, seed=3), Plant(robot, config, seed=3)
+    fast.use_kernel(kern)
+    rng = np.random.default_rng(0)
+    for p in (ref, fast):
+        p.reset(robot.home)
+    for i in range(1500):
+        scale = (0.0, 1.0, 30.0, 300.0)[(i // 100) % 4]
+        tau = rng.normal(0.0, scale, robot.n) + (0.0 if i % 300 < 150 else 5.0)
+        ref.step(tau)
+        fast.step(tau)
+        assert ref.q.tobytes() == fast.q.tobytes(), i
+        assert ref.qd.tobytes() == fast.qd.tobytes(), i
+        assert ref.tau_motor.tobytes() == fast.tau_motor.tobytes(), i
+        assert ref.encoder_changes() == fast.encoder_changes(), i
+    with pytest.raises(InputError):
+        fast.step([float("nan")] * robot.n)
+    fast.reset(robot.home)
+    ref.reset(robot.home)
+    ref.step(np.ones(robot.n))
+    fast.step(np.ones(robot.n))
+    assert ref.q.tobytes() == fast.q.tobytes()
