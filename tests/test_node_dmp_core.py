@@ -7,6 +7,7 @@ the same events at the same cycles, torque, status and the observation port ever
 import math
 
 import numpy as np
+import pytest
 from amaranth import Signal
 from amaranth.sim import Simulator
 
@@ -46,9 +47,10 @@ def primitive():
     return learn_dmp(y, dt, 5, alpha=25.0, alpha_s=3.0, xd0=[0.3])
 
 
-def uploads():
-    jp = JointParams.from_float(lam=50.0, k_p=800.0, k_i=4000.0, k_d=20.0, i_max=2e-4)
-    cfg = {Config.MODE: 1, Config.TICK: TICK, Config.TIMEOUT: 30_000,
+def uploads(mode):
+    jp = JointParams.from_float(lam=50.0, k_j=3.0, inertia=0.2, viscous=0.16, coulomb=1.0,
+                                v_smooth=2e-3, k_p=800.0, k_i=4000.0, k_d=20.0, i_max=2e-4)
+    cfg = {Config.MODE: mode, Config.TICK: TICK, Config.TIMEOUT: 30_000,
            Config.RAMP: FORCE.encode(1.5), Config.TAU_MIN: FORCE.encode(-8.0),
            Config.TAU_MAX: FORCE.encode(8.0), Config.DMP_STEP: STEP}
     d = primitive()
@@ -63,10 +65,12 @@ def uploads():
     return packets
 
 
-def test_generator_in_the_node_equals_the_reference_cycle_for_cycle():
+@pytest.mark.parametrize("mode", [1, 0], ids=["pid", "vdc"])
+def test_generator_in_the_node_equals_the_reference_cycle_for_cycle(mode):
     """Period 0: Comm D's references; START in period 0 → the generator's references from
     period 1's boundary, a step every 500 cycles; STOP in period 3 (hold); OFF in period 4
-    (Comm D's again). Comm D's τ_D feeds forward throughout."""
+    (Comm D's again). Comm D's τ_D feeds forward (PID) or is τ_Lr (VDC) throughout: the
+    generator serves the joint controller in either mode."""
     end = 8 * PERIOD + 1500
     dut = NodeCore(encoder=ENC)
     trace, strobes, events, replies, sent, marks = {}, [], [], [], [], {}
@@ -109,7 +113,7 @@ def test_generator_in_the_node_equals_the_reference_cycle_for_cycle():
         ctx.set(dut.period, 0)
         timing = {Config.PERIOD: PERIOD, Config.COMMIT: COMMIT, Config.SYNC_WINDOW: WINDOW}
         for ptype, payload in [(PacketType.CONFIG, p) for p in config_payloads(timing)] + \
-                uploads():
+                uploads(mode):
             await send(ctx, ptype, payload)
         first = (ctx.get(dut_cycle) // PERIOD + 1) * PERIOD
         marks["first"] = first
