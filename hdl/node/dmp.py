@@ -32,7 +32,7 @@ from mrm_cosim.protocol.dmp import (EXP_BITS, EXP_TABLE, FLAG_GOAL_SCALING, MAX_
                                     addr_width, check_max_basis)
 from mrm_cosim.protocol.fixed import WORD
 
-from .dmp_ucode import (RF_INIT, RF_WIDTH, SHIFTS, ASel, BSel, Br, Cond, Dst, EOff, Sat, YSel,
+from .dmp_ucode import (RCS, RF_INIT, RF_WIDTH, SHIFTS, ASel, BSel, Br, Cond, Dst, EOff, Sat, YSel,
                         assemble, instr_layout, program)
 
 __all__ = ["DmpGenerator"]
@@ -115,7 +115,7 @@ class DmpGenerator(wiring.Component):
         layout = instr_layout(d.ext_bits, 7)
         m.submodules.rom = rom = Memory(shape=layout.size, depth=128, init=words,
                                         attrs={"rom_style": "block", "ram_style": "block"})
-        m.submodules.rf = rf = Memory(shape=signed(RF_WIDTH), depth=32, init=RF_INIT,
+        m.submodules.rf = rf = Memory(shape=signed(RF_WIDTH), depth=64, init=RF_INIT,
                                       attrs={"ram_style": "block"})
         d.ext, d.rom = ext.read_port(), rom.read_port()
         d.rfa, d.rfb, d.rfw = rf.read_port(), rf.read_port(), rf.write_port()
@@ -195,14 +195,14 @@ class DmpGenerator(wiring.Component):
             with m.Case(ASel.RF):
                 m.d.comb += a.eq(d.rfa.data[:MUL_WIDTH].as_signed())
             with m.Case(ASel.R):
-                m.d.comb += a.eq(d.ein[PHI_FRAC - EXP_BITS - 24:PHI_FRAC - EXP_BITS])
+                m.d.comb += a.eq(Cat(C(0, 8), d.ein[PHI_FRAC - EXP_BITS - 24:PHI_FRAC - EXP_BITS]))
             with m.Case(ASel.F):
                 m.d.comb += a.eq(d.f)
             with m.Case(ASel.ONE):
                 m.d.comb += a.eq(1)
         b = Mux(ins.bsel == BSel.EXT, d.ext.data, d.rfb.data[:MUL_WIDTH].as_signed())
         with m.If((d.ph == 1) & ins.mul):
-            m.d.sync += [d.a.eq(a), d.b.eq(b), d.rc.eq((C(1, 33) << ins.rc)[1:])]
+            m.d.sync += [d.a.eq(a), d.b.eq(b), d.rc.eq(Array(C(v, 32) for v in RCS)[ins.rc])]
         m.d.sync += d.p.eq(d.a * d.b + d.rc)
 
     def _alu(self, m, d):

@@ -51,8 +51,8 @@ from mrm_cosim.protocol.fixed import saturate, wrap
 __all__ = ["DmpGeneratorModel", "exp2neg", "step_cycles", "CYCLES_FIXED", "CYCLES_PER_BASIS"]
 
 #: Cycles of a step's computation: CYCLES_FIXED + CYCLES_PER_BASIS · n_basis.
-CYCLES_FIXED = 198
-CYCLES_PER_BASIS = 64
+CYCLES_FIXED = 230
+CYCLES_PER_BASIS = 72
 
 
 def step_cycles(n_basis: int) -> int:

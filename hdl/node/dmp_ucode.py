@@ -25,7 +25,8 @@ __all__ = ["ASel", "BSel", "YSel", "Sat", "Dst", "Cond", "EOff", "Br", "SHIFTS",
 
 RF_WIDTH = 72           # register-file word: u = t² (67 bits) and Σψw (≤ 60) fit
 OP_CYCLES = 4           # read, operands, product, write
-SHIFTS = (0, 6, 8, 12, 14, 20, 22, 24, 25, 26, 32)
+SHIFTS = (0, 8, 20, 32)  # every rounding shift is one of these (a narrow operand is prescaled)
+RCS = (0, 1 << 7, 1 << 19, 1 << 31)  # the product's rounding constants
 
 
 class ASel(enum.Enum, shape=2):
@@ -85,14 +86,15 @@ class Br(enum.Enum, shape=2):
     END = 3             # the computation is done
 
 
-_NAMES = ("ZERO BIG C64 C4096 C2048 X V PHI G G12 AMP IT K DPHI S UMIN NUM DEN "
-          "DS TT U T0 DIF SL YV PSI MAG E8 T1 TMP").split()
+_NAMES = ("ZERO BIG C64 C128 C256 C1024 C2048 C4096 C16384 C65536 "
+          "X V PHI G G12 AMP IT IT10 DT8 PR6 AB8 RADC6 RADC7 K DPHI S S10 UMIN NUM DEN "
+          "DS DS64 TT U T0 DIF SL YV PSI MAG E8 T1 TMP").split()
 #: Register-file addresses by name; after the divider the basis temporaries are reused.
 RF = {name: a for a, name in enumerate(_NAMES)}
 RF.update(SF=RF["DS"], FORCE=RF["TT"], DAMP=RF["U"], VDOT=RF["YV"], A1=RF["PSI"],
           A2=RF["MAG"], VT=RF["UMIN"])
-RF_INIT = [{"BIG": 1 << 70, "C64": 64, "C4096": 4096, "C2048": 2048}.get(n, 0) for n in _NAMES]
-_RF_BITS = 5
+RF_INIT = [1 << 70 if n == "BIG" else int(n[1:]) if n[0] == "C" else 0 for n in _NAMES]
+_RF_BITS = 6
 assert len(_NAMES) <= 1 << _RF_BITS
 
 
@@ -100,8 +102,8 @@ def instr_layout(ext_bits: int, pc_bits: int) -> data.StructLayout:
     """One micro-operation word."""
     return data.StructLayout({
         "ra": _RF_BITS, "rb": _RF_BITS, "wa": _RF_BITS,
-        "asel": ASel, "bsel": BSel, "mul": 1, "rc": 6,
-        "xz": 1, "ysel": YSel, "neg": 1, "sh": unsigned(4), "sat": Sat,
+        "asel": ASel, "bsel": BSel, "mul": 1, "rc": 2,
+        "xz": 1, "ysel": YSel, "neg": 1, "sh": unsigned(2), "sat": Sat,
         "dst": Dst, "cond": Cond, "setf": 1, "div": 1,
         "ebase": ext_bits, "eoff": EOff, "br": Br, "tgt": pc_bits,
     })
@@ -109,7 +111,7 @@ def instr_layout(ext_bits: int, pc_bits: int) -> data.StructLayout:
 
 def _mul(a, b, n=0, **kw):
     """``rs(a·b, n)``: ``a``/``b`` a register name or an ASel/EXT source."""
-    op = dict(mul=1, rc=n, xz=1, sh=n, **kw)
+    op = dict(mul=1, rc=RCS.index(1 << n >> 1) if n else 0, xz=1, sh=n, **kw)
     if isinstance(a, ASel):
         op["asel"] = a
     else:
@@ -132,18 +134,19 @@ def _exp(ext0, dst):
         _mul(ASel.ONE, "EXT", ebase=ext0, eoff=EOff.J, dst=Dst.RF, wa="T0"),
         dict(_mul(ASel.ONE, "EXT", ebase=ext0 + 1, eoff=EOff.J, dst=Dst.RF, wa="DIF"),
              ra="T0", xz=0, neg=1),                                       # T[j] − T[j+1]
-        _mul(ASel.R, "DIF", 24, dst=Dst.RF, wa="SL"),
+        _mul(ASel.R, "DIF", 32, dst=Dst.RF, wa="SL"),                     # r·2^8: rs(·, 24)
         _alu("T0", "SL", neg=True, dst=Dst.RF, wa="YV"),                  # interpolated y
         _mul("YV", "EXT", 32, ebase=ext0 + 257, eoff=EOff.N, dst=Dst.RF, wa=dst),  # rs(y, n+2)
     ]
 
 
 def _basis_t(mb):
-    """``u = t²``, ``t = rs((s − c_i)·R_i, 14)``."""
+    """``u = t²``, ``t = rs((s − c_i)·R_i, 14) = rs((s − c_i)·2^6·R_i, 20)``."""
     return [
         dict(_mul(ASel.ONE, "EXT", ebase=N_SCALARS + mb, eoff=EOff.I, dst=Dst.RF, wa="DS"),
              ra="S", xz=0, neg=1),                                        # s − c_i
-        _mul("DS", "EXT", 14, ebase=N_SCALARS + 2 * mb, eoff=EOff.I, dst=Dst.RF, wa="TT"),
+        _mul("DS", "C64", dst=Dst.RF, wa="DS64"),
+        _mul("DS64", "EXT", 20, ebase=N_SCALARS + 2 * mb, eoff=EOff.I, dst=Dst.RF, wa="TT"),
         _mul("TT", "TT", dst=Dst.RF, wa="U"),
     ]
 
@@ -157,19 +160,27 @@ def program(max_basis: int, ext0: int) -> list:
         # Latch g and 1/τ; the state from X0, V0 after a start.
         dict(_mul(ASel.ONE, ext, ebase=Reg.GOAL), **rf, wa="G"),
         dict(_mul(ASel.ONE, ext, ebase=Reg.INVTAU), **rf, wa="IT"),
+        # Narrow operands prescaled, so that every rounding shift is 20 or 32.
+        dict(_mul("C1024", "IT"), **rf, wa="IT10"),
+        dict(_mul("C256", ext, ebase=Reg.DT), **rf, wa="DT8"),
+        dict(_mul("C64", ext, ebase=Reg.PHASE_RATE), **rf, wa="PR6"),
+        dict(_mul("C256", ext, ebase=Reg.ALPHA_BETA), **rf, wa="AB8"),
+        dict(_mul("C64", ext, ebase=Reg.RADC), **rf, wa="RADC6"),
+        dict(_mul("C128", ext, ebase=Reg.RADC), **rf, wa="RADC7"),
         dict(_mul("C4096", ext, ebase=Reg.X0), **rf, wa="X", cond=Cond.INIT),
         dict(_mul("C64", ext, ebase=Reg.V0), **rf, wa="V", cond=Cond.INIT),
         _alu("ZERO", "ZERO", **rf, wa="PHI", cond=Cond.INIT),
-        dict(_mul("G", "C4096"), rc=8, **rf, wa="G12"),                  # (g << 12) + 2^7
+        dict(_mul("G", "C4096"), rc=RCS.index(1 << 7), **rf, wa="G12"),    # (g << 12) + 2^7
         dict(_mul(ASel.ONE, ext, ebase=Reg.X0), ra="G", xz=0, neg=1, **rf, wa="AMP",
              cond=Cond.GS),                                               # g − x0
         dict(_mul(ASel.ONE, ext, ebase=Reg.AMPLITUDE), **rf, wa="AMP", cond=Cond.NGS),
-        dict(_mul("IT", ext, 12, ebase=Reg.DT), **rf, wa="K"),
-        dict(_mul("K", ext, 14, ebase=Reg.PHASE_RATE), **rf, wa="DPHI"),
+        dict(_mul("DT8", "IT", 20), **rf, wa="K"),                          # rs(DT·IT, 12)
+        dict(_mul("K", "PR6", 20), **rf, wa="DPHI"),                        # rs(k·PR, 14)
         # Phase s = rs(E(φ), 6).
         _alu("PHI", "ZERO", dst=Dst.EIN),
         *_exp(ext0, "PSI"),
-        dict(_mul(ASel.ONE, "PSI", 6), **rf, wa="S"),
+        dict(_mul("C16384", "PSI", 20), **rf, wa="S"),                     # rs(E, 6)
+        dict(_mul("S", "C1024"), **rf, wa="S10"),
         _alu("BIG", "ZERO", **rf, wa="UMIN"),
         _alu("ZERO", "ZERO", **rf, wa="NUM"),
         _alu("ZERO", "ZERO", **rf, wa="DEN", br=Br.NZERO, tgt="div"),
@@ -192,20 +203,21 @@ def program(max_basis: int, ext0: int) -> list:
         _alu("ZERO", "NUM", neg=True, **rf, wa="MAG", cond=Cond.FLAG),
         dict(ra="MAG", rb="DEN", div=1),
         # Forcing and acceleration.
-        dict(_mul(ASel.F, "S", 22), **rf, wa="SF"),
+        dict(_mul(ASel.F, "S10", 32), **rf, wa="SF"),                      # rs(s·f, 22)
         dict(_mul("SF", "AMP", 20), **rf, wa="FORCE"),
         _alu("G12", "X", neg=True, sh=8, **rf, wa="E8"),                  # rs((g<<12) − x, 8)
-        dict(_mul("E8", ext, 12, ebase=Reg.ALPHA_BETA), **rf, wa="T1"),
+        dict(_mul("E8", "AB8", 20), **rf, wa="T1"),                         # rs(e·AB, 12)
         dict(_mul("V", ext, 20, ebase=Reg.ALPHA), **rf, wa="DAMP"),
         _alu("T1", "DAMP", neg=True, **rf, wa="TMP"),
         _alu("TMP", "FORCE", sat=Sat.S35, **rf, wa="VDOT"),
         # Pending outputs.
         dict(_mul("VDOT", "IT", 20), sat=Sat.S35, **rf, wa="A1"),
         dict(_mul("A1", "IT", 20), sat=Sat.S35, **rf, wa="A2"),
-        dict(_mul("A2", ext, 26, ebase=Reg.RADC), sat=Sat.S24, dst=Dst.AD),
-        dict(_mul("V", "IT", 22), sat=Sat.S35, **rf, wa="VT"),
-        dict(_mul("VT", ext, 25, ebase=Reg.RADC), sat=Sat.S24, dst=Dst.VD),
-        _alu("X", "C2048", sh=12, sat=Sat.S24, dst=Dst.QD),               # rs(x, 12)
+        dict(_mul("A2", "RADC6", 32), sat=Sat.S24, dst=Dst.AD),            # rs(·RADC, 26)
+        dict(_mul("V", "IT10", 32), sat=Sat.S35, **rf, wa="VT"),           # rs(v·IT, 22)
+        dict(_mul("VT", "RADC7", 32), sat=Sat.S24, dst=Dst.VD),            # rs(·RADC, 25)
+        _alu("X", "C2048", sh=8, **rf, wa="TMP"),                          # rs(x, 12) =
+        dict(_mul("TMP", "C65536"), sh=20, sat=Sat.S24, dst=Dst.QD),       # ⌊(x+2^11)/2^8⌋ >> 4
         # State update.
         dict(_mul("K", "VDOT", 32), **rf, wa="TMP"),
         _alu("V", "TMP", sat=Sat.S35, **rf, wa="V"),
