@@ -4,16 +4,22 @@
 # Computation 25(2), 2013 (transformation and canonical systems); Liu et al., seeds/000
 # eqs. 1–2, 5–6 (the float definition is master/dmp.py).
 
-A sequential datapath: one signed 35×35 multiplier (four MULT18X18) shared by every product,
-a restoring divider (one quotient bit per cycle) for ``f = Σψw / Σψ``, and an exp unit
-``2^(−φ)`` — a 257-entry table of ``2^(−j/256)`` in block RAM, linear interpolation on the
-multiplier, then a rounding shift by the integer part as a second product with a one-hot
-operand — used for the phase ``s = 2^(−φ)`` (the accumulated exponent, not a product of
-decays) and for every Gaussian. Parameters live in one block RAM (weights, centres, inverse
-widths, and the scalars used only as operands, at their register addresses) and registers (the
-scalars needed at a strobe or in a computation's first cycle). The arithmetic is
-specified bit for bit by :mod:`.dmp_ref`, the register map and formats by
-:mod:`mrm_cosim.protocol.dmp`; docs/dmp.md "The joint-side generator".
+A microprogrammed datapath, like the node's MacEngine: every intermediate value (x, v, φ, k,
+s, t, u, ψ, Σψw, Σψ, v̇, …) and the constants it needs live in a 64 × 72-bit register file in
+block RAM, and a microprogram in block RAM (:mod:`.dmp_ucode`) issues per four-cycle
+micro-operation (read a, read b, product, shift, saturation, write). One signed 35×35
+multiplier (four MULT18X18) adds the rounding constant of its one use; one adder/subtractor,
+a right shift by 0, 8, 20 or 32 (other rounding points are reached by prescaling a narrow
+operand by a power of two: ``rs(a·b, n) = rs(a·2^k·b, n + k)``), and one saturation unit
+(24, 35, 40 bits or the unsigned 46-bit clamp of φ) write the result back. A restoring
+divider (one quotient bit per cycle) forms ``f = Σψw / Σψ``; the exp unit ``2^(−φ)`` is a
+257-entry table of ``2^(−j/256)``, linear interpolation on the multiplier, then a rounding
+shift by the integer part as a second product with a scale ``2^(30 − n)`` read from a table —
+used for the phase ``s = 2^(−φ)`` (the accumulated exponent, not a product of decays) and for
+every Gaussian. The host's words (weights, centres, inverse widths, scalars), the exp table
+and the scales share one block RAM; only N_BASIS and the goal-scaling flag are also
+registers. The arithmetic is specified bit for bit by :mod:`.dmp_ref`, the register map and
+formats by :mod:`mrm_cosim.protocol.dmp`; docs/dmp.md "The joint-side generator".
 
 Double buffering: a computation fills the pending outputs; the ``step`` strobe copies them to
 ``qd0, vd0, ad0`` (visible the cycle after the strobe) and starts the next one.
