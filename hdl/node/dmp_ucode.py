@@ -15,7 +15,8 @@ Every rounding point of :mod:`.dmp_ref` is one micro-operation: ``rs(a·b, n)`` 
 with ``rc = 2^(n−1)`` and ``sh = n`` for n = 20 or 32, or ``rs(a·2^k·b, n + k)`` with the
 narrow operand prescaled in the register file (``2^k·b`` exact, so the same value), so the
 shifter has four settings and the outputs are the reference's bit for bit. Cycles:
-``step_cycles(n) = 230 + 72 n`` (57 + 18 n micro-operations and the divider's 34 bits).
+``step_cycles(n) = 230 + 72 n`` (49 + 18 n micro-operations of four cycles, 34 more for the
+divider).
 """
 
 from amaranth import unsigned
