@@ -151,7 +151,7 @@ def test_cycle_count_is_the_references():
         ops.append((c, "write", (15, 0)))
     seen = check_equal(ops)
     assert [s[5] for s in seen[-2:]] == [0, 1]
-    assert step_cycles(n) == 72 + 24 * n
+    assert step_cycles(n) == 230 + 72 * n
 
 
 def test_small_build_and_no_basis():

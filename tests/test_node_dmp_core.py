@@ -26,7 +26,7 @@ from mrm_cosim.protocol.regs import (Config, DmpControl, NodeEvent, Status, conf
 from mrm_cosim.testbench import run_simulation
 
 TICK = 50
-PERIOD, COMMIT, WINDOW, STEP = 2000, 1000, 300, 500
+PERIOD, COMMIT, WINDOW, STEP = 2000, 1000, 300, 1000   # STEP > step_cycles(5) = 590
 K_RAD = float(counts_per_rad(800_000))
 ENC = EncoderParams(min_window=256, stop_cycles=1 << 20)
 Q0 = 0.2
@@ -40,7 +40,7 @@ def joint_angle(cycle):
 
 def primitive():
     """A 5-basis primitive of a 0.2 s move from Q0 starting at 0.3 rad/s, learned at the
-    generator's step (10 µs): its references move a few counts in the test's periods."""
+    generator's step (20 µs): its references move a few counts in the test's periods."""
     dt = STEP * 20e-9
     t = np.arange(0, 0.2 + dt / 2, dt)
     y = Q0 + 0.3 * t - 0.5 * t**2
@@ -68,7 +68,7 @@ def uploads(mode):
 @pytest.mark.parametrize("mode", [1, 0], ids=["pid", "vdc"])
 def test_generator_in_the_node_equals_the_reference_cycle_for_cycle(mode):
     """Period 0: Comm D's references; START in period 0 → the generator's references from
-    period 1's boundary, a step every 500 cycles; STOP in period 3 (hold); OFF in period 4
+    period 1's boundary, a step every 1000 cycles; STOP in period 3 (hold); OFF in period 4
     (Comm D's again). Comm D's τ_D feeds forward (PID) or is τ_Lr (VDC) throughout: the
     generator serves the joint controller in either mode."""
     end = 8 * PERIOD + 1500

@@ -4,55 +4,51 @@
 # Computation 25(2), 2013 (transformation and canonical systems); Liu et al., seeds/000
 # eqs. 1–2, 5–6 (the float definition is master/dmp.py).
 
-A sequential datapath: one signed 35×35 multiplier (four MULT18X18) shared by every product,
-a restoring divider (one quotient bit per cycle) for ``f = Σψw / Σψ``, and an exp unit
-``2^(−φ)`` — a 257-entry table of ``2^(−j/256)`` in block RAM, linear interpolation on the
-multiplier, then a rounding shift by the integer part as a second product with a one-hot
-operand — used for the phase ``s = 2^(−φ)`` (the accumulated exponent, not a product of
-decays) and for every Gaussian. Parameters live in one block RAM (weights, centres, inverse
-widths, and the scalars used only as operands, at their register addresses) and registers (the
-scalars needed at a strobe or in a computation's first cycle). The arithmetic is
-specified bit for bit by :mod:`.dmp_ref`, the register map and formats by
-:mod:`mrm_cosim.protocol.dmp`; docs/dmp.md "The joint-side generator".
+A microprogrammed datapath, like the node's MacEngine: every intermediate value (x, v, φ, k,
+s, t, u, ψ, Σψw, Σψ, v̇, …) and the constants it needs live in a 64 × 72-bit register file in
+block RAM, and a microprogram in block RAM (:mod:`.dmp_ucode`) issues per four-cycle
+micro-operation (read a, read b, product, shift, saturation, write). One signed 35×35
+multiplier (four MULT18X18) adds the rounding constant of its one use; one adder/subtractor,
+a right shift by 0, 8, 20 or 32 (other rounding points are reached by prescaling a narrow
+operand by a power of two: ``rs(a·b, n) = rs(a·2^k·b, n + k)``), and one saturation unit
+(24, 35, 40 bits or the unsigned 46-bit clamp of φ) write the result back. A restoring
+divider (one quotient bit per cycle) forms ``f = Σψw / Σψ``; the exp unit ``2^(−φ)`` is a
+257-entry table of ``2^(−j/256)``, linear interpolation on the multiplier, then a rounding
+shift by the integer part as a second product with a scale ``2^(30 − n)`` read from a table —
+used for the phase ``s = 2^(−φ)`` (the accumulated exponent, not a product of decays) and for
+every Gaussian. The host's words (weights, centres, inverse widths, scalars), the exp table
+and the scales share one block RAM; only N_BASIS and the goal-scaling flag are also
+registers. The arithmetic is specified bit for bit by :mod:`.dmp_ref`, the register map and
+formats by :mod:`mrm_cosim.protocol.dmp`; docs/dmp.md "The joint-side generator".
 
 Double buffering: a computation fills the pending outputs; the ``step`` strobe copies them to
 ``qd0, vd0, ad0`` (visible the cycle after the strobe) and starts the next one.
 """
 
-from contextlib import contextmanager
 from types import SimpleNamespace
 
 from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
-from amaranth.utils import bits_for
+from amaranth.utils import bits_for, ceil_log2
 
 from mrm_cosim.protocol.dmp import (EXP_BITS, EXP_TABLE, FLAG_GOAL_SCALING, MAX_BASIS,
                                     MUL_WIDTH, N_SCALARS, PHI_FRAC, PHI_MAX, PHI_WIDTH, Reg,
                                     addr_width, check_max_basis)
 from mrm_cosim.protocol.fixed import WORD
 
+from .dmp_ucode import (RCS, RF_INIT, RF_WIDTH, SHIFTS, ASel, BSel, Br, Cond, Dst, EOff, Sat, YSel,
+                        assemble, instr_layout, program)
+
 __all__ = ["DmpGenerator"]
 
-_IN_MEMORY = (Reg.ALPHA, Reg.ALPHA_BETA, Reg.PHASE_RATE, Reg.AMPLITUDE, Reg.RADC)
 QBITS = 34      # quotient bits of the divider: |f| ≤ max|w| bounds q = |num|·2^10/den < 2^34
-
-
-def _rs(v, n):
-    """Round half up and shift right by ``n`` (arithmetic for signed values)."""
-    return (v + (1 << (n - 1))) >> n
 
 
 def _sat(v, width):
     lo, hi = -(1 << (width - 1)), (1 << (width - 1)) - 1
     return Mux(v > hi, hi, Mux(v < lo, lo, v))
-
-
-def _over(v, width):
-    """Whether the non-negative value ``v`` is ``2^width`` or more (its high bits)."""
-    v = Value.cast(v)
-    return v[width:].any() if len(v) > width else C(0, 1)
 
 
 class DmpGenerator(wiring.Component):
@@ -115,52 +111,37 @@ class DmpGenerator(wiring.Component):
         m = Module()
         mb = self._mb
         d = SimpleNamespace()
-        # Words used at any time or in the first cycle of a computation are registers; the
-        # others (_IN_MEMORY) are read from the parameter memory in the cycle before their
-        # product is issued (a wait state of the previous one), so they share the
-        # multiplier operand's memory input instead of one multiplexer input each.
-        d.reg = {r: Signal(signed(WORD), name=f"r_{r.name.lower()}") for r in Reg
-                 if r != Reg.N_BASIS and r not in _IN_MEMORY}
-        d.n = Signal(range(mb + 1))
-        m.submodules.params = params = Memory(shape=signed(WORD), depth=N_SCALARS + 3 * mb,
-                                              init=[])
-        m.submodules.table = table = Memory(shape=unsigned(31), depth=len(EXP_TABLE),
-                                            init=EXP_TABLE)
-        d.rd = self._rd = params.read_port()
-        d.trd = table.read_port()
-        self._host(m, params.write_port(), d)
-
-        d.a = Signal(signed(MUL_WIDTH))
-        d.b = Signal(signed(MUL_WIDTH))
-        d.rc = Signal(unsigned(32))          # rounding constant of the product's one use
-        d.p = Signal(signed(2 * MUL_WIDTH))
-        m.d.sync += d.p.eq(d.a * d.b + d.rc)
-
-        den_w = 29 + bits_for(mb)
-        for name, shape in (("gl", signed(WORD)), ("itl", signed(WORD)), ("k", signed(35)),
-                            ("dphi", signed(48)), ("phi", unsigned(PHI_WIDTH)),
-                            ("x", signed(40)), ("v", signed(35)), ("s", signed(WORD)),
-                            ("cc", signed(WORD)), ("wl", signed(WORD)), ("pass2", 1),
-                            ("umin", unsigned(2 * MUL_WIDTH)),
-                            ("psi", unsigned(29)), ("num", signed(den_w + 25)),
-                            ("den", unsigned(den_w)), ("rem", unsigned(den_w + 1)),
-                            ("nlow", unsigned(QBITS)), ("q", unsigned(QBITS)), ("neg", 1),
-                            ("f", signed(QBITS)), ("force", signed(40)), ("t1", signed(48)),
-                            ("vdot", signed(35)), ("ein", unsigned(PHI_WIDTH)),
-                            ("eout", unsigned(29)), ("t0", unsigned(31)),
-                            ("ret", 1), ("i", range(mb)), ("cnt", range(QBITS)),
+        ext0 = N_SCALARS + 3 * mb                       # the exp table in the parameter memory
+        scales = [(1 << (30 - n)) if n <= 30 else 0 for n in range(64)]
+        ext_init = [0] * ext0 + list(EXP_TABLE) + scales
+        d.ext_bits = ceil_log2(len(ext_init))
+        m.submodules.ext = ext = Memory(shape=signed(32), depth=len(ext_init), init=ext_init,
+                                        attrs={"ram_style": "block"})
+        words = assemble(program(mb, ext0), instr_layout(d.ext_bits, 7))
+        layout = instr_layout(d.ext_bits, 7)
+        m.submodules.rom = rom = Memory(shape=layout.size, depth=128, init=words,
+                                        attrs={"rom_style": "block", "ram_style": "block"})
+        m.submodules.rf = rf = Memory(shape=signed(RF_WIDTH), depth=64, init=RF_INIT,
+                                      attrs={"ram_style": "block"})
+        d.ext, d.rom = ext.read_port(), rom.read_port()
+        d.rfa, d.rfb, d.rfw = rf.read_port(), rf.read_port(), rf.write_port()
+        d.ins = Signal(layout)
+        m.d.comb += d.ins.eq(d.rom.data)
+        for name, shape in (("n", range(mb + 1)), ("gs", 1), ("init", 1), ("flag", 1),
+                            ("run", 1), ("rdy", 1), ("pc", 7), ("pc_nxt", 7), ("ph", 2),
+                            ("i", range(mb)), ("ein", unsigned(PHI_WIDTH)),
+                            ("a", signed(MUL_WIDTH)), ("b", signed(MUL_WIDTH)),
+                            ("rc", unsigned(32)), ("p", signed(2 * MUL_WIDTH)),
+                            ("f", signed(QBITS)), ("stall", 1),
                             ("pqd", signed(WORD)), ("pvd", signed(WORD)),
                             ("pad", signed(WORD))):
             setattr(d, name, Signal(shape, name=name))
-
-        with m.FSM() as fsm:
-            self._prologue(m, d)
-            self._exp(m, d)
-            self._basis(m, d)
-            self._divide(m, d)
-            self._forcing(m, d)
-            self._outputs(m, d)
-        self._control(m, d, fsm)
+        self._host(m, ext.write_port(), d)
+        self._sequencer(m, d)
+        self._operands(m, d)
+        self._alu(m, d)
+        self._divider(m, d)
+        self._control(m, d)
         return m
 
     def _host(self, m, wr, d):
@@ -174,250 +155,168 @@ class DmpGenerator(wiring.Component):
             with m.Switch(addr):
                 with m.Case(Reg.N_BASIS):
                     m.d.sync += d.n.eq(Mux(data < 0, 0, Mux(data > self._mb, self._mb, data)))
-                for r, sig in d.reg.items():
-                    with m.Case(r):
-                        m.d.sync += sig.eq(data)
+                with m.Case(Reg.FLAGS):
+                    m.d.sync += d.gs.eq((data & FLAG_GOAL_SCALING) != 0)
 
-    @contextmanager
-    def _state(self, m, name):
-        """An FSM state that stop (to Idle) and start (to Latch) override."""
-        with m.State(name):
-            yield
-            with m.If(self.stop):
-                m.next = "Idle"
-            with m.Elif(self.start):
-                m.next = "Latch"
+    def _sequencer(self, m, d):
+        """Program counter, the four phases of a micro-operation, branches."""
+        ins = d.ins
+        m.d.comb += [d.rom.addr.eq(d.pc_nxt), d.pc_nxt.eq(d.pc)]
+        m.d.sync += d.pc.eq(d.pc_nxt)
+        with m.If(d.run & ~((d.ph == 3) & d.stall)):
+            m.d.sync += d.ph.eq(d.ph + 1)
+        with m.If(d.run & (d.ph == 3) & ~d.stall):
+            m.d.comb += d.pc_nxt.eq(d.pc + 1)
+            with m.Switch(ins.br):
+                with m.Case(Br.LOOP):
+                    with m.If(d.i == d.n - 1):
+                        m.d.sync += d.i.eq(0)
+                    with m.Else():
+                        m.d.sync += d.i.eq(d.i + 1)
+                        m.d.comb += d.pc_nxt.eq(ins.tgt)
+                with m.Case(Br.NZERO):
+                    with m.If(d.n == 0):
+                        m.d.comb += d.pc_nxt.eq(ins.tgt)
+                with m.Case(Br.END):
+                    m.d.sync += [d.run.eq(0), d.rdy.eq(1)]
 
-    def _wait(self, m, name, nxt, read=None):
-        """A cycle for the multiplier's product register; ``read``: a scalar in the parameter
-        memory that the next state takes from its read port."""
-        with self._state(m, name):
-            if read is not None:
-                m.d.comb += self._rd.addr.eq(read)
-            m.next = nxt
-
-    def _mul(self, m, d, a, b, shift=0):
-        """Issue ``a·b``; ``d.p >> shift`` two cycles later is ``rs(a·b, shift)`` (the half-LSB
-        is added in the multiplier, so each rounding point costs no adder)."""
-        m.d.sync += [d.a.eq(a), d.b.eq(b), d.rc.eq((1 << (shift - 1)) if shift else 0)]
-
-    def _prologue(self, m, d):
-        with self._state(m, "Idle"):
-            pass
-        with self._state(m, "Ready"):
-            with m.If(self.step & ~self.start & ~self.stop):
-                m.d.sync += [self.qd0.eq(d.pqd), self.vd0.eq(d.pvd), self.ad0.eq(d.pad)]
-                m.next = "Latch"
-        with self._state(m, "Latch"):
-            m.d.sync += [d.gl.eq(d.reg[Reg.GOAL]), d.itl.eq(d.reg[Reg.INVTAU])]
-            self._mul(m, d, d.reg[Reg.DT], d.reg[Reg.INVTAU], 12)
-            m.next = "K-Wait"
-        self._wait(m, "K-Wait", "K", Reg.PHASE_RATE)
-        with self._state(m, "K"):
-            k = d.p >> 12
-            m.d.sync += d.k.eq(k)
-            self._mul(m, d, k, d.rd.data, 14)
-            m.next = "Dphi-Wait"
-        self._wait(m, "Dphi-Wait", "Dphi")
-        with self._state(m, "Dphi"):
-            m.d.sync += [d.dphi.eq(d.p >> 14), d.ein.eq(d.phi), d.ret.eq(0)]
-            m.next = "Exp-Table"
-        with self._state(m, "Phase"):
-            m.d.sync += [d.s.eq(_rs(d.eout, 6)), d.i.eq(0), d.num.eq(0), d.den.eq(0),
-                         d.pass2.eq(0)]
-            with m.If(d.n == 0):
-                m.next = "Div-Init"
-            with m.Else():
-                m.next = "Basis-Centre"
-
-    def _exp(self, m, d):
-        """``eout = 2^(−ein)``: table, interpolation on the multiplier, rounding shift."""
-        j = d.ein[PHI_FRAC - EXP_BITS:PHI_FRAC]
-        r = d.ein[PHI_FRAC - EXP_BITS - 24:PHI_FRAC - EXP_BITS]
-        n = d.ein[PHI_FRAC:]
-        with self._state(m, "Exp-Table"):
-            m.d.comb += d.trd.addr.eq(j)
-            m.next = "Exp-Next"
-        with self._state(m, "Exp-Next"):
-            m.d.comb += d.trd.addr.eq(j + 1)
-            m.d.sync += d.t0.eq(d.trd.data)
-            m.next = "Exp-Slope"
-        with self._state(m, "Exp-Slope"):
-            self._mul(m, d, d.t0 - d.trd.data, r, 24)
-            m.next = "Exp-Wait"
-        self._wait(m, "Exp-Wait", "Exp-Interp")
-        with self._state(m, "Exp-Interp"):
-            # rs(y, n + 2) = rs(y · 2^(30 − n), 32) for n ≤ 30: the shift is a product, with
-            # a one-hot operand, not a 31-bit barrel shifter.
-            scale = Mux(n >= 31, 0, C(1, 31) << (30 - n[:5]).as_unsigned())
-            self._mul(m, d, d.t0 - (d.p >> 24), scale, 32)
-            m.next = "Exp-Shift-Wait"
-        self._wait(m, "Exp-Shift-Wait", "Exp-Shift")
-        with self._state(m, "Exp-Shift"):
-            m.d.sync += d.eout.eq(d.p >> 32)
-            with m.If(d.ret):
-                m.next = "Basis-Psi"
-            with m.Else():
-                m.next = "Phase"
-
-    def _basis(self, m, d):
-        mb = self._mb
-        with self._state(m, "Basis-Centre"):
-            m.d.comb += d.rd.addr.eq(N_SCALARS + mb + d.i)
-            m.next = "Basis-Width"
-        with self._state(m, "Basis-Width"):
-            m.d.comb += d.rd.addr.eq(N_SCALARS + 2 * mb + d.i)
-            m.d.sync += d.cc.eq(d.rd.data)
-            m.next = "Basis-Diff"
-        with self._state(m, "Basis-Diff"):
-            m.d.comb += d.rd.addr.eq(N_SCALARS + d.i)
-            self._mul(m, d, d.s - d.cc, d.rd.data, 14)
-            m.next = "Basis-Weight"
-        with self._state(m, "Basis-Weight"):
-            m.d.sync += d.wl.eq(d.rd.data)
-            m.next = "Basis-Square"
-        with self._state(m, "Basis-Square"):
-            t = d.p >> 14
-            self._mul(m, d, t, t)
-            m.next = "Basis-Square-Wait"
-        self._wait(m, "Basis-Square-Wait", "Basis-Exp")
-        with self._state(m, "Basis-Exp"):
-            # One subtractor: its borrow is u < u_min (first pass), its value u − u_min ≥ 0
-            # (second pass).
-            u = d.p.as_unsigned()
-            diff = u - d.umin
-            with m.If(d.pass2):
-                m.d.sync += [d.ein.eq(Mux(_over(diff[:-1], PHI_WIDTH), PHI_MAX, diff[:-1])),
-                             d.ret.eq(1)]
-                m.next = "Exp-Table"
-            with m.Else():
-                with m.If(diff[-1] | (d.i == 0)):
-                    m.d.sync += d.umin.eq(u)
-                m.d.sync += d.i.eq(d.i + 1)
-                with m.If(d.i == d.n - 1):
-                    m.d.sync += [d.i.eq(0), d.pass2.eq(1)]
-                m.next = "Basis-Centre"
-        with self._state(m, "Basis-Psi"):
-            m.d.sync += d.psi.eq(d.eout)
-            self._mul(m, d, d.eout, d.wl)
-            m.next = "Basis-Psi-Wait"
-        with self._state(m, "Basis-Psi-Wait"):
-            m.d.sync += d.den.eq(d.den + d.psi)
-            m.next = "Basis-Acc"
-        with self._state(m, "Basis-Acc"):
-            m.d.sync += [d.num.eq(d.num + d.p), d.i.eq(d.i + 1)]
-            with m.If(d.i == d.n - 1):
-                m.next = "Div-Init"
-            with m.Else():
-                m.next = "Basis-Centre"
-
-    def _divide(self, m, d):
-        """``q = floor(|num|·2^10 / den)``, one bit per cycle; ``f`` rounded from it."""
-        with self._state(m, "Div-Init"):
-            mag = Cat(C(0, 10), Mux(d.num < 0, -d.num, d.num).as_unsigned())
-            m.d.sync += [d.rem.eq(mag[QBITS:]), d.nlow.eq(mag[:QBITS]), d.q.eq(0),
-                         d.neg.eq(d.num < 0), d.cnt.eq(0)]
-            m.next = "Div-Step"
-        with self._state(m, "Div-Step"):
-            trial = Cat(d.nlow[-1], d.rem)
-            diff = trial - d.den                    # one subtractor: its borrow is the compare
-            fits = ~diff[-1]
-            m.d.sync += [d.rem.eq(Mux(fits, diff, trial)), d.nlow.eq(d.nlow << 1),
-                         d.q.eq(Cat(fits, d.q)), d.cnt.eq(d.cnt + 1)]
-            with m.If(d.cnt == QBITS - 1):
-                m.next = "Div-Round"
-        with self._state(m, "Div-Round"):
-            # ±((q + 1) >> 1) in one adder: −((q + 1) >> 1) = (~q + 1) >> 1.
-            qx = Cat(d.q ^ d.neg.replicate(QBITS), d.neg).as_signed()
-            m.d.sync += d.f.eq(Mux(d.den == 0, 0, (qx + 1) >> 1))  # den = 0: n = 0
-            m.next = "Force-Gate"
-
-    def _forcing(self, m, d):
-        """``F = s f A`` and ``v̇ = α β (g − x) − α v + F``."""
-        gs = (d.reg[Reg.FLAGS] & FLAG_GOAL_SCALING) != 0
-        amp = Mux(gs, d.gl - d.reg[Reg.X0], d.rd.data)
-        with self._state(m, "Force-Gate"):
-            self._mul(m, d, d.s, d.f, 22)
-            m.next = "Force-Gate-Wait"
-        self._wait(m, "Force-Gate-Wait", "Force-Scale", Reg.AMPLITUDE)
-        with self._state(m, "Force-Scale"):
-            self._mul(m, d, (d.p >> 22), amp, 20)
-            m.next = "Force-Scale-Wait"
-        self._wait(m, "Force-Scale-Wait", "Spring", Reg.ALPHA_BETA)
-        with self._state(m, "Spring"):
-            m.d.sync += d.force.eq(d.p >> 20)
-            self._mul(m, d, _rs((d.gl << 12) - d.x, 8), d.rd.data, 12)
-            m.next = "Spring-Wait"
-        self._wait(m, "Spring-Wait", "Damper", Reg.ALPHA)
-        with self._state(m, "Damper"):
-            m.d.sync += d.t1.eq(d.p >> 12)
-            self._mul(m, d, d.v, d.rd.data, 20)
-            m.next = "Damper-Wait"
-        self._wait(m, "Damper-Wait", "Accel")
-        with self._state(m, "Accel"):
-            vdot = _sat(d.t1 - (d.p >> 20) + d.force, 35)
-            m.d.sync += d.vdot.eq(vdot)
-            self._mul(m, d, vdot, d.itl, 20)
-            m.next = "Accel-Wait"
-        self._wait(m, "Accel-Wait", "Accel-Tau2")
-
-    def _outputs(self, m, d):
-        """Pending outputs from (x, v, v̇), then the state update."""
-        radc = d.rd.data
-        # One saturation of the product serves the chain: sat35(p >> 20) or sat35(p >> 22);
-        # the output words saturate it again to 24 bits, which equals sat24(p >> 26) and
-        # sat24(p >> 25) (both clamps are monotone and the 35-bit range covers the 24-bit).
-        sel22 = Signal()
-        zs = _sat(Mux(sel22, d.p >> 22, d.p >> 20), 35)
-        with self._state(m, "Accel-Tau2"):
-            self._mul(m, d, zs, d.itl, 20)
-            m.next = "Accel-Tau2-Wait"
-        self._wait(m, "Accel-Tau2-Wait", "Accel-Out", Reg.RADC)
-        with self._state(m, "Accel-Out"):
-            self._mul(m, d, zs, radc, 26)
-            m.next = "Accel-Out-Wait"
-        self._wait(m, "Accel-Out-Wait", "Vel-Tau")
-        with self._state(m, "Vel-Tau"):
-            m.d.sync += d.pad.eq(_sat(zs >> 6, WORD))
-            self._mul(m, d, d.v, d.itl, 22)
-            m.next = "Vel-Tau-Wait"
-        self._wait(m, "Vel-Tau-Wait", "Vel-Out", Reg.RADC)
-        with self._state(m, "Vel-Out"):
-            m.d.comb += sel22.eq(1)
-            self._mul(m, d, zs, radc, 25)
-            m.next = "Vel-Out-Wait"
-        self._wait(m, "Vel-Out-Wait", "Update-V")
-        with self._state(m, "Update-V"):
-            m.d.comb += sel22.eq(1)
-            m.d.sync += [d.pvd.eq(_sat(zs >> 3, WORD)),
-                         d.pqd.eq(_sat(_rs(d.x, 12), WORD))]
-            self._mul(m, d, d.k, d.vdot, 32)
-            m.next = "Update-V-Wait"
-        self._wait(m, "Update-V-Wait", "Update-X")
-        with self._state(m, "Update-X"):
-            v = _sat(d.v + (d.p >> 32), 35)
-            m.d.sync += d.v.eq(v)
-            self._mul(m, d, d.k, v, 32)
-            m.next = "Update-X-Wait"
-        self._wait(m, "Update-X-Wait", "Update-Phase")
-        with self._state(m, "Update-Phase"):
-            phi = d.phi + d.dphi
-            m.d.sync += [d.x.eq(_sat(d.x + (d.p >> 32), 40)),
-                         d.phi.eq(Mux(phi[-1], 0, Mux(_over(phi, PHI_WIDTH), PHI_MAX, phi)))]
-            m.next = "Ready"
-
-    def _control(self, m, d, fsm):
-        """Strobes outside the sequence: start/stop state, outputs on stop, overruns."""
-        ready = fsm.ongoing("Ready")
+    def _operands(self, m, d):
+        """Register-file and parameter-memory reads; the multiplier's operands and product."""
+        ins = d.ins
+        off = Signal(range(1 << d.ext_bits))
+        with m.Switch(ins.eoff):
+            with m.Case(EOff.I):
+                m.d.comb += off.eq(d.i)
+            with m.Case(EOff.J):
+                m.d.comb += off.eq(d.ein[PHI_FRAC - EXP_BITS:PHI_FRAC])
+            with m.Case(EOff.N):
+                m.d.comb += off.eq(d.ein[PHI_FRAC:])
         m.d.comb += [
-            self.ready.eq(ready),
-            self.busy.eq(~ready & ~fsm.ongoing("Idle")),
+            d.ext.addr.eq(ins.ebase + off),
+            d.rfa.addr.eq(ins.ra),
+            d.rfb.addr.eq(ins.rb),
         ]
+        a = Signal(signed(MUL_WIDTH))
+        with m.Switch(ins.asel):
+            with m.Case(ASel.RF):
+                m.d.comb += a.eq(d.rfa.data[:MUL_WIDTH].as_signed())
+            with m.Case(ASel.R):
+                m.d.comb += a.eq(Cat(C(0, 8), d.ein[PHI_FRAC - EXP_BITS - 24:PHI_FRAC - EXP_BITS]))
+            with m.Case(ASel.F):
+                m.d.comb += a.eq(d.f)
+            with m.Case(ASel.ONE):
+                m.d.comb += a.eq(1)
+        b = Mux(ins.bsel == BSel.EXT, d.ext.data, d.rfb.data[:MUL_WIDTH].as_signed())
+        with m.If((d.ph == 1) & ins.mul):
+            m.d.sync += [d.a.eq(a), d.b.eq(b), d.rc.eq(Array(C(v, 32) for v in RCS)[ins.rc])]
+        m.d.sync += d.p.eq(d.a * d.b + d.rc)
+
+    def _alu(self, m, d):
+        """``z = sat((X ± Y) >> sh)`` and its write, in a micro-operation's last phase."""
+        ins = d.ins
+        x = Mux(ins.xz, 0, d.rfa.data)
+        y = Mux(ins.ysel == YSel.RF, d.rfb.data, d.p)
+        s = Signal(signed(RF_WIDTH))
+        m.d.comb += s.eq(x + Mux(ins.neg, ~y, y) + ins.neg)
+        z = Signal(signed(RF_WIDTH))
+        with m.Switch(ins.sh):
+            for k, sh in enumerate(SHIFTS):
+                with m.Case(k):
+                    m.d.comb += z.eq(s >> sh)
+        w = Signal(signed(RF_WIDTH))
+        with m.Switch(ins.sat):
+            with m.Case(Sat.S24):
+                m.d.comb += w.eq(_sat(z, WORD))
+            with m.Case(Sat.S35):
+                m.d.comb += w.eq(_sat(z, 35))
+            with m.Case(Sat.S40):
+                m.d.comb += w.eq(_sat(z, 40))
+            with m.Case(Sat.U46):
+                m.d.comb += w.eq(Mux(z < 0, 0, Mux(z > PHI_MAX, PHI_MAX, z)))
+            with m.Default():
+                m.d.comb += w.eq(z)
+        ok = Signal()
+        with m.Switch(ins.cond):
+            with m.Case(Cond.ALWAYS):
+                m.d.comb += ok.eq(1)
+            with m.Case(Cond.INIT):
+                m.d.comb += ok.eq(d.init)
+            with m.Case(Cond.FLAG):
+                m.d.comb += ok.eq(d.flag)
+            with m.Case(Cond.NFLAG):
+                m.d.comb += ok.eq(~d.flag)
+            with m.Case(Cond.GS):
+                m.d.comb += ok.eq(d.gs)
+            with m.Case(Cond.NGS):
+                m.d.comb += ok.eq(~d.gs)
+        last = Signal()
+        m.d.comb += [
+            last.eq(d.run & (d.ph == 3) & ok),
+            d.rfw.addr.eq(ins.wa),
+            d.rfw.data.eq(w),
+            d.rfw.en.eq(last & (ins.dst == Dst.RF)),
+        ]
+        with m.If(last & ins.setf):
+            m.d.sync += d.flag.eq(s < 0)
+        with m.If(last):
+            with m.Switch(ins.dst):
+                with m.Case(Dst.EIN):
+                    m.d.sync += d.ein.eq(w)
+                with m.Case(Dst.QD):
+                    m.d.sync += d.pqd.eq(w)
+                with m.Case(Dst.VD):
+                    m.d.sync += d.pvd.eq(w)
+                with m.Case(Dst.AD):
+                    m.d.sync += d.pad.eq(w)
+
+    def _divider(self, m, d):
+        """``q = floor(|num|·2^10 / den)``, one bit per cycle; ``f = ±((q + 1) >> 1)``: the
+        micro-operation with ``div`` holds the sequencer until ``f`` is ready."""
+        den_w = 29 + bits_for(self._mb)
+        rem = Signal(unsigned(den_w + 1))
+        nlow = Signal(unsigned(QBITS))
+        q = Signal(unsigned(QBITS))
+        neg = Signal()
+        cnt = Signal(range(QBITS))
+        act = Signal()
+        rnd = Signal()
+        m.d.comb += d.stall.eq(d.ins.div & (act | rnd))
+        with m.If(d.run & (d.ph == 1) & d.ins.div):
+            mag = Cat(C(0, 10), d.rfa.data[:den_w + 25])
+            m.d.sync += [rem.eq(mag[QBITS:]), nlow.eq(mag[:QBITS]), q.eq(0),
+                         neg.eq(d.flag), cnt.eq(0), act.eq(1)]
+        with m.If(act):
+            trial = Cat(nlow[-1], rem)
+            diff = trial - d.rfb.data[:den_w]       # one subtractor: its borrow is the compare
+            fits = ~diff[-1]
+            m.d.sync += [rem.eq(Mux(fits, diff, trial)), nlow.eq(nlow << 1),
+                         q.eq(Cat(fits, q)), cnt.eq(cnt + 1)]
+            with m.If(cnt == QBITS - 1):
+                m.d.sync += [act.eq(0), rnd.eq(1)]
+        with m.If(rnd):
+            # ±((q + 1) >> 1) in one adder: −((q + 1) >> 1) = (~q + 1) >> 1; n = 0: f = 0.
+            qx = Cat(q ^ neg.replicate(QBITS), neg).as_signed()
+            m.d.sync += [d.f.eq(Mux(d.n == 0, 0, (qx + 1) >> 1)), rnd.eq(0)]
+        with m.If(self.start | self.stop):
+            m.d.sync += [act.eq(0), rnd.eq(0)]
+
+    def _control(self, m, d):
+        """Strobes: start/stop state, the commit of the pending outputs, overruns."""
+        m.d.comb += [self.ready.eq(d.rdy), self.busy.eq(d.run)]
+        go = Signal()
         with m.If(self.stop):
-            m.d.sync += [self.active.eq(0), self.vd0.eq(0), self.ad0.eq(0)]
+            m.d.sync += [self.active.eq(0), self.vd0.eq(0), self.ad0.eq(0),
+                         d.run.eq(0), d.rdy.eq(0)]
         with m.Elif(self.start):
-            m.d.sync += [self.active.eq(1), d.x.eq(d.reg[Reg.X0] << 12),
-                         d.v.eq(d.reg[Reg.V0] << 6), d.phi.eq(0)]
-        with m.Elif(self.step & self.active & ~ready):
+            m.d.comb += go.eq(1)
+            m.d.sync += [self.active.eq(1), d.init.eq(1)]
+        with m.Elif(self.step & d.rdy):
+            m.d.comb += go.eq(1)
+            m.d.sync += [self.qd0.eq(d.pqd), self.vd0.eq(d.pvd), self.ad0.eq(d.pad),
+                         d.init.eq(0)]
+        with m.Elif(self.step & self.active):
             with m.If(self.overruns != 0xFFFF):
                 m.d.sync += self.overruns.eq(self.overruns + 1)
+        with m.If(go):
+            m.d.comb += d.pc_nxt.eq(0)
+            m.d.sync += [d.run.eq(1), d.rdy.eq(0), d.ph.eq(0), d.i.eq(0)]

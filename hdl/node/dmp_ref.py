@@ -36,7 +36,7 @@ relative), ``E = ((y >> (n + 1)) + 1) >> 1`` = ``rs(y, n + 2)``, zero for ``n �
 forms it as ``rs(y · 2^(30 − n), 32)`` on the multiplier: the same value).
 
 Start: ``x = X0 << 12``, ``v = V0 << 6``, ``φ = 0``, then the computation of step 0.
-A computation takes :func:`step_cycles` clock cycles (``72 + 24 n``) from the cycle after
+A computation takes :func:`step_cycles` clock cycles (``230 + 72 n``) from the cycle after
 its strobe: a strobe in cycle ``c`` has ``ready`` high from cycle ``c + 1 + cycles`` on.
 """
 
@@ -51,8 +51,8 @@ from mrm_cosim.protocol.fixed import saturate, wrap
 __all__ = ["DmpGeneratorModel", "exp2neg", "step_cycles", "CYCLES_FIXED", "CYCLES_PER_BASIS"]
 
 #: Cycles of a step's computation: CYCLES_FIXED + CYCLES_PER_BASIS · n_basis.
-CYCLES_FIXED = 72
-CYCLES_PER_BASIS = 24
+CYCLES_FIXED = 230
+CYCLES_PER_BASIS = 72
 
 
 def step_cycles(n_basis: int) -> int:
