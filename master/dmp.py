@@ -124,7 +124,11 @@ class Dmp:
     def forcing(self, s) -> np.ndarray:
         """Gated forcing term ``s f(s) (g − x0)``, shape (n, n_dof), for phases shape (n,)."""
         s = np.atleast_1d(np.asarray(s, dtype=float))
-        psi = self.basis(s)
+        # f is a ratio of sums of Gaussians: scaled by the largest one, so that it does not
+        # become 0/0 where every ψ_i underflows (late in a rollout, s → 0 far below the last
+        # centre); the node's generator normalises the same way
+        a = -0.5 * ((s[:, None] - self.centers) / self.widths) ** 2
+        psi = np.exp(a - a.max(axis=1, keepdims=True))
         f = psi @ self.weights.T / np.sum(psi, axis=1, keepdims=True)
         return s[:, None] * f * self.forcing_scale()
 

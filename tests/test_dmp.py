@@ -209,3 +209,16 @@ def test_step_stability_bound_matches_the_spectral_radius():
     with pytest.raises(InputError, match="diverge"):
         base.rollout(0.07)          # kα = 1.75 > 4(√2 − 1) for α = 25, β = α/4
     base.rollout(0.06)              # kα = 1.5: stable
+
+
+def test_a_long_rollout_stays_finite_and_reaches_the_goal():
+    """Far past τ every Gaussian underflows (s ≪ the last centre): the forcing term is a
+    ratio of sums and must stay finite — the primitive then converges to its goal."""
+    from mrm_cosim.master.dmp import learn_dmp
+
+    t = np.linspace(0.0, 1.0, 1001)
+    y = 0.3 * (10 * t**3 - 15 * t**4 + 6 * t**5)
+    dmp = learn_dmp(y, 1e-3, 20, alpha_s=4.0)
+    roll = dmp.rollout(1e-3, duration=6.0)
+    assert np.all(np.isfinite(roll.x)) and np.all(np.isfinite(roll.xdd))
+    assert abs(roll.x[-1, 0] - 0.3) < 1e-6
