@@ -23,7 +23,8 @@ import enum
 
 __all__ = ["CharKind", "ControlCode", "LinkState", "ERROR_CLASSES",
            "DATA_BITS", "CONTROL_BITS", "NULL_BITS", "TIME_BITS", "GROUP_BITS", "NULL_PATTERN",
-           "FCT_CREDIT", "MAX_CREDIT", "MAX_SLOTS", "check_slots", "check_div", "check_cycles",
+           "FCT_CREDIT", "MAX_CREDIT", "CREDIT_TIMEOUT",
+           "MAX_SLOTS", "check_slots", "check_div", "check_cycles",
            "codec_params"]
 
 
@@ -60,8 +61,12 @@ class LinkState(enum.IntEnum):
 #: ``disconnect`` — no transition for the disconnect timeout (§8.5.3, 850 ns nominal);
 #: ``parity`` — parity check failed (§7.4); ``escape`` — ESC followed by ESC, EOP or EEP;
 #: ``credit`` — FCT beyond 56 outstanding, or an N-char beyond the credit given;
-#: ``sequence`` — FCT, N-char or time-code in a state where the standard forbids it.
-ERROR_CLASSES = ("disconnect", "parity", "escape", "credit", "sequence")
+#: ``sequence`` — FCT, N-char or time-code in a state where the standard forbids it;
+#: ``credit_timeout`` — inside a packet, credit we announced (FCTs sent) went unused for the
+#: credit timeout: the peer is starved of credit we believe it holds, i.e. an FCT of ours was
+#: lost on the line (docs/link.md "Lost FCTs"). The first five are the standard's; the last is
+#: ours, and recovers the credit the standard's way (Error-Reset, a new handshake).
+ERROR_CLASSES = ("disconnect", "parity", "escape", "credit", "sequence", "credit_timeout")
 
 #: Line bits of a data character, a control character, a NULL and a time-code.
 DATA_BITS    = 10
@@ -106,9 +111,18 @@ def check_cycles(cycles, name, minimum=1):
                          f"not {cycles!r}")
 
 
+#: Default credit timeout, cycles (12.8 µs): far beyond any pause inside a packet of the
+#: project's hosts (they stream a packet from a buffer; a time-code or an FCT between two of
+#: its characters costs at most 5 cycles), far below anything a control period notices.
+CREDIT_TIMEOUT = 640
+
+
 def codec_params(*, slots=3, start_div=None, run_div=1, reset_cycles=320, wait_cycles=640,
-                 disconnect_cycles=43, rx_fifo_depth=64):
-    """Check the codec's parameters; return them with ``start_div`` resolved (10 Mbit/s)."""
+                 disconnect_cycles=43, rx_fifo_depth=64, credit_timeout=CREDIT_TIMEOUT):
+    """Check the codec's parameters; return them with ``start_div`` resolved (10 Mbit/s).
+
+    ``credit_timeout`` 0 turns the lost-FCT check off (for hosts that pause inside packets).
+    """
     check_slots(slots)
     if start_div is None:
         start_div = 5 * slots
@@ -122,6 +136,9 @@ def codec_params(*, slots=3, start_div=None, run_div=1, reset_cycles=320, wait_c
     if not _is_int(rx_fifo_depth) or rx_fifo_depth < FCT_CREDIT + 1:
         raise ValueError(f"Receive FIFO depth must be an integer of at least "
                          f"{FCT_CREDIT + 1}, not {rx_fifo_depth!r}")
+    if not _is_int(credit_timeout) or credit_timeout < 0:
+        raise ValueError(f"Credit timeout must be an integer number of cycles, 0 (off) or "
+                         f"more, not {credit_timeout!r}")
     return dict(slots=slots, start_div=start_div, run_div=run_div, reset_cycles=reset_cycles,
                 wait_cycles=wait_cycles, disconnect_cycles=disconnect_cycles,
-                rx_fifo_depth=rx_fifo_depth)
+                rx_fifo_depth=rx_fifo_depth, credit_timeout=credit_timeout)

@@ -12,7 +12,15 @@ Flow control: ``rx_credit`` counts the N-chars the peer may still send us; an FC
 it is at most 48 and the receive FIFO has room for 8 more beyond it, keeping one FIFO entry in
 reserve for the EEP below. ``tx_credit`` counts what the peer allowed us; each FCT adds 8, and
 an FCT that would take it past 56 is a credit error, as is an N-char that arrives when
-``rx_credit`` is 0.
+``rx_credit`` is 0 (the standard's two credit-error rules).
+
+Lost FCTs: an FCT lost on the line breaks neither rule (the peer just holds 8 credits fewer
+than we think). It shows when the peer runs dry inside a packet while we still count credit
+for it: a packet is open (the last N-char stored was a data character), ``rx_credit`` is not
+0, and no N-char arrives for ``credit_timeout`` cycles. That is a ``credit_timeout`` error and
+takes the link through Error-Reset, which recovers the credit as the standard recovers it after
+any link error: both counts restart from 0 and the handshake's FCTs set them again
+(docs/link.md "Lost FCTs").
 
 Link errors: every error sends the link through Error-Reset. A packet cut by the error is
 ended with an EEP in the receive FIFO, so it never looks good to the host; on the sending side
@@ -25,7 +33,7 @@ from amaranth.lib import stream, wiring
 from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.wiring import In, Out
 
-from mrm_cosim.protocol.link import FCT_CREDIT, MAX_CREDIT, codec_params
+from mrm_cosim.protocol.link import CREDIT_TIMEOUT, FCT_CREDIT, MAX_CREDIT, codec_params
 from mrm_cosim.units import CLOCK_HZ
 
 from ..helpers import rejecting
@@ -59,6 +67,9 @@ class Codec(wiring.Component):
         3 slots; see docs/link.md).
     rx_fifo_depth : int
         Receive FIFO entries (at least 9: 8 for one FCT's worth plus one reserved for an EEP).
+    credit_timeout : int
+        Cycles an open packet may pause while we count credit for the peer before that is a
+        ``credit_timeout`` error (640 = 12.8 µs; 0: never).
 
     Attributes
     ----------
@@ -79,8 +90,8 @@ class Codec(wiring.Component):
     state : Out(LinkState)
         The link state machine's state (§8.5.2), a :class:`LinkState` value.
     errors : Out(ErrorCounts)
-        Saturating 16-bit counters of the five error classes (disconnect, parity, escape,
-        credit, character sequence; :class:`ErrorCounts`, lowest bits first).
+        Saturating 16-bit counters of the error classes (disconnect, parity, escape, credit,
+        character sequence, credit timeout; :class:`ErrorCounts`, lowest bits first).
     tx_credit, rx_credit : Out(range(57))
         N-chars we may still send / the peer may still send us.
     d_in, s_in, d_out, s_out : In(slots), Out(slots)
@@ -90,12 +101,12 @@ class Codec(wiring.Component):
 
     def __init__(self, *, slots: int = 3, start_div: int | None = None, run_div: int = 1,
                  reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
-                 rx_fifo_depth: int = 64):
+                 rx_fifo_depth: int = 64, credit_timeout: int = CREDIT_TIMEOUT):
         with rejecting(self):
             params = codec_params(slots=slots, start_div=start_div, run_div=run_div,
                                   reset_cycles=reset_cycles, wait_cycles=wait_cycles,
                                   disconnect_cycles=disconnect_cycles,
-                                  rx_fifo_depth=rx_fifo_depth)
+                                  rx_fifo_depth=rx_fifo_depth, credit_timeout=credit_timeout)
         for name, value in params.items():
             setattr(self, name, value)
         super().__init__({
@@ -173,6 +184,14 @@ class Codec(wiring.Component):
             fifo.r_en.eq(self.rx.ready),
         ]
         rx_in_after = Mux(rx_take, rx.nchar.kind == CharKind.DATA, rx_in_packet)
+        # Lost FCT: an open packet, credit we count for the peer, no N-char for the timeout.
+        err_starved = Signal()
+        if self.credit_timeout:
+            starving = running & rx_in_packet & (rx_credit != 0) & ~rx.got_nchar
+            starved  = Signal(range(self.credit_timeout))
+            m.d.comb += err_starved.eq(starving & (starved == self.credit_timeout - 1))
+            m.d.sync += starved.eq(Mux(starving & ~err_starved, starved + 1, 0))
+
         with m.If(eep_pending):
             with m.If(fifo.w_rdy):
                 m.d.sync += [eep_pending.eq(0), rx_in_packet.eq(0)]
@@ -192,6 +211,7 @@ class Codec(wiring.Component):
             fsm.err_parity.eq(rx.err_parity),
             fsm.err_escape.eq(rx.err_escape),
             fsm.err_credit.eq(err_credit),
+            fsm.err_starved.eq(err_starved),
             fsm.link_start.eq(self.link_start),
             fsm.auto_start.eq(self.auto_start),
             fsm.link_disable.eq(self.link_disable),

@@ -14,8 +14,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from mrm_cosim.protocol.link import (ERROR_CLASSES, FCT_CREDIT, GROUP_BITS, MAX_CREDIT,
-                                     NULL_PATTERN, CharKind, LinkState, codec_params)
+from mrm_cosim.protocol.link import (CREDIT_TIMEOUT, ERROR_CLASSES, FCT_CREDIT, GROUP_BITS,
+                                     MAX_CREDIT, NULL_PATTERN, CharKind, LinkState,
+                                     codec_params)
 from mrm_cosim.protocol.packet import COUNTER_MAX
 
 __all__ = ["CodecRef", "CodecOutputs", "char_value", "char_fields", "saturating_sum_ref"]
@@ -67,10 +68,11 @@ class CodecRef:
 
     def __init__(self, *, slots: int = 3, start_div: int | None = None, run_div: int = 1,
                  reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
-                 rx_fifo_depth: int = 64):
+                 rx_fifo_depth: int = 64, credit_timeout: int = CREDIT_TIMEOUT):
         params = codec_params(slots=slots, start_div=start_div, run_div=run_div,
                               reset_cycles=reset_cycles, wait_cycles=wait_cycles,
-                              disconnect_cycles=disconnect_cycles, rx_fifo_depth=rx_fifo_depth)
+                              disconnect_cycles=disconnect_cycles, rx_fifo_depth=rx_fifo_depth,
+                              credit_timeout=credit_timeout)
         for name, value in params.items():
             setattr(self, name, value)
         self._limit = self.disconnect_cycles - 2
@@ -100,6 +102,7 @@ class CodecRef:
         # Credits, FIFO, packet bookkeeping, time-codes.
         self.tx_credit = self.rx_credit = 0
         self.eep_pending = self.rx_in_packet = 0
+        self.starved = 0
         self.discard = self.tx_in_packet = 0
         self.tc_pending = self.tc_value = 0
         self.fifo = [0] * self.rx_fifo_depth
@@ -189,6 +192,9 @@ class CodecRef:
         fct_overflow = got_fct and self.tx_credit > MAX_CREDIT - FCT_CREDIT
         rx_take = got_nchar and running and self.rx_credit != 0
         err_credit = running and (fct_overflow or (got_nchar and self.rx_credit == 0))
+        starving = (self.credit_timeout and running and self.rx_in_packet and
+                    self.rx_credit != 0 and not got_nchar)
+        err_starved = bool(starving and self.starved == self.credit_timeout - 1)
 
         # Link state machine.
         rx_error = err_disc or self.err_parity or self.err_escape
@@ -202,8 +208,9 @@ class CodecRef:
                 next_state = _EW
         elif state == _RUN:
             counted.update(disconnect=err_disc, parity=self.err_parity,
-                           escape=self.err_escape, credit=err_credit)
-            go_reset = rx_error or err_credit or link_disable
+                           escape=self.err_escape, credit=err_credit,
+                           credit_timeout=err_starved)
+            go_reset = rx_error or err_credit or err_starved or link_disable
         else:
             counted.update(disconnect=err_disc, parity=self.err_parity, escape=self.err_escape)
             if state == _CONNECTING:
@@ -304,6 +311,7 @@ class CodecRef:
         if do_read:
             self.consume = (self.consume + 1) % self.rx_fifo_depth
         self.level += int(bool(do_write)) - int(bool(do_read))
+        self.starved = self.starved + 1 if starving and not err_starved else 0
         rx_in_after = (nchar & 3) == _DATA if rx_take else self.rx_in_packet
         if self.eep_pending:
             if w_rdy:

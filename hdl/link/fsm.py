@@ -15,7 +15,8 @@ Ready          as Error-Wait                                           Started w
 Started        as Error-Wait; 12.8 µs without gotNULL                  Connecting on gotNULL
 Connecting     disconnect, parity, escape; gotN-Char, gotTime-Code;    Run on gotFCT
                12.8 µs without gotFCT
-Run            disconnect, parity, escape, credit; LinkDisabled        --
+Run            disconnect, parity, escape, credit, credit timeout;     --
+               LinkDisabled
 =============  ======================================================  ========================
 
 LinkEnabled = not link_disable and (link_start or (auto_start and gotNULL)), and here also
@@ -50,8 +51,9 @@ class LinkFSM(wiring.Component):
     ----------
     got_null, got_fct, got_nchar, got_time : In(1)
         Receiver conditions (``got_null`` is a level, the others strobes).
-    err_disconnect, err_parity, err_escape, err_credit : In(1)
-        Link errors.
+    err_disconnect, err_parity, err_escape, err_credit, err_starved : In(1)
+        Link errors (``err_starved``: the credit timeout of a lost FCT, counted as
+        ``credit_timeout``).
     link_start, auto_start, link_disable, fct_room : In(1)
         Start conditions (see module docstring).
     state : Out(LinkState)
@@ -69,6 +71,7 @@ class LinkFSM(wiring.Component):
     err_parity:     In(1)
     err_escape:     In(1)
     err_credit:     In(1)
+    err_starved:    In(1)
     link_start:     In(1)
     auto_start:     In(1)
     link_disable:   In(1)
@@ -109,7 +112,7 @@ class LinkFSM(wiring.Component):
         # Which error classes are counted in this state (those that take it to Error-Reset).
         counted = {
             "disconnect": Signal(), "parity": Signal(), "escape": Signal(),
-            "credit": Signal(), "sequence": Signal(),
+            "credit": Signal(), "sequence": Signal(), "credit_timeout": Signal(),
         }
 
         def count_rx_errors():
@@ -160,8 +163,11 @@ class LinkFSM(wiring.Component):
             with m.State("Run"):
                 m.d.comb += self.state.eq(LinkState.RUN)
                 count_rx_errors()
-                m.d.comb += counted["credit"].eq(self.err_credit)
-                reset_on(rx_error | self.err_credit | self.link_disable)
+                m.d.comb += [
+                    counted["credit"].eq(self.err_credit),
+                    counted["credit_timeout"].eq(self.err_starved),
+                ]
+                reset_on(rx_error | self.err_credit | self.err_starved | self.link_disable)
 
         for name, event in counted.items():
             counter = getattr(self.errors, name)

@@ -1,0 +1,87 @@
+# amaranth: UnusedElaboratable=no
+"""Lost FCTs are detected (credit timeout), counted and recovered by a link restart; a small
+link-level fault campaign (the full one: benchmarks/link_fault_campaign.py, docs/faults.md).
+
+# Ref: ECSS-E-ST-50-12C flow control (FCT = 8 N-chars), §8.5.2 (Error-Reset), §8.12.
+"""
+
+import pytest
+
+from mrm_cosim.cosim.link_faults import (KINDS, Fault, LinkCampaign, run_campaign, summarize,
+                                         upper_bound_95)
+from mrm_cosim.hdl.link.chars import CharKind, LinkState
+from mrm_cosim.hdl.link.codec_ref import char_value
+from mrm_cosim.testbench import PeerBench, run_simulation
+
+from amaranth.sim import Simulator
+
+
+def test_gateware_flags_credit_it_announced_but_never_saw_used():
+    """The peer behaves as if our second FCT was lost: it sends the 8 characters of the first
+    and stops inside the packet. With 16 credits announced and 8 unused for the credit timeout,
+    the codec counts a credit_timeout error, ends the packet with EEP and restarts."""
+    bench = PeerBench(reset_cycles=60, wait_cycles=150, rx_fifo_depth=24, credit_timeout=100)
+    dut = bench.dut
+    seen = {}
+
+    async def testbench(ctx):
+        await bench.bring_up(ctx)
+        await bench.until(ctx, lambda: ctx.get(dut.rx_credit) == 16)
+        bench.peer.send(*[("DATA", 0x80 | k) for k in range(8)])
+        await bench.until(ctx, lambda: len(bench.received) == 8)
+        start = bench.cycles
+        await bench.until(ctx, lambda: ctx.get(dut.state) != LinkState.RUN, limit=300)
+        seen["after"] = bench.cycles - start
+        seen["errors"] = bench.errors(ctx)
+        await bench.run(ctx, 5)
+
+    sim = Simulator(dut)
+    sim.add_clock(20e-9)
+    sim.add_testbench(testbench)
+    run_simulation(sim, "credit_timeout")
+    assert seen["errors"] == {k: int(k == "credit_timeout") for k in seen["errors"]}
+    assert 95 <= seen["after"] <= 110, seen["after"]
+    assert bench.received == [char_value(CharKind.DATA.value, 0x80 | k) for k in range(8)] + [
+        char_value(CharKind.EEP.value)]
+
+
+def test_a_dropped_fct_is_detected_counted_and_the_link_recovers():
+    """A FIFO of 16 (one FCT of 8 credits outstanding at a time): a dropped FCT
+    starves the sender inside a frame. Where parity does not see the drop, the credit timeout
+    does; every time the link restarts, frames cross both ways again, none corrupted."""
+    camp = LinkCampaign(seed=3, rx_fifo_depth=16)
+    camp.bring_up()
+    by = {"parity": 0, "credit_timeout": 0}
+    for k in range(12):
+        row = camp.judge(Fault("lost-fct", "ab" if k % 2 else "ba", seed=k))
+        assert row["moved"], f"lost FCT {k} counted nowhere"
+        assert row["went_down"] and row["recovered"]
+        assert row["corrupted"] == 0
+        rx, tx = ("b", "a") if row["line"] == "ab" else ("a", "b")
+        by["parity"] += row["moved"].get(f"{rx}.parity", 0)
+        # The codec whose FCT was lost sees its announced credit unused.
+        by["credit_timeout"] += row["moved"].get(f"{tx}.credit_timeout", 0)
+    assert by["credit_timeout"] >= 1, by
+
+
+def test_small_campaign_counts_every_kind_and_accepts_no_corrupted_frame():
+    rows, _ = run_campaign(280, seed=5)
+    summary = {s["kind"]: s for s in summarize(rows)}
+    assert set(summary) == set(KINDS) | {"all"}
+    assert summary["all"]["corrupted_accepted"] == 0
+    assert summary["all"]["unrecovered"] == 0
+    for kind in ("bit", "cut", "stuck-d"):
+        assert summary[kind]["detected"] >= 0.9 * summary[kind]["injected"], summary[kind]
+
+
+def test_undetected_short_cuts_change_nothing():
+    """Cuts counted nowhere (shorter than the disconnect time, losing whole characters that
+    parity cannot see, or none) took no link down and let no corrupted frame through."""
+    rows, _ = run_campaign(150, seed=9, kinds=("cut",))
+    quiet = [r for r in rows if not r["moved"]]
+    assert all(r["corrupted"] == 0 and not r["went_down"] for r in quiet)
+
+
+@pytest.mark.parametrize("failures,trials,bound", [(0, 100_000, 3.0e-5), (0, 176, 0.0169)])
+def test_upper_bound_95(failures, trials, bound):
+    assert upper_bound_95(failures, trials) == pytest.approx(bound, rel=0.01)
