@@ -25,7 +25,7 @@ def test_codec_testbench(tmp_path):
                              char_value(DATA, 0x56), char_value(EOP)]
     assert r["sent_on_the_line"][-2:] == [("DATA", 0xA5), ("EOP",)]
     assert r["errors"] == {"disconnect": 0, "parity": 1, "escape": 0, "credit": 0,
-                           "sequence": 0}
+                           "sequence": 0, "credit_timeout": 0}
     assert r["running_again"]
     assert (tmp_path / "codec_link.vcd").stat().st_size > 0      # the waveform on request
 
