@@ -37,7 +37,8 @@ def _designs() -> list[tuple[str, str, dict]]:
     return [("system, 1 node", "system", {"n_nodes": 1}),
             ("system, 2 nodes", "system", {"n_nodes": 2}),
             ("system, 3 nodes", "system", {"n_nodes": 3}),
-            ("node_core alone", "node_core", {})]
+            ("node_core alone", "node_core", {}),
+            ("dmp_generator alone", "dmp_generator", {})]
 
 
 def measure(cycles: int, rounds: int, warmup: int = 20_000) -> dict:
