@@ -11,7 +11,6 @@ testbench) and :class:`CompiledBackend` (Verilator) each supply the primitive.
 
 from __future__ import annotations
 
-import bisect
 import fnmatch
 import os
 import re
@@ -205,21 +204,6 @@ def _atomic_target(path: Path) -> Path:
     return Path(tmp)
 
 
-def _packed_levels(counts) -> tuple[int, int]:
-    """``enc_a``, ``enc_b`` (bit k: joint k + 1) of encoders at ``counts``."""
-    a, b = quadrature_levels(counts)
-    return (int(sum(int(x) << k for k, x in enumerate(a))),
-            int(sum(int(x) << k for k, x in enumerate(b))))
-
-
-def _changes(name: str, values) -> list[tuple[int, str, int]]:
-    """``(cycle, name, value)`` of a per-cycle array: its first value and where it changes."""
-    v = np.asarray(values)
-    at = np.flatnonzero(v[1:] != v[:-1]) + 1
-    return [(0, name, int(v[0]))] + [(c, name, x) for c, x in zip(at.tolist(), v[at].tolist(),
-                                                                    strict=True)]
-
-
 def _slice_inputs(inputs: dict, n: int, lo: int, hi: int) -> dict:
     return {k: np.broadcast_to(np.asarray(v), (n,))[lo:hi] for k, v in inputs.items()}
 
@@ -256,9 +240,6 @@ class LineSide(GatewareSide):
         self._torque = np.zeros(0)
         self._lines: PlantLines | None = None
         self._enc = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
-        self._counts: list[int] = []      # the encoder counts at the end of the last lines
-        self._seen: PlantLines | None = None
-        self._start_counts: list[int] = []   # … and at the start of the current ones
         self.crc_errors = 0
         self.link_errors = 0
         self.samples: dict[str, list] | None = {} if record else None
@@ -266,7 +247,6 @@ class LineSide(GatewareSide):
     # --- GatewareSide ----------------------------------------------------------------------
     def power_on(self, counts) -> None:
         self.n = len(counts)
-        self._counts = [int(c) for c in counts]
         self._torque = np.zeros(self.n)
         for f in self._faults:
             if f.node > self.n:
@@ -293,25 +273,7 @@ class LineSide(GatewareSide):
 
     async def advance(self, n: int, lines: PlantLines, offset: int = 0) -> Observed:
         enc_a, enc_b = self._encoder_lines(lines, offset, n)
-        inputs = {"enc_a": enc_a, "enc_b": enc_b, **self._link_inputs(n)}
-        out = await self.run(n, inputs, self._outputs())
-        if self.samples is not None:
-            for name, v in out.items():
-                self.samples.setdefault(name, []).append(np.array(v))
-        events = self._node_events(out)
-        valid = np.nonzero(out["rx_valid"])[0]
-        replies = self._take_rx(self.cycle + valid, out["rx_char"][valid]) if len(valid) else []
-        return self._end_chunk(n, events, replies, {k: v[-1] for k, v in out.items()})
-
-    def _outputs(self) -> list[str]:
-        return (["rx_valid", "rx_char", "tx_level", "running", "link_errors"]
-                + [f"torque{j + 1}" for j in range(self.n)]
-                + [f"events{j + 1}" for j in range(self.n)])
-
-    def _link_inputs(self, n: int) -> dict:
-        """The chunk's per-cycle inputs other than the encoder lines: characters into the
-        master port's FIFO as room allows, a pending time-code, the line faults."""
-        inputs = {}
+        inputs = {"enc_a": enc_a, "enc_b": enc_b}
         k = min(len(self._tx), max(0, _TX_FIFO - self._tx_level), n)
         tx_valid = np.zeros(n, dtype=np.int64)
         tx_char = np.zeros(n, dtype=np.int64)
@@ -329,15 +291,20 @@ class LineSide(GatewareSide):
         inputs["tick_in"] = tick
         if self._faults:
             self._fault_inputs(inputs, n)
-        return inputs
-
-    def _end_chunk(self, n: int, events: list, replies: list, last: dict) -> Observed:
-        """The state the chunk leaves (``last``: each output's value in its last cycle)."""
-        self._tx_level = int(last["tx_level"])
-        self._running = bool(last["running"])
-        self.link_errors = int(last["link_errors"])
+        names = ["rx_valid", "rx_char", "tx_level", "running", "link_errors"] + \
+            [f"torque{j + 1}" for j in range(self.n)] + [f"events{j + 1}" for j in range(self.n)]
+        out = await self.run(n, inputs, names)
+        if self.samples is not None:
+            for name, v in out.items():
+                self.samples.setdefault(name, []).append(np.array(v))
+        events = self._node_events(out)
+        valid = np.nonzero(out["rx_valid"])[0]
+        replies = self._take_rx(self.cycle + valid, out["rx_char"][valid]) if len(valid) else []
+        self._tx_level = int(out["tx_level"][-1])
+        self._running = bool(out["running"][-1])
+        self.link_errors = int(out["link_errors"][-1])
         # torque words at the next cycle's edge are the ones sampled last in this chunk
-        self._torque = np.array([FORCE.decode(int(last[f"torque{j + 1}"]))
+        self._torque = np.array([FORCE.decode(int(out[f"torque{j + 1}"][-1]))
                                  for j in range(self.n)])
         self.cycle += n
         return Observed(events, replies)
@@ -357,27 +324,20 @@ class LineSide(GatewareSide):
     # --- lines -----------------------------------------------------------------------------
     def _encoder_lines(self, lines: PlantLines, offset: int, n: int):
         """``enc_a``, ``enc_b`` (bit k: node k + 1) for cycles ``offset …`` of ``lines``."""
-        self._enter(lines)
         if lines is not self._lines:
             self._lines = lines
             if lines.at_rest:
-                self._enc = _packed_levels(lines.counts)
-                self._counts = lines.counts.tolist()
+                a, b = quadrature_levels(lines.counts)
+                self._enc = (int(sum(int(x) << k for k, x in enumerate(a))),
+                             int(sum(int(x) << k for k, x in enumerate(b))))
             else:
                 cyc = lines.cycles()
                 weights = 1 << np.arange(self.n, dtype=np.int64)
                 self._enc = (cyc.a.astype(np.int64) @ weights, cyc.b.astype(np.int64) @ weights)
-                self._counts = cyc.counts[-1].tolist()
         a, b = self._enc
         if isinstance(a, int):
             return np.full(n, a, dtype=np.int64), np.full(n, b, dtype=np.int64)
         return a[offset:offset + n], b[offset:offset + n]
-
-    def _enter(self, lines: PlantLines) -> None:
-        """Note the counts the encoder lines start ``lines`` at (the first time it is seen)."""
-        if lines is not self._seen:
-            self._seen = lines
-            self._start_counts = lines.counts.tolist() if lines.at_rest else list(self._counts)
 
     def _take_rx(self, cycles: np.ndarray, chars: np.ndarray) -> list[Reply]:
         replies = []
@@ -434,16 +394,12 @@ class CompiledBackend(LineSide):
         little slower), tracing switched on only inside the window.
     faults, line_slots, record
         As :class:`LineSide`.
-    per_cycle : bool
-        Exchange every chunk as per-cycle arrays (:meth:`LineSide.advance`, the path before
-        :meth:`advance` ran chunks as input changes and output strobes): the same cycles,
-        kept as the oracle of the faster path and for before/after measurements.
     """
 
     name = "compiled"
 
     def __init__(self, factory, key: str, quiet: bool = True, vcd: VcdWindow | None = None,
-                 faults=(), line_slots: int = 3, record: bool = False, per_cycle: bool = False):
+                 faults=(), line_slots: int = 3, record: bool = False):
         from mrm_cosim.cosim.compiled import CompiledModel
 
         super().__init__(faults, line_slots, record)
@@ -454,75 +410,6 @@ class CompiledBackend(LineSide):
         self.vcd = vcd
         self._raw: Path | None = None
         self._vcd_done = False
-        self.per_cycle = per_cycle
-        self._ev_lines: PlantLines | None = None
-        self._ev_start = (0, 0)
-        self._ev_cycles: list[int] = []
-        self._ev_levels: list[tuple[int, int]] = []
-
-    async def advance(self, n: int, lines: PlantLines, offset: int = 0) -> Observed:
-        """As :meth:`LineSide.advance`; unless every sample is recorded or a waveform window
-        is still ahead, the chunk runs as input changes and output strobes
-        (:meth:`cosim.compiled.CompiledModel.run_events`): the same cycles, no per-cycle
-        arrays on the Python side."""
-        if (self.per_cycle or self.samples is not None
-                or (self.vcd is not None and not self._vcd_done)):
-            return await super().advance(n, lines, offset)
-        changes = self._encoder_changes(lines, offset, n)
-        for name, values in self._link_inputs(n).items():
-            changes += _changes(name, values)
-        changes.sort(key=lambda ch: ch[0])      # stable: per input, the order given
-        outputs = self._outputs()
-        cond = [None] * len(outputs)
-        cond[0] = cond[1] = "rx_valid"
-        for j in range(self.n):
-            cond[-1 - j] = outputs[-1 - j]     # events1 … eventsN
-        records, last = self.model.run_events(n, changes, outputs, cond)
-        events, rx_cycles, rx_chars = [], [], []
-        for c, name, v in records:
-            if name == "rx_char":
-                rx_cycles.append(self.cycle + c)
-                rx_chars.append(v)
-            elif name.startswith("events"):
-                node = int(name[len("events"):])
-                events += [(node, self.cycle + c, fname) for flag, fname in _NODE_EVENTS
-                           if v & flag]
-        # node by node, as LineSide._node_events gives them
-        events = [(c, node, fname) for node, c, fname in sorted(events, key=lambda e: e[:2])]
-        replies = (self._take_rx(np.array(rx_cycles), np.array(rx_chars)) if rx_cycles
-                   else [])
-        return self._end_chunk(n, events, replies, last)
-
-    def _encoder_changes(self, lines: PlantLines, offset: int, n: int) -> list:
-        """``(cycle, input, value)`` of ``enc_a``/``enc_b`` for cycles ``offset …`` of
-        ``lines``: their levels in the chunk's first cycle and where the plant's count
-        changes (:meth:`PlantLines.changes`) change them; the same levels as
-        :meth:`LineSide._encoder_lines` gives cycle by cycle."""
-        self._enter(lines)
-        if lines is not self._ev_lines:
-            self._ev_lines = lines
-            start = list(self._start_counts)
-            self._ev_start = _packed_levels(start)
-            per_cycle: dict[int, list] = {}
-            for j, joint in enumerate(lines.changes()):
-                for c, count in joint:
-                    per_cycle.setdefault(int(c), []).append((j, int(count)))
-            self._ev_cycles, self._ev_levels = [], []
-            counts = start
-            for c in sorted(per_cycle):
-                for j, count in per_cycle[c]:
-                    counts[j] = count
-                self._ev_cycles.append(c)
-                self._ev_levels.append(_packed_levels(counts))
-            self._counts = counts
-        cycles, levels = self._ev_cycles, self._ev_levels
-        i = bisect.bisect_right(cycles, offset) - 1
-        a, b = levels[i] if i >= 0 else self._ev_start
-        out = [(0, "enc_a", a), (0, "enc_b", b)]
-        for k in range(i + 1, bisect.bisect_left(cycles, offset + n)):
-            a, b = levels[k]
-            out += [(cycles[k] - offset, "enc_a", a), (cycles[k] - offset, "enc_b", b)]
-        return out
 
     async def run(self, n, inputs, outputs):
         if self.vcd is None or self._vcd_done:

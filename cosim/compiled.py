@@ -32,7 +32,7 @@ __all__ = ["CompiledModel", "Port", "verilator_path", "cache_dir", "BuildError",
            "fst_headers_missing",
            "signed_port_map", "filter_vcd", "vcd_header", "DEFAULT_ARGS"]
 
-_WRAPPER_VERSION = "3"
+_WRAPPER_VERSION = "2"
 
 #: Verilator options of every build unless told otherwise (measured in docs/performance.md).
 DEFAULT_ARGS = ("--x-assign", "fast", "--x-initial", "fast", "--noassert")
@@ -277,44 +277,6 @@ void mrm_run(void* p, uint64_t n, int n_in, const int* in_idx, const uint64_t* i
     rise(h);
   }}
 }}
-// A chunk given as input changes and output conditions, not per-cycle arrays: the inputs
-// ev_port[e] take ev_value[e] from cycle ev_cycle[e] on (sorted by cycle; a port not changed
-// keeps its value); the outputs are sampled where run() samples them. Output j is recorded
-// as (cycle, j, value) in every cycle in which output cond[j] is non-zero (cond[j] == j: the
-// port itself, a strobe; cond[j] < 0: never); every output's value in the last cycle goes to
-// last_out[j]. Returns the number of records (at most n times the outputs with a cond).
-uint64_t mrm_run_events(void* p, uint64_t n, uint64_t n_ev, const uint64_t* ev_cycle,
-                        const int* ev_port, const uint64_t* ev_value, int n_out,
-                        const int* out_idx, const int* cond, uint64_t* rec, uint64_t* last_out) {{
-  Handle* h = (Handle*)p;
-  {cls}* m = h->m;
-  uint64_t e = 0, n_rec = 0;
-  uint64_t val[64];
-  int n_strobe = 0, strobe[64];
-  for (int j = 0; j < n_out && j < 64; j++) if (cond[j] == j) strobe[n_strobe++] = j;
-  for (uint64_t c = 0; c < n; c++) {{
-    while (e < n_ev && ev_cycle[e] == c) {{ set_port(m, ev_port[e], ev_value[e]); e++; }}
-    settle(h);
-    bool any = false;
-    for (int s = 0; s < n_strobe; s++) {{
-      val[strobe[s]] = get_port(m, out_idx[strobe[s]]);
-      any |= val[strobe[s]] != 0;
-    }}
-    if (any) {{
-      for (int j = 0; j < n_out; j++) {{
-        if (cond[j] < 0) continue;
-        if (cond[j] != j) val[j] = get_port(m, out_idx[j]);
-        if (val[cond[j]] != 0) {{
-          rec[3 * n_rec] = c; rec[3 * n_rec + 1] = (uint64_t)j; rec[3 * n_rec + 2] = val[j];
-          n_rec++;
-        }}
-      }}
-    }}
-    if (c + 1 == n) for (int j = 0; j < n_out; j++) last_out[j] = get_port(m, out_idx[j]);
-    rise(h);
-  }}
-  return n_rec;
-}}
 }}
 """
 
@@ -396,10 +358,6 @@ class CompiledModel:
         lib.mrm_run.argtypes = [ctypes.c_void_p, ctypes.c_uint64,
                                 ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p,
                                 ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p]
-        lib.mrm_run_events.argtypes = [ctypes.c_void_p, ctypes.c_uint64, ctypes.c_uint64,
-                                       *[ctypes.c_void_p] * 3, ctypes.c_int,
-                                       *[ctypes.c_void_p] * 4]
-        lib.mrm_run_events.restype = ctypes.c_uint64
         if trace:
             lib.mrm_trace_open.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_uint64]
             lib.mrm_trace_open.restype = ctypes.c_int
@@ -522,70 +480,6 @@ class CompiledModel:
                           len(out_ports), out_idx.ctypes.data, out_buf.ctypes.data)
         self.cycles += n
         return {p.name: _signed_array(out_buf[:, j], p) for j, p in enumerate(out_ports)}
-
-    def run_events(self, n: int, changes, outputs, cond) -> tuple[list, dict[str, int]]:
-        """Run ``n`` cycles given input *changes*; return strobed samples and the last values.
-
-        The same cycles as :meth:`run` (inputs set, outputs sampled, a clock edge, per cycle)
-        for a chunk whose inputs change in few cycles and whose outputs matter in few: nothing
-        per cycle crosses into Python.
-
-        Parameters
-        ----------
-        n : int
-        changes : iterable of (int, str, int)
-            ``(cycle, input, value)``: the input holds ``value`` from that cycle of the chunk
-            on (in cycle order; later entries for the same cycle and input win).
-        outputs : sequence of str
-        cond : sequence of str or None, one per output
-            Output ``outputs[j]`` is recorded in every cycle in which the output named
-            ``cond[j]`` (one of ``outputs``) is non-zero; ``None``: only its last value.
-
-        Returns
-        -------
-        records : list of (int, str, int)
-            ``(cycle, output, value)`` in cycle order (within a cycle, in ``outputs`` order),
-            signed where the port is.
-        last : dict of str to int
-            Every output's value in the last cycle.
-        """
-        out_ports = [self._port(k) for k in outputs]
-        changes = list(changes)
-        ports = [self._port(name, "input") for _, name, _ in changes]
-        wide = [p.name for p in ports + out_ports if p.width > 64]
-        if wide:
-            raise ValueError(f"run_events takes ports of at most 64 bits, not {wide}")
-        if len(out_ports) > 64:
-            raise ValueError(f"at most 64 outputs, not {len(out_ports)}")
-        cycles = np.array([c for c, _, _ in changes], dtype=np.uint64)
-        if len(cycles) and (np.any(np.diff(cycles.astype(np.int64)) < 0) or cycles[-1] >= n):
-            raise ValueError("changes must be in cycle order, inside the chunk")
-        ev_port = np.array([p.index for p in ports], dtype=np.int32)
-        ev_value = np.array([int(v) & ((1 << p.width) - 1) for (_, _, v), p
-                             in zip(changes, ports, strict=True)], dtype=np.uint64)
-        if n < 1:
-            raise ValueError(f"n must be at least 1, not {n}")
-        pos = {name: j for j, name in enumerate(outputs)}
-        cond = list(cond)
-        if len(cond) != len(out_ports):
-            raise ValueError(f"one cond per output: {len(cond)} for {len(out_ports)}")
-        for name, c in zip(outputs, cond, strict=True):
-            if c is not None and (c not in pos or cond[pos[c]] != c):
-                raise ValueError(f"cond of {name!r} must be an output recorded on itself, "
-                                 f"not {c!r}")
-        cond_idx = np.array([-1 if c is None else pos[c] for c in cond], dtype=np.int32)
-        out_idx = np.array([p.index for p in out_ports], dtype=np.int32)
-        rec = np.empty((n * int(np.count_nonzero(cond_idx >= 0)), 3), dtype=np.uint64)
-        last = np.zeros(len(out_ports), dtype=np.uint64)
-        n_rec = self._lib.mrm_run_events(
-            self._h, n, len(changes), cycles.ctypes.data, ev_port.ctypes.data,
-            ev_value.ctypes.data, len(out_ports), out_idx.ctypes.data, cond_idx.ctypes.data,
-            rec.ctypes.data, last.ctypes.data)
-        self.cycles += n
-        records = [(c, outputs[j], _signed(v, out_ports[j]))
-                   for c, j, v in rec[:n_rec].tolist()]
-        return records, {p.name: _signed(int(v), p) for p, v in zip(out_ports, last.tolist(),
-                                                                     strict=True)}
 
     # --- waveforms --------------------------------------------------------------------------
     def trace_open(self, path) -> None:

@@ -172,35 +172,3 @@ def test_ports_of_nested_signatures_are_reachable():
     assert out["rx__ready"].tolist() == [1, 1, 1]
     assert out["tx__valid"].tolist() == [0, 1, 1]
     assert model.get("tx__payload") == 0x1256            # newest byte lowest
-
-
-def test_run_events_equals_run(model):
-    """Input changes and output strobes give the samples of per-cycle arrays: each strobed
-    output where its condition is non-zero, every output's last value."""
-    rng = np.random.default_rng(3)
-    n = 300
-    a = np.repeat(rng.integers(-2048, 2048, 30), 10)
-    b = np.repeat(rng.integers(-2048, 2048, 60), 5)
-    clear = (rng.random(n) < 0.03).astype(int)
-    clear[0] = 1
-    fresh = CompiledModel(MacDemo(), "mac_demo")
-    dense = fresh.run(n, {"a": a, "b": b, "clear": clear}, ["acc", "prod", "parity"])
-    changes = []
-    for name, v in (("a", a), ("b", b), ("clear", clear)):
-        changes += [(int(c), name, int(v[c])) for c in range(n) if c == 0 or v[c] != v[c - 1]]
-    changes.sort(key=lambda ch: ch[0])
-    again = CompiledModel(MacDemo(), "mac_demo")
-    records, last = again.run_events(n, changes, ["parity", "prod", "acc"],
-                                     ["parity", "parity", None])
-    want = [(int(c), k, int(dense[k][c])) for c in np.flatnonzero(dense["parity"])
-            for k in ("parity", "prod")]
-    assert records == want and len(want) > 20
-    assert last == {k: int(dense[k][-1]) for k in ("parity", "prod", "acc")}
-    assert min(dense["prod"]) < 0 and again.cycles == n
-
-
-def test_run_events_refuses_a_condition_that_is_not_a_strobe(model):
-    with pytest.raises(ValueError, match="recorded on itself"):
-        model.run_events(4, [], ["acc", "prod"], ["prod", None])
-    with pytest.raises(ValueError, match="cycle order"):
-        model.run_events(4, [(2, "a", 1), (1, "a", 2)], ["acc"], [None])
