@@ -137,6 +137,7 @@ class LoopResult:
     trace_sha256: str = ""
     violations: list = field(default_factory=list)   # model backend: conditions not met
     window_wall_s: float = 0.0    # wall time from period 0 to the end (start-up excluded)
+    window_cpu_s: float = 0.0     # CPU time of this process over the same window
 
 
 class ClosedLoop:
@@ -236,7 +237,7 @@ class ClosedLoop:
             raise InputError("start_cycle", "the link did not come up before period 0")
         backend.begin(self.start_cycle, master.timing.period_cycles)
         master.begin(self.start_cycle)
-        t_window = time.perf_counter()
+        t_window, cpu_window = time.perf_counter(), time.process_time()
         for i in range(steps):
             for action in master.poll(self.cycle):
                 backend.send(action)
@@ -251,10 +252,12 @@ class ClosedLoop:
                 progress((i + 1) * s / CLOCK_HZ, steps * s / CLOCK_HZ)
         master.finish(self.cycle)
         window = time.perf_counter() - t_window
+        window_cpu = time.process_time() - cpu_window
         backend.finish()
         digest = hashlib.sha256()
         digest.update(q_rec.tobytes())
         digest.update(tau_rec.tobytes())
         return LoopResult(t_rec, q_rec, tau_rec, master, backend.link_errors,
                           backend.crc_errors, self.frames, digest.hexdigest(),
-                          violations=list(backend.violations), window_wall_s=window)
+                          violations=list(backend.violations), window_wall_s=window,
+                          window_cpu_s=window_cpu)
