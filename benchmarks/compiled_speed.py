@@ -22,7 +22,6 @@ import json
 import statistics
 import time
 
-import numpy as np
 
 from mrm_cosim.units import CLOCK_HZ
 
@@ -33,24 +32,14 @@ GOAL_RTF = 60.0
 def _once(robot_name: str, cycles: int) -> dict:
     from mrm_cosim.cosim.backends import CompiledBackend
     from mrm_cosim.cosim.closed_loop import ClosedLoop
-    from mrm_cosim.cosim.preview import paper_test_profile
     from mrm_cosim.cosim.track import loop_system, loop_system_key
-    from mrm_cosim.master.cycle import Master, MasterTiming
-    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
-    from mrm_cosim.models.plant import Plant
+    from mrm_cosim.master.uploads import Gains, node_uploads
     from mrm_cosim.models.robot import load_robot
 
     robot = load_robot(robot_name)
-    profile = paper_test_profile(robot)
+    from mrm_cosim.cosim.bench import bench_master_and_plant
 
-    def trajectory(t):
-        q, qd, qdd, _ = profile.evaluate(np.array([t]))
-        return q[0], qd[0], qdd[0]
-
-    master = Master(robot, "vdc", trajectory, robot.counts_per_rev, MasterTiming(),
-                    pid=pid_gains(robot, 5.0))
-    plant = Plant(robot, seed=0)
-    plant.reset(robot.home)
+    master, plant = bench_master_and_plant(robot)
     backend = CompiledBackend(lambda: loop_system(robot), loop_system_key(robot), quiet=False)
     model = backend.model
     run = model.run

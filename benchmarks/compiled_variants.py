@@ -87,24 +87,14 @@ STIM = Path("/tmp/mrm-compiled-stimulus.pkl")
 def record(cycles: int, path: Path) -> None:
     from mrm_cosim.cosim.backends import CompiledBackend
     from mrm_cosim.cosim.closed_loop import ClosedLoop
-    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
-    from mrm_cosim.cosim.preview import paper_test_profile
+    from mrm_cosim.master.uploads import Gains, node_uploads
     from mrm_cosim.cosim.track import loop_system, loop_system_key
-    from mrm_cosim.master.cycle import Master, MasterTiming
-    from mrm_cosim.models.plant import Plant
     from mrm_cosim.models.robot import load_robot
 
     robot = load_robot("mrm3")
-    profile = paper_test_profile(robot)
+    from mrm_cosim.cosim.bench import bench_master_and_plant
 
-    def trajectory(t):
-        q, qd, qdd, _ = profile.evaluate(np.array([t]))
-        return q[0], qd[0], qdd[0]
-
-    master = Master(robot, "vdc", trajectory, robot.counts_per_rev, MasterTiming(),
-                    pid=pid_gains(robot, 5.0))
-    plant = Plant(robot, seed=0)
-    plant.reset(robot.home)
+    master, plant = bench_master_and_plant(robot)
     class Taping(CompiledBackend):
         """The compiled backend, keeping every chunk's inputs and output names."""
 

@@ -19,10 +19,7 @@ import time
 
 from mrm_cosim.cosim.closed_loop import ClosedLoop
 from mrm_cosim.cosim.model import ModelBackend
-from mrm_cosim.cosim.preview import paper_test_profile
-from mrm_cosim.master.cycle import Master, MasterTiming
-from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains, pid_shifts
-from mrm_cosim.models.plant import Plant
+from mrm_cosim.master.uploads import Gains, node_uploads, pid_shifts
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.units import CLOCK_HZ
 
@@ -30,18 +27,9 @@ START = 50_000          # period 0, as mrm bench
 
 
 def _loop(robot, kernel: str):
-    import numpy as np
+    from mrm_cosim.cosim.bench import bench_master_and_plant
 
-    profile = paper_test_profile(robot)
-
-    def trajectory(t):
-        q, qd, qdd, _ = profile.evaluate(np.array([t]))
-        return q[0], qd[0], qdd[0]
-
-    master = Master(robot, "vdc", trajectory, robot.counts_per_rev, MasterTiming(),
-                    pid=pid_gains(robot, 5.0))
-    plant = Plant(robot, seed=0)
-    plant.reset(robot.home)
+    master, plant = bench_master_and_plant(robot)
     backend = ModelBackend(kernel=kernel, pid_shift=pid_shifts(robot))
     return ClosedLoop(robot, backend, master, plant, START, node_uploads(robot, "vdc", Gains()))
 

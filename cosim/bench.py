@@ -12,7 +12,7 @@ from mrm_cosim.models.plant import Plant
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.units import CLOCK_HZ
 
-__all__ = ["bench_backend", "WINDOWS"]
+__all__ = ["bench_backend", "bench_master_and_plant", "WINDOWS"]
 
 #: Closed-loop cycles measured per backend (pysim is ~400× slower than compiled).
 WINDOWS = {"compiled": 250_000, "pysim": 2_000, "model": 2_500_000}
@@ -20,6 +20,19 @@ WINDOWS = {"compiled": 250_000, "pysim": 2_000, "model": 2_500_000}
 #: model and compiled backends; pysim starts early (off the grid: the nodes resynchronise to
 #: the first time-code) because its start-up alone would take minutes.
 STARTS = {"compiled": 50_000, "pysim": 2_000, "model": 50_000}
+
+
+def bench_master_and_plant(robot):
+    """The master and plant every speed measurement runs (``mrm bench``, the benchmarks'
+    model and compiled loops): ``robot``'s VDC master on the paper's quintic test, its 1 kHz
+    PID gains for 5 Hz, and plant seed 0 resting at home."""
+    from mrm_cosim.cosim.track import _trajectory
+
+    master = Master(robot, "vdc", _trajectory(robot, paper_test_profile(robot)),
+                    robot.counts_per_rev, MasterTiming(), pid=pid_gains(robot, 5.0))
+    plant = Plant(robot, seed=0)
+    plant.reset(robot.home)
+    return master, plant
 
 
 def bench_backend(backend: str, robot="mrm3", cycles: int | None = None) -> dict:
@@ -33,19 +46,9 @@ def bench_backend(backend: str, robot="mrm3", cycles: int | None = None) -> dict
     robot = load_robot(robot)
     check_robot_fits(robot, "robot")
     cycles = WINDOWS[backend] if cycles is None else cycles
-    profile = paper_test_profile(robot)
-
-    def trajectory(t):
-        import numpy as np
-
-        q, qd, qdd, _ = profile.evaluate(np.array([t]))
-        return q[0], qd[0], qdd[0]
 
     def once(n: int) -> float:
-        master = Master(robot, "vdc", trajectory, robot.counts_per_rev, MasterTiming(),
-                        pid=pid_gains(robot, 5.0))
-        plant = Plant(robot, seed=0)
-        plant.reset(robot.home)
+        master, plant = bench_master_and_plant(robot)
         result, _ = run_loop(robot, backend, master, plant, STARTS[backend],
                              node_uploads(robot, "vdc", Gains()), n)
         return result.window_wall_s

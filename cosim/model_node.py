@@ -407,13 +407,7 @@ class EncoderEvents:
         if due and c - due[-1] < self._due_gap:
             self._due_gap = c - due[-1]
         due.append(c)
-        vis = self._visible
-        i = self._vi
-        count = self.count
-        while i < len(vis) and vis[i][0] <= c:
-            count += vis[i][1]
-            i += 1
-        return count
+        return self.count_at(c)
 
     def count_at(self, c: int) -> int:
         """The count visible in cycle ``c`` (no strobe, nothing taken)."""

@@ -77,23 +77,9 @@ class Demo:
 
 
 def _read_text(path, field: str) -> str:
-    name = str(path)
-    try:
-        with open(path, "rb") as f:
-            data = f.read(MAX_BYTES + 1)
-    except FileNotFoundError:
-        raise InputError(field, f"{name!r} does not exist") from None
-    except IsADirectoryError:
-        raise InputError(field, f"{name!r} is a folder, not a CSV file") from None
-    except OSError as exc:
-        raise InputError(field, f"cannot read {name!r}: {exc.strerror or exc}") from None
-    if len(data) > MAX_BYTES:
-        raise InputError(field, f"{name!r} is larger than {MAX_BYTES >> 20} MiB")
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise InputError(field, f"{name!r} is not UTF-8 text (byte 0x{data[exc.start]:02x} "
-                         f"at offset {exc.start})") from None
+    from mrm_cosim.tomlfile import read_text
+
+    return read_text(path, field, kind="CSV", max_bytes=MAX_BYTES, encoding="utf-8-sig")
 
 
 def read_demo(path, *, columns=None, cartesian: bool = False, field: str = "TRAJ",

@@ -20,11 +20,10 @@ from __future__ import annotations
 
 import re
 import tomllib
-from pathlib import Path
 
 from mrm_cosim.errors import InputError
 
-__all__ = ["MAX_BYTES", "MAX_DEPTH", "read_toml", "parse_toml"]
+__all__ = ["MAX_BYTES", "MAX_DEPTH", "read_text", "read_toml", "parse_toml"]
 
 MAX_BYTES = 1 << 20
 """The largest file read as a description (1 MiB)."""
@@ -36,29 +35,38 @@ _HEADER = re.compile(r"^\s*\[\[?\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
 _KEY = re.compile(r"^\s*([^=#\s][^=#]*?)\s*=")
 
 
-def read_toml(path, field: str) -> dict:
-    """The TOML document in ``path``; every problem is an :class:`InputError` naming
-    ``field`` (the argument or option that gave the path) and the file."""
-    path = Path(path)
+def read_text(path, field: str, *, kind: str, max_bytes: int, encoding: str = "utf-8",
+              why: str = "") -> str:
+    """The text of the file at ``path``, at most ``max_bytes`` long; every problem (missing,
+    a folder, unreadable, too large, not UTF-8) is an :class:`InputError` naming ``field``
+    (the argument or option that gave the path) and the file, which ``kind`` names (``"TOML"``,
+    ``"CSV"``). ``why``: what to add when the file is too large."""
     name = str(path)
     try:
         with open(path, "rb") as f:
-            data = f.read(MAX_BYTES + 1)
+            data = f.read(max_bytes + 1)
     except FileNotFoundError:
         raise InputError(field, f"{name!r} does not exist") from None
     except IsADirectoryError:
-        raise InputError(field, f"{name!r} is a folder, not a TOML file") from None
+        raise InputError(field, f"{name!r} is a folder, not a {kind} file") from None
     except OSError as exc:
         raise InputError(field, f"cannot read {name!r}: {exc.strerror or exc}") from None
-    if len(data) > MAX_BYTES:
-        raise InputError(field, f"{name!r} is larger than {MAX_BYTES // 1024} KiB; a "
-                         "description is a few kilobytes (is it the right file?)")
+    if len(data) > max_bytes:
+        size = f"{max_bytes >> 20} MiB" if max_bytes >= 1 << 22 else f"{max_bytes >> 10} KiB"
+        raise InputError(field, f"{name!r} is larger than {size}{why}")
     try:
-        text = data.decode("utf-8")
+        return data.decode(encoding)
     except UnicodeDecodeError as exc:
         raise InputError(field, f"{name!r} is not UTF-8 text (byte 0x{data[exc.start]:02x} at "
-                         f"offset {exc.start}); TOML files are UTF-8") from None
-    return parse_toml(text, field, name)
+                         f"offset {exc.start}); {kind} files are UTF-8") from None
+
+
+def read_toml(path, field: str) -> dict:
+    """The TOML document in ``path``; every problem is an :class:`InputError` naming
+    ``field`` (the argument or option that gave the path) and the file."""
+    text = read_text(path, field, kind="TOML", max_bytes=MAX_BYTES,
+                     why="; a description is a few kilobytes (is it the right file?)")
+    return parse_toml(text, field, str(path))
 
 
 def parse_toml(text: str, field: str, name: str = "the document") -> dict:

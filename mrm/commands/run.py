@@ -514,8 +514,6 @@ def _table2(args) -> int:
 # --- dmp-table2 ----------------------------------------------------------------------------
 @named_by_flags(RUN_DMP_TABLE2)
 def _dmp_table2(args) -> int:
-    from dataclasses import replace as _replace
-
     from mrm_cosim.cosim.dmp_table2 import (DMP_CONFIG, load_dmp_config, run_dmp_table2,
                                             summary_dict, table_markdown)
     from mrm_cosim.cosim.experiment_config import _robot
@@ -533,7 +531,7 @@ def _dmp_table2(args) -> int:
             overrides["robot"] = _robot(args.robot, Path.cwd())
         except InputError as exc:
             raise InputError("robot", exc.message) from None
-    config = _replace(config, **overrides)
+    config = replace(config, **overrides)
     robot = load_robot(config.robot)
     check_robot_fits(robot, "robot")
 
