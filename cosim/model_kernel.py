@@ -42,11 +42,9 @@ from mrm_cosim.protocol.regs import Config
 __all__ = ["load", "load_plant", "kernel_choice", "KernelEncoder", "KernelNode", "KernelArrays",
            "point_shifts", "param_row"]
 
-#: Buffer sizes per node (changes of one plant step are ≤ 500 per line; the queues empty at
-#: every observed tick, at least once a plant step). Overflow raises.
-PEND_CAP, VIS_CAP, PIPE_CAP, DUE_CAP = 2048, 2048, 64, 4096
-#: Count changes of one joint in one plant step (at most one per cycle: 500 at 10 µs).
-CHANGE_CAP = 1024
+#: Buffer sizes per node (:mod:`cosim.model_kernel_src`, which lays them out in one blob).
+PEND_CAP, VIS_CAP, PIPE_CAP, DUE_CAP = src.PEND_CAP, src.VIS_CAP, src.PIPE_CAP, src.DUE_CAP
+CHANGE_CAP = src.CHANGE_CAP
 
 _loaded = None          # the compiled module, False if it cannot be, None before trying
 
@@ -94,6 +92,7 @@ def _warm_up_plant(k) -> None:
     S = np.zeros((k.S_ROWS, 2))
     C = np.ones((k.C_ROWS, 2))
     k.pre(S, C, np.zeros(2), 5e-6)
+    k.pre_free(S, C, np.zeros(2), 5e-6, 1.0)
     k.free_force(S, 1.0)
     k.free_end(S, np.zeros(2), 1e-5, True)
     k.stuck(S, np.zeros(2))
@@ -102,9 +101,10 @@ def _warm_up_plant(k) -> None:
     k.finish(S, 1e-5, 5e-6)
 
 
-def _warm_up(k) -> None:
-    """Compile (or load from numba's cache) every entry point once, on throw-away arrays."""
+def _throw_away() -> KernelArrays:
+    """One node's arrays in a state the kernel can run (for the warm-up)."""
     a = KernelArrays(1)
+    a.IB[src.H_CYCLES] = 500
     a.E[0, src.E_KNOWN] = -1
     a.E[0, src.E_MINWIN] = a.E[0, src.E_STOP] = 10
     a.E[0, src.E_KV] = 100
@@ -113,6 +113,17 @@ def _warm_up(k) -> None:
     a.E[0, src.E_LAST_C] = a.E[0, src.E_TAKEN] = -1
     a.N[0, src.N_TICK] = 50
     a.P[0, src.P_CYC:src.P_CYC + 3] = 40
+    return a
+
+
+def _warm_up(k) -> None:
+    """Compile (or load from numba's cache) every entry point once, on throw-away arrays."""
+    b = _throw_away()
+    F = np.zeros(src.F_SIZE + 2)
+    F[src.F_H], F[src.F_HH] = 1e-5, 5e-6
+    k.fast_step(b.IB, F, np.zeros((plant_src.S_ROWS, 1)), np.zeros(1), np.ones((1, 1)),
+                np.zeros((2, 1, 1)), 0, 0, 1)
+    a = _throw_away()
     z = np.zeros(0, dtype=np.int64)
     tau = np.zeros(1)
     k.step_changes(np.array([[0.0], [1.0], [-5e4], [1e-5]]), np.array([1.27e5]), 1e-5, 500,
@@ -179,18 +190,21 @@ class KernelArrays:
     ``E`` and the encoders' queues."""
 
     def __init__(self, n: int):
-        self.N = np.zeros((n, src.N_SIZE), dtype=np.int64)
-        self.P = np.zeros((n, src.P_SIZE), dtype=np.int64)
-        self.E = np.zeros((n, src.E_SIZE), dtype=np.int64)
-        self.PEND = np.zeros((n, 2, PEND_CAP, 2), dtype=np.int64)
-        self.VIS = np.zeros((n, VIS_CAP, 2), dtype=np.int64)
-        self.PIPE = np.zeros((n, PIPE_CAP, 4), dtype=np.int64)
-        self.DUE = np.zeros((n, DUE_CAP), dtype=np.int64)
-        # the count changes of the current plant step (step_changes) and the next one to feed
-        self.CHC = np.zeros((n, CHANGE_CAP), dtype=np.int64)
-        self.CHN = np.zeros((n, CHANGE_CAP), dtype=np.int64)
-        self.NCH = np.zeros(n, dtype=np.int64)
-        self.CUR = np.zeros(n, dtype=np.int64)
+        shapes = ((n, src.N_SIZE), (n, src.P_SIZE), (n, src.E_SIZE), (n, 2, PEND_CAP, 2),
+                  (n, VIS_CAP, 2), (n, PIPE_CAP, 4), (n, DUE_CAP), (n, CHANGE_CAP),
+                  (n, CHANGE_CAP), (n,), (n,))
+        sizes = [int(np.prod(sh)) for sh in shapes]
+        #: every array below is a view of this one (:func:`cosim.model_kernel_src.blob_views`),
+        #: so the fast path passes one argument for all of them
+        self.IB = np.zeros(src.H_SIZE + sum(sizes), dtype=np.int64)
+        self.IB[src.H_N] = n
+        views, o = [], src.H_SIZE
+        for sh, size in zip(shapes, sizes, strict=True):
+            views.append(self.IB[o:o + size].reshape(sh))
+            o += size
+        (self.N, self.P, self.E, self.PEND, self.VIS, self.PIPE, self.DUE,
+         # the count changes of the current plant step (step_changes) and the next one to feed
+         self.CHC, self.CHN, self.NCH, self.CUR) = views
 
     def rows(self, k: int) -> tuple:
         """Node ``k``'s encoder views ``(E, PEND, VIS, PIPE, DUE)``."""
@@ -300,6 +314,11 @@ class KernelNode(FastNode):
     in_kernel = False
     _row = None
     _prow = None
+    _prow_of = None         # the joint's parameter words the row holds (None: write it again)
+
+    def _param(self, bank: int, addr: int, w: int) -> None:
+        self._prow_of = None                # a host write may change a joint word
+        FastNode._param(self, bank, addr, w)
 
     def bind(self, arrays: KernelArrays, k: int) -> None:
         self._row = arrays.N[k]
@@ -340,7 +359,9 @@ class KernelNode(FastNode):
         N[src.N_TICK], N[src.N_MODE], N[src.N_TIMEOUT] = cfg[_TICK], cfg[_MODE], cfg[_TIMEOUT]
         N[src.N_TAU_MIN], N[src.N_TAU_MAX], N[src.N_RAMP] = \
             cfg[_TAU_MIN], cfg[_TAU_MAX], cfg[_RAMP]
-        param_row(j.params, self._prow)
+        if self._prow_of is not j.params:
+            param_row(j.params, self._prow)
+            self._prow_of = j.params
         self.in_kernel = True
 
     def pull(self) -> None:

@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from mrm_cosim.hdl.node.encoder_ref import VEL_LATENCY as _VEL_LATENCY
+from mrm_cosim.models import plant_kernel_src as plant_src
 from mrm_cosim.models.encoder import _FEW_CHANGES
 from mrm_cosim.protocol.encoder import AGE_MAX as _AGE_MAX
 from mrm_cosim.protocol.encoder import DC_MAX as _DC_MAX
@@ -782,6 +783,101 @@ def plain_step(NS, PS, ES, VIS, PIPE, DUE, PEND, plain, start, n, offset, CHC, C
             if NS[k, N_TORQUE_NONE]:
                 bad = True
     return bad
+
+
+# --- the whole plain plant step in one call (ModelBackend's fast path) -----------------------
+#: Buffer sizes per node (changes of one plant step are ≤ 500 per line; the queues empty at
+#: every observed tick, at least once a plant step). Overflow raises.
+PEND_CAP, VIS_CAP, PIPE_CAP, DUE_CAP = 2048, 2048, 64, 4096
+#: Count changes of one joint in one plant step (at most one per cycle: 500 at 10 µs).
+CHANGE_CAP = 1024
+#: The int64 blob (:class:`cosim.model_kernel.KernelArrays`): a header (``H_N`` nodes,
+#: ``H_CYCLES`` cycles per plant step), then the arrays of :func:`blob_views`, one after the
+#: other. The float64 blob: ``F_H``, ``F_HH`` (the plant step and its half), ``F_FRICTION`` (1.0
+#: with friction), then the counts per rad (n) and the torque outputs (n).
+H_N, H_CYCLES, H_SIZE = 0, 1, 8
+F_H, F_HH, F_FRICTION, F_SIZE = 0, 1, 2, 4
+
+
+def blob_views(IB):
+    """The kernel's arrays as views of the int64 blob ``IB``: ``N, P, E, PEND, VIS, PIPE, DUE,
+    CHC, CHN, NCH, CUR`` (shapes as :class:`cosim.model_kernel.KernelArrays`)."""
+    n = IB[H_N]
+    o = H_SIZE
+    N = IB[o:o + n * N_SIZE].reshape((n, N_SIZE))
+    o += n * N_SIZE
+    P = IB[o:o + n * P_SIZE].reshape((n, P_SIZE))
+    o += n * P_SIZE
+    E = IB[o:o + n * E_SIZE].reshape((n, E_SIZE))
+    o += n * E_SIZE
+    PEND = IB[o:o + n * 2 * PEND_CAP * 2].reshape((n, 2, PEND_CAP, 2))
+    o += n * 2 * PEND_CAP * 2
+    VIS = IB[o:o + n * VIS_CAP * 2].reshape((n, VIS_CAP, 2))
+    o += n * VIS_CAP * 2
+    PIPE = IB[o:o + n * PIPE_CAP * 4].reshape((n, PIPE_CAP, 4))
+    o += n * PIPE_CAP * 4
+    DUE = IB[o:o + n * DUE_CAP].reshape((n, DUE_CAP))
+    o += n * DUE_CAP
+    CHC = IB[o:o + n * CHANGE_CAP].reshape((n, CHANGE_CAP))
+    o += n * CHANGE_CAP
+    CHN = IB[o:o + n * CHANGE_CAP].reshape((n, CHANGE_CAP))
+    o += n * CHANGE_CAP
+    NCH = IB[o:o + n]
+    o += n
+    CUR = IB[o:o + n]
+    return N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR
+
+
+def fast_step(IB, F, S, a, M, rec, i, start, mode):
+    """One whole plant step with no event anywhere in it (:meth:`ModelBackend.fast_path
+    <cosim.model.ModelBackend.fast_path>`), after :func:`models.plant_kernel_src.pre_free` and
+    pinocchio: the rest of the plant step, the trace row ``i`` (``rec[0, i]`` the angles,
+    ``rec[1, i]`` the torques that drove the step), the step's count changes
+    (:func:`step_changes`) and every node's plain ticks to the step's last cycle with the
+    torques they output there (:func:`plain_step`, every node plain).
+
+    The rest of the plant step, as :meth:`Plant._step_kernel
+    <models.plant.Plant._step_kernel>`: ``mode`` 1, ``a`` = ``pin.aba``'s accelerations:
+    :func:`~models.plant_kernel_src.free_end`; ``mode`` 2, ``a`` = ``pin.nonLinearEffects``'
+    bias and ``M`` = ``pin.crba``'s matrix: :func:`~models.plant_kernel_src.stuck`, else
+    :func:`~models.plant_kernel_src.likely_pattern`; ``mode`` 0: the end velocities are
+    already in ``S[NEW]``; then :func:`~models.plant_kernel_src.finish`.
+
+    Returns 0; 1 if the free step does not hold (nothing else done: the caller calls again in
+    mode 2) or 4 if the likely pattern does not (the caller runs the general solve and calls
+    again in mode 0); 2 if a joint moved more than one count in a cycle (the plant has
+    stepped, the nodes have not); 3 as :func:`plain_step`'s True."""
+    n = IB[H_N]
+    cycles = IB[H_CYCLES]
+    h = F[F_H]
+    hh = F[F_HH]
+    if mode == 1:
+        if not plant_src.free_end(S, a, h, F[F_FRICTION] != 0.0):
+            return 1
+    elif mode == 2:
+        if not plant_src.stuck(S, a) and plant_src.likely_pattern(S, M, h) != 1:
+            return 4
+    plant_src.finish(S, h, hh)
+    N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR = blob_views(IB)
+    K = F[F_SIZE:F_SIZE + n]
+    tau = F[F_SIZE + n:F_SIZE + 2 * n]
+    M = np.empty((4, n))
+    for j in range(n):
+        M[0, j] = S[plant_src.Q_START, j]
+        M[1, j] = S[plant_src.V_START, j]
+        M[2, j] = S[plant_src.A_PREV, j]
+        M[3, j] = S[plant_src.Q, j]
+        rec[0, i, j] = S[plant_src.Q, j]
+        rec[1, i, j] = tau[j]
+    if step_changes(M, K, h, cycles, CHC, CHN, NCH):
+        return 2
+    plain = np.ones(n, dtype=np.bool_)
+    for k in range(n):
+        CUR[k] = 0
+    if plain_step(N, P, E, VIS, PIPE, DUE, PEND, plain, start, cycles, 0, CHC, CHN, NCH, CUR,
+                  tau):
+        return 3
+    return 0
 
 
 def jit_all(njit) -> None:
