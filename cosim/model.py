@@ -150,13 +150,16 @@ class ModelBackend(GatewareSide):
             self.encoders = [KernelEncoder(kern, arrays, k, enc, c)
                              for k, (enc, c) in enumerate(zip(encs, counts, strict=True))]
             for k, node in enumerate(self.nodes):
-                node.bind(arrays, k)
+                node.bind(arrays, k, kern)
             self._plain = np.zeros(self.n, dtype=np.bool_)
             self._chg_lines = None
             self._fed = 0
             # the fast path's floats: the plant's constants, then the torque outputs
             self._F = np.zeros(ksrc.F_SIZE + 2 * self.n)
         self._horizon_end = None        # fast path: steps may end up to here (None: recompute)
+        #: plant steps the fast path ran, by how the plant step ended (free, stick-slip: the
+        #: likely pattern or stuck, the general solve)
+        self.fast_steps = {"free": 0, "stick-slip": 0, "solve": 0}
         self._fast_end = 0              # fast path: the end of its last step (node._done)
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
             node.lazy = self.lazy
@@ -310,6 +313,7 @@ class ModelBackend(GatewareSide):
         no_a, no_M = np.zeros(self.n), np.zeros((self.n, self.n))
         j = i
         r = 0
+        n_stick = n_solve = 0
         while j < stop and cycle + s <= lim:
             code = pre_free(S, C, tau, hh, friction)
             if code == 1:
@@ -321,8 +325,10 @@ class ModelBackend(GatewareSide):
             if r == 1:                  # the stick-slip solve (crba also where stuck needs
                 bias = nle(model, data, qm, vm)     # none: it changes nothing they read)
                 M = crba(model, data, qm)
+                n_stick += 1
                 r = fast_step(IB, F, S, bias, M, rec, j, cycle, 2)
                 if r == 4:
+                    n_solve += 1
                     solve(M)
                     r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0)
             j += 1
@@ -330,6 +336,10 @@ class ModelBackend(GatewareSide):
                 break
             cycle += s
         stepped(j - i)
+        counts = self.fast_steps
+        counts["free"] += j - i - n_stick
+        counts["stick-slip"] += n_stick - n_solve
+        counts["solve"] += n_solve
         if r == 2:                      # the plant stepped, the nodes did not
             PlantLines(plant).changes()         # the reference raises EncoderOverspeed
             raise AssertionError("model kernel: an overspeed the reference missed")

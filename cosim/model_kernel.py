@@ -32,6 +32,7 @@ from functools import cache
 import numpy as np
 
 from mrm_cosim.cosim.model_node import FastNode
+from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.cosim import model_kernel_src as src
 from mrm_cosim.models import plant_kernel_src as plant_src
 from mrm_cosim.protocol.fixed import CNT, FORCE, IHI, POS, SGN, TIME, VEL
@@ -320,9 +321,43 @@ class KernelNode(FastNode):
         self._prow_of = None                # a host write may change a joint word
         FastNode._param(self, bank, addr, w)
 
-    def bind(self, arrays: KernelArrays, k: int) -> None:
+    _kern = None
+
+    def bind(self, arrays: KernelArrays, k: int, kern=None) -> None:
+        """Row ``k`` of ``arrays``; with ``kern`` (the compiled module), :meth:`run` runs the
+        plain ticks there too."""
         self._row = arrays.N[k]
         self._prow = arrays.P[k]
+        self._erows = (arrays.E[k], arrays.VIS[k], arrays.PIPE[k], arrays.DUE[k])
+        self._kern = kern
+
+    def run(self, until: int, sample=None) -> None:
+        """:meth:`FastNode.run` with its runs of plain ticks in the kernel
+        (:func:`~cosim.model_kernel_src.node_plain`, the translation of that loop's lazy
+        branch; the row is pushed first) and the timer's other events in the reference's event
+        loop (the row pulled back first). The object holds the state on return."""
+        if sample is not None:
+            self._sample = sample
+        if self._kern is None or not self.lazy or self._sample is None:
+            self.pull()
+            FastNode.run(self, until)
+            return
+        node_plain = self._kern.node_plain
+        E, vis, pipe, due = self._erows
+        while True:
+            special = self.next_special()
+            lim = special if special < until else until
+            if self._nt < lim:
+                if not self.in_kernel:
+                    self.push()
+                node_plain(self._row, self._prow, E, vis, pipe, due, lim)
+            if special >= until:
+                break
+            self.pull()
+            NodeModel.run(self, special + 1)
+        self.pull()
+        if until > self._done:
+            self._done = until
 
     def push(self) -> None:
         """The object's tick state into the kernel's row; the kernel owns it from now."""

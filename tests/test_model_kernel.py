@@ -208,6 +208,12 @@ def test_compiled_and_python_paths_give_the_same_trace(robot, controller):
     assert type(slow[4].nodes[0]).__name__ == "FastNode"
     assert fast[0].violations == slow[0].violations == []
     assert fast[0].trace_sha256 == slow[0].trace_sha256
+    # most plant steps took the fast path (GatewareSide.fast_path), the free step and the
+    # stick-slip solve both
+    steps = fast[4].fast_steps
+    assert sum(steps.values()) > 0.8 * cycles / 500 and steps["free"] > 0, steps
+    assert steps["stick-slip"] + steps["solve"] > 0, steps
+    assert slow[4].fast_steps == {"free": 0, "stick-slip": 0, "solve": 0}
     assert fast[1] == slow[1] and len(fast[1]) > 0
     assert fast[2] == slow[2]
     assert fast[3] == slow[3]
