@@ -57,7 +57,7 @@ from mrm_cosim.cosim.gateware_side import GatewareSide, Observed, PlantLines, Re
 from mrm_cosim.cosim.model_link import LINK_UP_CYCLE, LinkTiming
 from mrm_cosim.cosim import model_kernel_src as ksrc
 from mrm_cosim.cosim.model_kernel import (KernelArrays, KernelEncoder, KernelNode,
-                                          kernel_choice, load, load_plant)
+                                          KernelVdc, kernel_choice, load, load_plant)
 from mrm_cosim.errors import InputError
 from mrm_cosim.cosim.model_node import EncoderEvents, FastNode
 from mrm_cosim.hdl.node.core_ref import NodeModel
@@ -151,6 +151,7 @@ class ModelBackend(GatewareSide):
                              for k, (enc, c) in enumerate(zip(encs, counts, strict=True))]
             for k, node in enumerate(self.nodes):
                 node.bind(arrays, k, kern)
+                KernelVdc.adopt(node.vdc)
             self._plain = np.zeros(self.n, dtype=np.bool_)
             self._chg_lines = None
             self._fed = 0

@@ -33,6 +33,7 @@ import numpy as np
 
 from mrm_cosim.cosim.model_node import FastNode
 from mrm_cosim.hdl.node.core_ref import NodeModel
+from mrm_cosim.hdl.node.vdc_ref import VdcModel
 from mrm_cosim.cosim import model_kernel_src as src
 from mrm_cosim.models import plant_kernel_src as plant_src
 from mrm_cosim.protocol.fixed import CNT, FORCE, IHI, POS, SGN, TIME, VEL
@@ -41,7 +42,7 @@ from mrm_cosim.protocol.joint_program import MODES, joint_microcode, pid_formats
 from mrm_cosim.protocol.regs import Config
 
 __all__ = ["load", "load_plant", "kernel_choice", "KernelEncoder", "KernelNode", "KernelArrays",
-           "point_shifts", "param_row"]
+           "KernelVdc", "point_shifts", "param_row"]
 
 #: Buffer sizes per node (:mod:`cosim.model_kernel_src`, which lays them out in one blob).
 PEND_CAP, VIS_CAP, PIPE_CAP, DUE_CAP = src.PEND_CAP, src.VIS_CAP, src.PIPE_CAP, src.DUE_CAP
@@ -124,6 +125,9 @@ def _warm_up(k) -> None:
     F[src.F_H], F[src.F_HH] = 1e-5, 5e-6
     k.fast_step(b.IB, F, np.zeros((plant_src.S_ROWS, 1)), np.zeros(1), np.ones((1, 1)),
                 np.zeros((2, 1, 1)), 0, 0, 1)
+    z6, z13 = np.zeros(6, dtype=np.int64), np.zeros(13, dtype=np.int64)
+    k.vdc_link(z13, z6, z13, z13, z13, z6, z6, z6, np.zeros(3, dtype=np.int64), z6,
+               z13.copy())
     a = _throw_away()
     z = np.zeros(0, dtype=np.int64)
     tau = np.zeros(1)
@@ -301,6 +305,29 @@ class KernelEncoder:
         """:meth:`EncoderEvents.preset`."""
         value = ((int(value) + 2**31) % 2**32) - 2**31
         self._k.enc_preset(self._E, self._vis, self._pipe, self._due, c, value)
+
+
+class KernelVdc(VdcModel):
+    """:class:`~hdl.node.vdc_ref.VdcModel` whose per-link computation runs compiled
+    (:func:`cosim.model_kernel_src.vdc_link`, same words bit for bit; tests/test_model_kernel.py);
+    the step around it is the reference's. :meth:`adopt` turns a node's model into one."""
+
+    @classmethod
+    def adopt(cls, vdc: VdcModel) -> None:
+        """Make ``vdc`` (a node's :class:`VdcModel`, state kept) run its links compiled."""
+        vdc.__class__ = cls
+
+    def _link(self, i, V, V_r, dV, g):
+        p = self.params
+        F = np.empty(6, dtype=np.int64)
+        new = np.empty(13, dtype=np.int64)
+        arr = np.array
+        src.vdc_link(arr(self.theta[i], dtype=np.int64), arr(p.K[i], dtype=np.int64),
+                     arr(p.rho_T[i], dtype=np.int64), arr(p.lower[i], dtype=np.int64),
+                     arr(p.upper[i], dtype=np.int64), arr(V, dtype=np.int64),
+                     arr(V_r, dtype=np.int64), arr(dV, dtype=np.int64),
+                     arr(g, dtype=np.int64), F, new)
+        return F.tolist(), new.tolist()
 
 
 _TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX, _RAMP = (int(c) for c in (

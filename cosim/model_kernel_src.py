@@ -34,6 +34,8 @@ from mrm_cosim.protocol.encoder import AGE_MAX as _AGE_MAX
 from mrm_cosim.protocol.encoder import DC_MAX as _DC_MAX
 from mrm_cosim.protocol.encoder import RECIP_TABLE
 from mrm_cosim.protocol.fixed import FORCE as _FORCE
+from mrm_cosim.protocol.fixed import WORD_MAX as _WORD_MAX
+from mrm_cosim.protocol.fixed import WORD_MIN as _WORD_MIN
 
 # --- node state row (FastNode / NodeModel fields the plain ticks read or write) -------------
 N_NT, N_TORQUE, N_TORQUE_NONE = 0, 1, 2
@@ -783,6 +785,103 @@ def plain_step(NS, PS, ES, VIS, PIPE, DUE, PEND, plain, start, n, offset, CHC, C
             if NS[k, N_TORQUE_NONE]:
                 bad = True
     return bad
+
+
+# --- the VDC unit's per-link computation (VdcModel._link, hdl/node/vdc_ref.py) --------------
+# Exactness: every word is 24 bits; a regressor entry is a sum of at most three summands
+# (< 2^25.6), a product with a THETA, GAIN or error word < 2^48.6, a row's or column's sum of
+# them < 2^52.3, and the widest rounding point (the force row: the first group's sum shifted 8
+# bits left) < 2^61 (tests/test_model_kernel.py checks the bounds on the tables and runs
+# saturated words against the reference).
+
+
+def _vdc_point(fmt, *lsbs):
+    """``fx_point(fmt, *lsbs)``'s left shifts and right shift (at import time, in Python)."""
+    low = min(*lsbs, fmt.lsb)
+    return tuple(lsb - low for lsb in lsbs) + (fmt.lsb - low,)
+
+
+def _vdc_tables():
+    from mrm_cosim.protocol.fixed import ACC, FORCE, GAIN, RHOT, SIG, THETA, VEL
+    from mrm_cosim.protocol.fixed import theta_group
+    from mrm_cosim.protocol.vdc_program import Y_TABLE
+
+    def index(kind, idx):
+        return {"a": 0, "P": 3 + 3 * (idx // 10) + idx % 10, "dw": 12}[kind] + \
+            (0 if kind == "P" else idx)
+
+    terms = [(r, c, sgn, index(kind, idx)) for (r, c), summands in sorted(Y_TABLE.items())
+             for sgn, kind, idx in summands]
+    pts = {
+        "A": _vdc_point(ACC, ACC.lsb, 2 * VEL.lsb),
+        "P": _vdc_point(ACC, 2 * VEL.lsb),
+        "VEL": _vdc_point(VEL, VEL.lsb),
+        "F": _vdc_point(FORCE, *(ACC.lsb + fmt.lsb for fmt in THETA), GAIN.lsb + VEL.lsb),
+        "SIG": _vdc_point(SIG, ACC.lsb + VEL.lsb),
+    }
+    delta = [_vdc_point(THETA[g], RHOT[g].lsb + SIG.lsb) for g in range(3)]
+    theta = [_vdc_point(THETA[g], THETA[g].lsb) for g in range(3)]
+    return (np.array(terms, dtype=np.int64),
+            np.array([theta_group(j) for j in range(13)], dtype=np.int64),
+            np.array(pts["A"], dtype=np.int64), np.array(pts["P"], dtype=np.int64),
+            np.array(pts["VEL"], dtype=np.int64), np.array(pts["F"], dtype=np.int64),
+            np.array(pts["SIG"], dtype=np.int64), np.array(delta, dtype=np.int64),
+            np.array(theta, dtype=np.int64))
+
+
+(VDC_TERMS, VDC_GROUP, VDC_PT_A, VDC_PT_P, VDC_PT_VEL, VDC_PT_F, VDC_PT_SIG, VDC_PT_DELTA,
+ VDC_PT_THETA) = _vdc_tables()
+WORD_LO, WORD_HI = _WORD_MIN, _WORD_MAX
+
+
+def _vround(v, r):
+    """A rounding point's end: half up by ``r`` bits, then the 24-bit saturation."""
+    if r:
+        v = (v + (1 << (r - 1))) >> r
+    return WORD_LO if v < WORD_LO else WORD_HI if v > WORD_HI else v
+
+
+def vdc_link(th, K, rho, lower, upper, V, Vr, dV, g, F, new):
+    """:meth:`VdcModel._link <hdl.node.vdc_ref.VdcModel._link>` of one link: its parameter
+    words ``th`` (13), the gains ``K`` (6), ``rho`` (13), the bounds ``lower``/``upper`` (13)
+    and the inputs ``V``, ``Vr``, ``dV`` (6), ``g`` (3); the force words into ``F`` (6), the
+    adapted estimates into ``new`` (13)."""
+    w = np.empty(15, dtype=np.int64)
+    pa, pp, pv, pf, ps = VDC_PT_A, VDC_PT_P, VDC_PT_VEL, VDC_PT_F, VDC_PT_SIG
+    for k in range(3):
+        w[k] = _vround(((dV[k] + g[k]) << pa[0])
+                       + ((V[3 + (k + 1) % 3] * Vr[(k + 2) % 3]
+                           - V[3 + (k + 2) % 3] * Vr[(k + 1) % 3]) << pa[1]), pa[2])
+    for m in range(3):
+        for n in range(3):
+            w[3 + 3 * m + n] = _vround((V[3 + m] * Vr[3 + n]) << pp[0], pp[1])
+    for k in range(3):
+        w[12 + k] = dV[3 + k]
+    e = np.empty(6, dtype=np.int64)
+    for k in range(6):
+        e[k] = _vround((Vr[k] - V[k]) << pv[0], pv[1])
+    y = np.zeros((6, 13), dtype=np.int64)      # absent entries stay 0 and add nothing
+    for t in range(VDC_TERMS.shape[0]):
+        if VDC_TERMS[t, 2] > 0:
+            y[VDC_TERMS[t, 0], VDC_TERMS[t, 1]] += w[VDC_TERMS[t, 3]]
+        else:
+            y[VDC_TERMS[t, 0], VDC_TERMS[t, 1]] -= w[VDC_TERMS[t, 3]]
+    sums = np.zeros(3, dtype=np.int64)
+    for row in range(6):
+        sums[:] = 0
+        for col in range(13):
+            sums[VDC_GROUP[col]] += y[row, col] * th[col]
+        F[row] = _vround((sums[0] << pf[0]) + (sums[1] << pf[1]) + (sums[2] << pf[2])
+                         + ((K[row] * e[row]) << pf[3]), pf[4])
+    for j in range(13):
+        v = 0
+        for row in range(6):
+            v += y[row, j] * e[row]
+        gr = VDC_GROUP[j]
+        sig = _vround(v << ps[0], ps[1])
+        d = _vround((rho[j] * sig) << VDC_PT_DELTA[gr, 0], VDC_PT_DELTA[gr, 1])
+        t = _vround((th[j] + d) << VDC_PT_THETA[gr, 0], VDC_PT_THETA[gr, 1])
+        new[j] = min(max(t, lower[j]), upper[j])
 
 
 # --- the whole plain plant step in one call (ModelBackend's fast path) -----------------------
