@@ -484,8 +484,11 @@ class ModelBackend(GatewareSide):
                     if reply is not None:
                         self._link.reply(k, node.reply_cycle(c, ptype), ptype, reply, seq)
                 del box[:i]
-            node.run(end - 1, sample)
-            self._torque[k] = FORCE.decode(node.torque_at(end - 1))
+            if self._kern is not None:
+                self._torque[k] = FORCE.decode(node.run_torque(end - 1, sample))
+            else:
+                node.run(end - 1, sample)
+                self._torque[k] = FORCE.decode(node.torque_at(end - 1))
             self._collect(k, node, end, out)
         return out
 

@@ -358,11 +358,12 @@ class KernelNode(FastNode):
         self._erows = (arrays.E[k], arrays.VIS[k], arrays.PIPE[k], arrays.DUE[k])
         self._kern = kern
 
-    def run(self, until: int, sample=None) -> None:
+    def run(self, until: int, sample=None, stay: bool = False) -> None:
         """:meth:`FastNode.run` with its runs of plain ticks in the kernel
         (:func:`~cosim.model_kernel_src.node_plain`, the translation of that loop's lazy
         branch; the row is pushed first) and the timer's other events in the reference's event
-        loop (the row pulled back first). The object holds the state on return."""
+        loop (the row pulled back first). The object holds the state on return, unless
+        ``stay`` (then the row may: :meth:`pull` before reading it)."""
         if sample is not None:
             self._sample = sample
         if self._kern is None or not self.lazy or self._sample is None:
@@ -382,9 +383,23 @@ class KernelNode(FastNode):
                 break
             self.pull()
             NodeModel.run(self, special + 1)
-        self.pull()
+        if not stay:
+            self.pull()
         if until > self._done:
             self._done = until
+
+    def run_torque(self, until: int, sample) -> int:
+        """``run(until, sample)`` then ``torque_at(until)``, the node left in the kernel where
+        its ticks ran there (:func:`~cosim.model_kernel_src.torque_at`, the translation of
+        :meth:`FastNode.torque_at`): what the backend does at the end of every piece, without
+        a pull and the next piece's push."""
+        self.run(until, sample, stay=True)
+        if self.in_kernel:
+            w = int(self._kern.torque_at(self._row, until))
+            if self._row[src.N_TORQUE_NONE]:
+                raise RuntimeError("model kernel: an unobserved torque word was sampled")
+            return w
+        return self.torque_at(until)
 
     def push(self) -> None:
         """The object's tick state into the kernel's row; the kernel owns it from now."""
