@@ -253,8 +253,14 @@ class ModelBackend(GatewareSide):
         (:meth:`_horizon`). The same operations as :meth:`_run_kernel` and
         :meth:`Plant.step <models.plant.Plant.step>` in the same order, so the same results bit
         for bit (tests/test_model_backend.py)."""
+        from mrm_cosim.models.plant import Plant
+
         if self._kern is None or getattr(plant, "_kern", None) is None:
             return None
+        cls = type(plant)
+        if cls.step is not Plant.step or cls._step_kernel is not Plant._step_kernel or \
+                cls.kernel_parts is not Plant.kernel_parts:
+            return None                 # a plant whose step is not this one's: its own step
         if plant.cycles_per_step > ksrc.CHANGE_CAP or \
                 rec.shape[0] != 2 or rec.shape[2] != self.n or rec.dtype != np.float64:
             return None

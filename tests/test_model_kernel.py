@@ -294,3 +294,26 @@ def test_compiled_vdc_link_equals_the_reference(link, th, K, rho, bounds, V, Vr,
     mk.KernelVdc.adopt(fast)
     assert type(fast).__name__ == "KernelVdc"
     assert fast._link(link, V, Vr, dV, g) == ref._link(link, V, Vr, dV, g)
+
+
+@needs_numba
+def test_a_plant_with_its_own_step_gets_no_fast_path():
+    """The fast path runs :class:`~models.plant.Plant`'s step in pieces; a plant class that
+    steps otherwise (a subclass overriding ``step``) keeps its own step: no fast path."""
+    from mrm_cosim.cosim.model import ModelBackend
+    from mrm_cosim.models.plant import Plant
+    from mrm_cosim.models.robot import load_robot
+
+    class OwnStep(Plant):
+        def step(self, tau_cmd):
+            Plant.step(self, tau_cmd)
+
+    robot = load_robot("mrm3")
+    rec = np.zeros((2, 4, robot.n))
+    for cls, expect in ((Plant, True), (OwnStep, False)):
+        plant = cls(robot)
+        backend = ModelBackend(kernel="numba")
+        backend.power_on(plant.encoder_counts())
+        backend.attach_plant(plant)
+        assert (backend.fast_path(plant, rec) is not None) is expect, cls.__name__
+    assert ModelBackend(kernel="python").fast_path(Plant(robot), rec) is None
