@@ -42,7 +42,7 @@ from mrm_cosim.errors import InputError
 from mrm_cosim.models.encoder import (
     EncoderCycles, cycle_counts, joint_counts, quadrature_levels,
 )
-from mrm_cosim.models.gear import GEARS, STEP_MARGIN, check_step, gear_torque, play
+from mrm_cosim.models.gear import GEARS, STEP_MARGIN, check_step, deflection, gear_torque, play
 from mrm_cosim.models.plant import Plant, PlantConfig, PlantTruth, true_parameters
 
 __all__ = ["GearTruth", "gear_truth", "CompliantPlant"]
@@ -117,6 +117,34 @@ def gear_truth(truth: PlantTruth, config: PlantConfig, seed: int) -> GearTruth:
         ripple=g.ripple * peak, ripple_phase=phase, noise=g.current_noise * peak)
 
 
+_compiled = None       # the compiled kernel module, False if it cannot be, None before trying
+
+
+def compiled_kernel():
+    """:mod:`models.compliant_kernel_src` with its functions compiled by numba (cached), or
+    None if numba is missing or fails (the Python step runs)."""
+    global _compiled
+    if _compiled is None:
+        try:
+            import warnings
+
+            import numba
+
+            from mrm_cosim.models import compliant_kernel_src as k
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                k.jit_all(numba.njit(cache=True))
+                S = np.zeros((k.S_ROWS, 2))
+                C = np.ones((k.C_ROWS, 2))
+                k.pre(S, C, np.zeros(2), np.zeros(2), 1e-5, 5e-6, True)
+                k.finish(S, np.zeros(2), 1e-5, 5e-6)
+            _compiled = k
+        except Exception:       # noqa: BLE001 — any failure: the Python path runs
+            _compiled = False
+    return _compiled or None
+
+
 class CompliantPlant(Plant):
     """The robot's plant with compliant joints (module docstring); the :class:`Plant`
     interface, its encoder on the motor side.
@@ -174,25 +202,46 @@ class CompliantPlant(Plant):
 
     # --- state -------------------------------------------------------------------------------
     def reset(self, q0, qd0=None, tau_motor0=None, theta0=None, theta_d0=None) -> None:
-        """Start again at time 0: link state as :meth:`Plant.reset`; the motor at ``theta0``
-        (default ``q0``: the gear unloaded) moving at ``theta_d0`` (default ``qd0``); the play
-        centred; the noise stream restarted (same seed, same noise)."""
+        """Start again at time 0: link state as :meth:`Plant.reset`; the encoders zeroed with
+        the robot at ``q0`` under its own weight (calibrated there: the gears carry the
+        static torque ``g(q0) − τ_s(q0)`` at the catalogue curve's deflection, which the
+        motor angle ``θ`` then counts from: :attr:`preload`); the motor at ``theta0`` (default
+        ``q0``) moving at ``theta_d0`` (default ``qd0``); the play centred; the noise stream
+        restarted (same seed, same noise)."""
         super().reset(q0, qd0, tau_motor0)
-        if not hasattr(self, "_gear"):
+        if not hasattr(self, "_gl"):             # Plant.__init__'s reset, before the gears
             return
+        q = np.array(self._q)
+        static = pin.computeGeneralizedGravity(self._model, self._data, q)
+        for i, amp, phase in self._springs:
+            static[i] -= amp * cos(q[i] + phase)
+        t1, t2, k1, k2, k3 = self._gl
+        self._off = [deflection(float(static[i]), t1[i], t2[i], k1[i], k2[i], k3[i])
+                     for i in range(self.n)]
         self._th = list(self._q) if theta0 is None else self._vector(theta0, "theta0").tolist()
         self._w = list(self._v) if theta_d0 is None else \
             self._vector(theta_d0, "theta_d0").tolist()
-        self._y = [self._th[i] - self._q[i] for i in range(self.n)]
+        self._y = [self._th[i] - self._q[i] + self._off[i] for i in range(self.n)]
         self._am_prev = [0.0] * self.n
         self._th_start = list(self._th)
         self._w_start = list(self._w)
         self._tau_j = [0.0] * self.n
         _, self._rng = gear_streams(self._seed)
+        if self._kern is not None:
+            self._C[self._kern.OFF] = self._off
+            self._bind_state()
+
+    @property
+    def preload(self) -> np.ndarray:
+        """The gears' deflection at the last reset's pose under the robot's weight, rad: the
+        motor angle ``θ`` (and the encoder) count from it (``θ − q + preload`` is the gear's
+        deflection)."""
+        return np.array(self._off)
 
     @property
     def theta(self) -> np.ndarray:
-        """Motor angles referred to the output (motor angle / gear ratio), rad (a copy)."""
+        """Motor angles referred to the output (motor angle / gear ratio), rad (a copy), from
+        the encoders' zero (:attr:`preload`)."""
         return np.array(self._th)
 
     @property
@@ -205,9 +254,58 @@ class CompliantPlant(Plant):
         """The gears' torques of the last step (elastic + damping + ripple), N·m (a copy)."""
         return np.array(self._tau_j)
 
+    # --- the compiled step ---------------------------------------------------------------------
     def use_kernel(self, kern) -> None:
-        """The compliant plant has no compiled step yet: it stays on the Python path (the
-        results are the same; only slower)."""
+        """Run :meth:`step` on compiled code from now on (the model backend asks when its
+        numba kernel is available; ``kern`` is the rigid plant's and is not used):
+        :mod:`models.compliant_kernel_src` compiled by numba, the same float operations in the
+        same order, the noise draw and pinocchio's ABA called from Python between them; the
+        results are the Python step's bit for bit. The state moves into one array (the list
+        attributes become views of its rows)."""
+        k = compiled_kernel()
+        if k is None:
+            return
+        C = np.zeros((k.C_ROWS, self.n))
+        C[k.ALPHA], C[k.BETA], C[k.PEAK] = self._alpha, self._beta, self._peak
+        C[k.FC], C[k.FSX], C[k.INV_VS], C[k.VISC] = \
+            self._fc, self._fs_excess, self._inv_vs, self._visc
+        for i, amp, phase in self._springs:
+            C[k.AMP, i], C[k.PHASE, i], C[k.HAS_SPRING, i] = amp, phase, 1.0
+        C[k.T1], C[k.T2], C[k.K1], C[k.K2], C[k.K3] = self._gl
+        C[k.HALF], C[k.DG], C[k.BM] = self._a, self._dg, self._bm
+        C[k.RIPPLE], C[k.RPHASE], C[k.R2], C[k.SIGMA] = \
+            self._ripple, self._rphase, self._r2, self._noise
+        C[k.OFF] = self._off
+        self._C = C
+        self._kern = k
+        self._bind_state()
+
+    def _bind_state(self) -> None:
+        """The state lists into the kernel's array, the list attributes as its rows."""
+        k = self._kern
+        S = self._S = np.zeros((k.S_ROWS, self.n))
+        for row, name in ((k.Q, "_q"), (k.V, "_v"), (k.A_PREV, "_a_prev"),
+                          (k.Q_START, "_q_start"), (k.V_START, "_v_start"), (k.TH, "_th"),
+                          (k.W, "_w"), (k.AM_PREV, "_am_prev"), (k.TH_START, "_th_start"),
+                          (k.W_START, "_w_start"), (k.Y, "_y"), (k.TAU, "_tau"),
+                          (k.TAU_J, "_tau_j")):
+            if hasattr(self, name):
+                S[row] = getattr(self, name)
+            setattr(self, name, S[row])
+        self._qm, self._vm, self._lf = S[k.QM], S[k.VM], S[k.LF]
+
+    def _step_compiled(self, arr: np.ndarray) -> None:
+        """:meth:`step` on the compiled functions (:meth:`use_kernel`)."""
+        k, S, h = self._kern, self._S, self.dt
+        hh = 0.5 * h
+        for x in arr.tolist():
+            if not isfinite(x):
+                raise InputError("tau_cmd", f"must be finite, not {arr.tolist()!r}")
+        noise = self._rng.standard_normal(self.n)
+        k.pre(S, self._C, arr, noise, h, hh, self._has_friction)
+        k.finish(S, pin.aba(self._model, self._data, S[k.QM], S[k.VM], S[k.LF]), h, hh)
+        self._steps += 1
+        self._stepped = True
 
     # --- stepping ----------------------------------------------------------------------------
     def step(self, tau_cmd) -> None:
@@ -219,6 +317,9 @@ class CompliantPlant(Plant):
             raise InputError("tau_cmd", f"must be {self.n} numbers, not {tau_cmd!r}") from None
         if arr.shape != (self.n,):
             raise InputError("tau_cmd", f"must have shape ({self.n},), not {arr.shape}")
+        if self._kern is not None:
+            self._step_compiled(arr)
+            return
         cmd = arr.tolist()
         for x in cmd:
             if not isfinite(x):
@@ -234,7 +335,7 @@ class CompliantPlant(Plant):
         alpha, beta, peak = self._alpha, self._beta, self._peak
         fc, fsx, inv_vs, visc = self._fc, self._fs_excess, self._inv_vs, self._visc
         t1, t2, k1, k2, k3 = self._gl
-        half, dg, bm = self._a, self._dg, self._bm
+        half, dg, bm, off = self._a, self._dg, self._bm, self._off
         ripple, rphase, r2, sigma = self._ripple, self._rphase, self._r2, self._noise
         friction = self._has_friction
         self._q_start = q[:]
@@ -258,7 +359,7 @@ class CompliantPlant(Plant):
             vm[i] = vi + hh * a_prev[i]
             thm[i] = th[i] + hh * w[i]
             # the gear at mid-step: play, curve, damping (while engaged), ripple
-            delta = thm[i] - qm[i]
+            delta = thm[i] - qm[i] + off[i]
             yi = play(y[i], delta, half[i])
             tj = gear_torque(yi, t1[i], t2[i], k1[i], k2[i], k3[i])
             if yi != y[i] or half[i] == 0.0:

@@ -30,6 +30,7 @@ import numpy as np
 from mrm_cosim.errors import InputError
 
 __all__ = ["GearSpec", "GEARS", "GearConfig", "ARCMIN", "STEP_MARGIN", "gear_torque", "play",
+           "deflection",
            "step_bound", "check_step"]
 
 ARCMIN = math.pi / (180.0 * 60.0)
@@ -91,14 +92,19 @@ class GearSpec:
 
     def deflection(self, torque: float) -> float:
         """The catalogue's torsion angle for an output torque (equations 68.1-68.3), rad."""
-        t = abs(torque)
-        if t <= self.t1:
-            phi = t / self.k1
-        elif t <= self.t2:
-            phi = self.t1 / self.k1 + (t - self.t1) / self.k2
-        else:
-            phi = self.t1 / self.k1 + (self.t2 - self.t1) / self.k2 + (t - self.t2) / self.k3
-        return math.copysign(phi, torque)
+        return deflection(torque, self.t1, self.t2, self.k1, self.k2, self.k3)
+
+
+def deflection(torque: float, t1: float, t2: float, k1: float, k2: float, k3: float) -> float:
+    """The catalogue's torsion angle for an output torque (equations 68.1-68.3), rad."""
+    t = abs(torque)
+    if t <= t1:
+        phi = t / k1
+    elif t <= t2:
+        phi = t1 / k1 + (t - t1) / k2
+    else:
+        phi = t1 / k1 + (t2 - t1) / k2 + (t - t2) / k3
+    return math.copysign(phi, torque)
 
 
 _CHA = ("Harmonic Drive AG, CHA series engineering data 1018854 12/2015 V01, Table 50.3 "
