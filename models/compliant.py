@@ -117,32 +117,13 @@ def gear_truth(truth: PlantTruth, config: PlantConfig, seed: int) -> GearTruth:
         ripple=g.ripple * peak, ripple_phase=phase, noise=g.current_noise * peak)
 
 
-_compiled = None       # the compiled kernel module, False if it cannot be, None before trying
-
-
 def compiled_kernel():
-    """:mod:`models.compliant_kernel_src` with its functions compiled by numba (cached), or
-    None if numba is missing or fails (the Python step runs)."""
-    global _compiled
-    if _compiled is None:
-        try:
-            import warnings
+    """:mod:`models.compliant_kernel_src` if its functions are compiled (the model backend's
+    :func:`cosim.model_kernel.load` compiles them with numba, next to the rigid plant's), else
+    None (the Python step runs)."""
+    from mrm_cosim.models import compliant_kernel_src as k
 
-            import numba
-
-            from mrm_cosim.models import compliant_kernel_src as k
-
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                k.jit_all(numba.njit(cache=True))
-                S = np.zeros((k.S_ROWS, 2))
-                C = np.ones((k.C_ROWS, 2))
-                k.pre(S, C, np.zeros(2), np.zeros(2), 1e-5, 5e-6, True)
-                k.finish(S, np.zeros(2), 1e-5, 5e-6)
-            _compiled = k
-        except Exception:       # noqa: BLE001 — any failure: the Python path runs
-            _compiled = False
-    return _compiled or None
+    return k if hasattr(k.pre, "py_func") else None
 
 
 class CompliantPlant(Plant):
@@ -257,7 +238,7 @@ class CompliantPlant(Plant):
     # --- the compiled step ---------------------------------------------------------------------
     def use_kernel(self, kern) -> None:
         """Run :meth:`step` on compiled code from now on (the model backend asks when its
-        numba kernel is available; ``kern`` is the rigid plant's and is not used):
+        numba kernel is loaded; ``kern`` is the rigid plant's and is not used):
         :mod:`models.compliant_kernel_src` compiled by numba, the same float operations in the
         same order, the noise draw and pinocchio's ABA called from Python between them; the
         results are the Python step's bit for bit. The state moves into one array (the list
