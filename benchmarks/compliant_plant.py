@@ -11,7 +11,8 @@ Run on purpose (not a test)::
   the rigid plant, the compliant plant, and the compliant plant with one effect removed;
 * ``--encoder``: the same compliant runs with the tip computed from the motor angles (what the
   encoders see) beside the link's, and the largest gear-deflection change per joint;
-* ``--hold S``: the FPGA PID on the compliant plant for S seconds (joint 1's error per 0.25 s);
+* ``--hold S``: each controller on the compliant plant for S seconds (the quintic, then the
+  hold): the largest joint error per 0.5 s;
 * ``--speed``: CPU time per plant step, rigid and compliant, Python path and numba kernel,
   side by side (best of 3 × 20,000 steps).
 
@@ -126,12 +127,14 @@ def encoder(cfg) -> None:
 
 
 def hold(cfg, duration) -> None:
-    _, profile, res, _ = _compliant_run(cfg, "pid-fpga", duration)
-    q_d = profile.evaluate(res.t)[0]
-    for a in np.arange(0.0, duration, 0.25):
-        m = (res.t >= a) & (res.t < a + 0.25)
-        print(f"  t {a:.2f}-{a + 0.25:.2f} s: joint 1 error up to "
-              f"{np.abs(q_d[m, 0] - res.q[m, 0]).max() * 1e3:.3f} mrad")
+    for c in CONTROLLERS:
+        _, profile, res, _ = _compliant_run(cfg, c, duration)
+        q_d = profile.evaluate(res.t)[0]
+        print(f"{c}, largest joint error (link) per 0.5 s, mrad:")
+        for a in np.arange(0.0, duration, 0.5):
+            m = (res.t >= a) & (res.t < a + 0.5)
+            print(f"  t {a:.1f}-{a + 0.5:.1f} s: "
+                  f"{np.round(np.abs(q_d[m] - res.q[m]).max(axis=0) * 1e3, 3)}", flush=True)
 
 
 def speed() -> None:

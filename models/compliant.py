@@ -4,13 +4,15 @@ Per joint ``i``, with the motor angle ``θ`` referred to the output (motor angle
 
     B θ̈            = τ_m + ε − τ_J − τ_F(θ̇)             motor + wave generator side
     M(q) q̈ + c + g = τ_J + τ_s(q)                        link side (pinocchio, no armature)
-    τ_J = T(y) + d ẏ + r,   y = play_a(θ − q)             the gear
+    τ_J = T(y) + d ẏ + r,   y = play_a(θ − q + φ0)        the gear
 
 * ``B``: the actuator's output-referred rotor inertia (rotor, wave generator, encoder disc:
   ``models.actuators``), the armature the rigid plant adds to ``M(q)``;
 * ``T``: Harmonic Drive's piecewise-linear torque–torsion curve (``models.gear``) of the
-  elastic deflection ``y``, which follows the gear's deflection ``θ − q`` through a play of the
-  catalogue's hysteresis loss; ``d ẏ``: structural damping (acts while the play is engaged);
+  elastic deflection ``y``, which follows the gear's deflection ``θ − q + φ0`` through a play
+  of the catalogue's hysteresis loss (``φ0``: the static deflection at the reset pose, where
+  the encoders are zeroed, :meth:`CompliantPlant.reset`); ``d ẏ``: structural damping (acts
+  while the play is engaged);
 * ``r = A sin(2 N θ + φ)``: the wave generator's torque ripple, twice per motor revolution;
 * ``ε``: current-sensor noise, white over each plant step (the current loop follows the sensor,
   so the noise becomes motor torque); ``τ_m``: the amplifier as in the rigid plant;
