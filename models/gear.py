@@ -2,8 +2,9 @@
 its hysteresis (lost motion), structural damping, and the stability bound of the plant step.
 
 Ref: Harmonic Drive AG, *CHA series engineering data* 1018854 12/2015 V01, §3.3.5 Table 50.3
-("Torsional stiffness", CHA-14A: the size-14 gear of the FHA-14C) and §4.2 "Calculation of the
-torsion angle" (equations 68.1-68.4), e.g. as reproduced at
+("Torsional stiffness", CHA-14A: a size-14, ratio > 50 Harmonic Drive gear, taken for the
+FHA-14C's — an assumption, the FHA-C mini manual's own table was not found) and §4.2
+"Calculation of the torsion angle" (equations 68.1-68.4), e.g. as reproduced at
 easymanua.ls/harmonic-drive/cha/manual?p=50 and manualshive.com/en/manual/harmonic-drive/cha/
 3953713?page=68. The size-11 values are assumptions (``docs/plant.md``).
 
@@ -111,7 +112,8 @@ _CHA = ("Harmonic Drive AG, CHA series engineering data 1018854 12/2015 V01, Tab
         "(CHA-14A, ratio > 50) and Table 50.1 (hysteresis loss < 1 arcmin, ratio > 50)")
 
 GEARS: dict[str, GearSpec] = {
-    # size 14, ratio 100: the catalogue's size-14 gear (CHA-14A = CSF/CSG-14 component set)
+    # size 14, ratio 100: the catalogue's size-14 gear of ratio > 50 (CHA-14A), taken for the
+    # FHA-14C's (assumed the same gear size and family: docs/plant.md)
     "FHA-14C-100": GearSpec(t1=2.0, t2=6.9, k1=4.7e3, k2=6.1e3, k3=7.1e3,
                             hysteresis=1.0 * ARCMIN, source=_CHA),
     # size 11, ratio 100: ASSUMED — no catalogue table was found for size 11; the limit torques
