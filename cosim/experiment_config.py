@@ -36,7 +36,8 @@ from mrm_cosim.errors import (
 )
 from mrm_cosim.master.cycle import CONTROLLERS, MasterTiming
 from mrm_cosim.master.uploads import PID_DESIGN_HZ, Gains
-from mrm_cosim.models.plant import Perturbation, PlantConfig
+from mrm_cosim.models.gear import GearConfig
+from mrm_cosim.models.plant import JOINTS, Perturbation, PlantConfig
 from mrm_cosim.tomlfile import parse_toml, read_toml
 
 __all__ = ["ExperimentConfig", "TrajectoryConfig", "load", "loads", "from_dict", "DEFAULT_CONFIG",
@@ -193,6 +194,8 @@ def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
                                "plant.dt" if plant.dt != PlantConfig().dt
                                else "timing.period_cycles")
     _gains_fit_the_nodes(robot, controllers, gains, timing.period_cycles)
+    if plant.joints == "compliant":
+        _gears_fit_the_step(robot, plant, seed)
     return ExperimentConfig(name, robot, controllers, backend, seed, duration, trajectory,
                             plant, gains, timing)
 
@@ -310,7 +313,8 @@ def _bool(value, name: str) -> bool:
 
 
 def _plant(table: dict) -> PlantConfig:
-    known = {"dt", "friction", "springs", "current_loop", "current_bandwidth", "perturbation"}
+    known = {"dt", "friction", "springs", "current_loop", "current_bandwidth", "perturbation",
+             "joints", "gear"}
     _keys(table, "plant.", known)
     d = PlantConfig()
     pert = table.get("perturbation", {})
@@ -336,7 +340,30 @@ def _plant(table: dict) -> PlantConfig:
         friction=_bool(table.get("friction", d.friction), "plant.friction"),
         springs=_bool(table.get("springs", d.springs), "plant.springs"),
         current_loop=_bool(table.get("current_loop", d.current_loop), "plant.current_loop"),
-        current_bandwidth=None if bw is None else _current_bandwidth(bw))
+        current_bandwidth=None if bw is None else _current_bandwidth(bw),
+        joints=_joints(table.get("joints", d.joints)),
+        gear=_gear(table.get("gear", {})))
+
+
+def _joints(value) -> str:
+    if value not in JOINTS:
+        raise InputError("plant.joints", f"must be one of {', '.join(map(repr, JOINTS))}, "
+                         f"not {value!r}")
+    return value
+
+
+def _gear(table) -> GearConfig:
+    if not isinstance(table, dict):
+        raise InputError("plant.gear", f"must be a table, not {table!r}")
+    _keys(table, "plant.gear.", {f.name for f in fields(GearConfig)})
+    d = GearConfig()
+    values = {}
+    for f in fields(GearConfig):
+        name = f"plant.gear.{f.name}"
+        v = table.get(f.name, getattr(d, f.name))
+        values[f.name] = _bool(v, name) if f.name == "hysteresis" else \
+            require_finite(_number(v, name), name)
+    return GearConfig(**values)
 
 
 def _current_bandwidth(value) -> float:
@@ -367,6 +394,15 @@ def _gains(table: dict) -> Gains:
             raise InputError(field_name, f"must be at most {top}, not {raw!r}")
         values[name] = x
     return Gains(**values)
+
+
+def _gears_fit_the_step(robot: str, plant: PlantConfig, seed: int) -> None:
+    """Build the compliant plant once: a gear the step cannot integrate stably is refused
+    here, naming the field and the largest step it allows, before anything runs."""
+    from mrm_cosim.models.compliant import CompliantPlant
+    from mrm_cosim.models.robot import load_robot
+
+    CompliantPlant(load_robot(robot), plant, seed)
 
 
 def _gains_fit_the_nodes(robot: str, controllers, gains: Gains, period_cycles: int) -> None:

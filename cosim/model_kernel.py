@@ -35,6 +35,7 @@ from mrm_cosim.cosim.model_node import FastNode
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.hdl.node.vdc_ref import VdcModel
 from mrm_cosim.cosim import model_kernel_src as src
+from mrm_cosim.models import compliant_kernel_src as compliant_src
 from mrm_cosim.models import plant_kernel_src as plant_src
 from mrm_cosim.protocol.fixed import CNT, FORCE, IHI, POS, SGN, TIME, VEL
 from mrm_cosim.protocol.fixed import ACC, ANG, CT, IM, IVLC, IVS, KC, LAM, LAMC, TS, VISC, GAIN
@@ -71,8 +72,10 @@ def load():
                 warnings.simplefilter("ignore")             # numba's own notices
                 src.jit_all(numba.njit(cache=True))
                 plant_src.jit_all(numba.njit(cache=True))
+                compliant_src.jit_all(numba.njit(cache=True))
                 _warm_up(src)
                 _warm_up_plant(plant_src)
+                _warm_up_compliant(compliant_src)
             _loaded = src
         except Exception as e:          # noqa: BLE001 — any failure: the Python path runs
             _loaded = False
@@ -101,6 +104,15 @@ def _warm_up_plant(k) -> None:
     S[k.SIGN, 0] = 1.0
     k.likely_pattern(S, np.eye(2), 1e-5)
     k.finish(S, 1e-5, 5e-6)
+
+
+def _warm_up_compliant(k) -> None:
+    """Compile (or load) the compliant plant step's functions (:mod:`models.compliant_kernel_src`,
+    which :meth:`CompliantPlant.use_kernel <models.compliant.CompliantPlant.use_kernel>` runs)."""
+    S = np.zeros((k.S_ROWS, 2))
+    C = np.ones((k.C_ROWS, 2))
+    k.pre(S, C, np.zeros(2), np.zeros(2), 1e-5, 5e-6, True)
+    k.finish(S, np.zeros(2), 1e-5, 5e-6)
 
 
 def _throw_away() -> KernelArrays:

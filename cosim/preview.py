@@ -17,7 +17,7 @@ import numpy as np
 from mrm_cosim.master.feedforward_pid import FeedforwardPID
 from mrm_cosim.master.kinematics import jacobian
 from mrm_cosim.master.quintic import QuinticProfile
-from mrm_cosim.models.plant import Plant, PlantConfig
+from mrm_cosim.models.plant import PlantConfig, make_plant
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.errors import InputError, require_positive
 
@@ -70,7 +70,7 @@ def run_preview(robot="mrm3", duration: float = 1.5, seed: int = 0, period: floa
     if duration > 60.0:
         raise InputError("duration", f"at most 60 s for a preview, not {duration!r}")
     config = PlantConfig() if plant_config is None else plant_config
-    plant = Plant(robot, config, seed=seed)
+    plant = make_plant(robot, config, seed=seed)
     steps = round(period / plant.dt)
     if steps < 1 or abs(steps * plant.dt - period) > 1e-12:
         raise InputError("period", f"must be a multiple of the plant step {plant.dt} s")

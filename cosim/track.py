@@ -13,7 +13,7 @@ from mrm_cosim.cosim.preview import paper_test_profile
 from mrm_cosim.master.cycle import Master, MasterTiming
 from mrm_cosim.master.kinematics import tip_points
 from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains, pid_shifts
-from mrm_cosim.models.plant import Plant, PlantConfig
+from mrm_cosim.models.plant import PlantConfig, make_plant
 from mrm_cosim.models.robot import load_robot
 from mrm_cosim.errors import InputError, require_positive
 from mrm_cosim.units import CLOCK_HZ
@@ -145,7 +145,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     master = Master(robot, controller, trajectory, robot.counts_per_rev, timing, lam=gains.lam,
                     pid=pid_gains(robot, gains.pid_1khz_hz), uploads=uploads,
                     references=references)
-    plant = Plant(robot, plant_config or PlantConfig(), seed=seed)
+    plant = make_plant(robot, plant_config or PlantConfig(), seed=seed)
     plant.reset(robot.home)
     duration_cycles = int(round(duration * CLOCK_HZ))
     for f in faults:

@@ -47,9 +47,13 @@ from mrm_cosim.models.encoder import (
     quadrature_levels,
 )
 from mrm_cosim.errors import InputError, require_finite, require_nonnegative, require_positive
+from mrm_cosim.models.gear import GearConfig
 
 __all__ = ["Perturbation", "PlantConfig", "PlantTruth", "true_parameters", "perturb_inertia",
-           "Plant", "SPRING_PHASE_SCALE"]
+           "Plant", "SPRING_PHASE_SCALE", "JOINTS", "make_plant"]
+
+JOINTS = ("rigid", "compliant")
+"""The joint models a plant can have (``[plant] joints``)."""
 
 SPRING_PHASE_SCALE = 0.1
 """Spring phase perturbation at a full (1.0) spring perturbation, rad: the preload angle is
@@ -116,6 +120,11 @@ class PlantConfig:
         Overrides every actuator's current-loop bandwidth.
     cycle : float, s
         FPGA clock period the encoder lines are produced for.
+    joints : str
+        ``"rigid"`` (this module's :class:`Plant`) or ``"compliant"`` (each joint a two-inertia
+        system through its harmonic drive: :class:`models.compliant.CompliantPlant`).
+    gear : GearConfig
+        The compliant joints' settings (unused by the rigid plant).
     """
 
     dt: float = 1e-5
@@ -125,8 +134,15 @@ class PlantConfig:
     current_loop: bool = True
     current_bandwidth: float | None = None
     cycle: float = CYCLE
+    joints: str = "rigid"
+    gear: GearConfig = field(default_factory=GearConfig)
 
     def __post_init__(self):
+        if self.joints not in JOINTS:
+            raise InputError("plant.joints", f"must be one of {', '.join(map(repr, JOINTS))}, "
+                             f"not {self.joints!r}")
+        if not isinstance(self.gear, GearConfig):
+            raise InputError("plant.gear", f"must be a table, not {self.gear!r}")
         dt = require_positive(self.dt, "plant.dt")
         cycle = require_positive(self.cycle, "plant.cycle")
         cycles = round(dt / cycle)
@@ -774,6 +790,17 @@ class Plant:
             raise RuntimeError("no step taken since the last reset")
         motion = [x.tolist() if isinstance(x, np.ndarray) else x for x in self.motion()]
         return count_changes_lists(*motion, self.dt, self.cycles_per_step, self._kl)[1]
+
+def make_plant(robot, config: PlantConfig | None = None, seed: int = 0) -> Plant:
+    """The plant ``config.joints`` asks for: :class:`Plant` (rigid) or
+    :class:`models.compliant.CompliantPlant`."""
+    config = PlantConfig() if config is None else config
+    if config.joints == "compliant":
+        from mrm_cosim.models.compliant import CompliantPlant
+
+        return CompliantPlant(robot, config, seed)
+    return Plant(robot, config, seed)
+
 
 def _cholesky_solve(A: list, b: list) -> list | None:
     """Solve ``A x = b`` for a small symmetric positive definite ``A`` (lists); None if not SPD."""

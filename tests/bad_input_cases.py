@@ -171,6 +171,23 @@ for i, (section, key, value) in enumerate([("plant", "current_bandwidth", "1e-9"
                                            ("gains", "lam", "0")]):
     case(f"track-config-{i}", ["run", "track", "--config", "{config}", "--out", "{out}"],
          f"{section}.{key}", config=_config_with(section, key, value))
+# the compliant plant's gear (models.gear.GearConfig): zero, negative, or unstable at the step
+_COMPLIANT = _config_with("plant", "joints", '"compliant"')
+for i, value in enumerate(['"soft"', "1", '""']):
+    case(f"config-plant-joints-{i}", ["run", "table2", "--config", "{config}", "--out", "{out}"],
+         "plant.joints", config=_config_with("plant", "joints", value))
+for key, values in (("stiffness_scale", ["0", "-1", "nan", '"1"', "1e7"]),
+                    ("damping_ratio", ["0", "-0.05", "1e6"]),
+                    ("stiffness_spread", ["-0.1", "0.9"]),
+                    ("ripple", ["-0.01", "1"]),
+                    ("current_noise", ["-0.01", '"x"']),
+                    ("hysteresis", ["1"])):
+    for i, value in enumerate(values):
+        case(f"config-plant-gear-{key}-{i}", ["run", "table2", "--config", "{config}",
+                                              "--out", "{out}"], f"plant.gear.{key}",
+             config=_COMPLIANT + f"\n[plant.gear]\n{key} = {value}\n")
+case("config-plant-gear-unknown", ["run", "table2", "--config", "{config}", "--out", "{out}"],
+     "plant.gear.stiffness", config=_COMPLIANT + "\n[plant.gear]\nstiffness = 2.0\n")
 case("config-unknown-section", ["run", "table2", "--config", "{config}", "--out", "{out}"],
      "colour", config=TABLE2 + "\n[colour]\nred = 1\n")
 case("config-duplicate-key", ["run", "table2", "--config", "{config}", "--out", "{out}"],

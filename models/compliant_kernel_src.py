@@ -1,0 +1,131 @@
+"""The compliant plant step's per-joint arithmetic as code numba can compile
+(:meth:`CompliantPlant.use_kernel <models.compliant.CompliantPlant.use_kernel>`): everything of
+:meth:`CompliantPlant.step <models.compliant.CompliantPlant.step>` but the noise draw and
+pinocchio's ABA, which stay calls from Python before and between these functions.
+
+A line-for-line translation of that method (and of ``models.gear.play`` and
+``models.gear.gear_torque``), which stays the readable source of truth and the pure-Python
+path: every float operation is the reference's, in the reference's order (no fastmath, so no
+contraction), ``exp``/``sin``/``cos`` as Python's ``math`` calls them; the states are equal bit
+for bit (tests/test_compliant.py). Kept apart from :mod:`models.plant_kernel_src` (the rigid
+plant's), which it does not change.
+
+State: one float64 row per quantity (``S[Q]``, …, shape (rows, n)); constants in ``C``.
+"""
+
+from __future__ import annotations
+
+import math
+
+# --- state rows ------------------------------------------------------------------------------
+(Q, V, A_PREV, Q_START, V_START, TH, W, AM_PREV, TH_START, W_START, Y, TAU, TAU_J, QM, VM, THM,
+ LF) = range(17)
+S_ROWS = 17
+# --- constant rows ---------------------------------------------------------------------------
+(ALPHA, BETA, PEAK, FC, FSX, INV_VS, VISC, AMP, PHASE, HAS_SPRING, T1, T2, K1, K2, K3, HALF,
+ DG, BM, RIPPLE, RPHASE, R2, SIGMA, OFF) = range(23)
+C_ROWS = 23
+
+
+def play(y, delta, a):
+    """``models.gear.play``."""
+    lo = delta - a
+    hi = delta + a
+    if y < lo:
+        return lo
+    if y > hi:
+        return hi
+    return y
+
+
+def gear_torque(y, t1, t2, k1, k2, k3):
+    """``models.gear.gear_torque``."""
+    phi1 = t1 / k1
+    phi2 = phi1 + (t2 - t1) / k2
+    x = y if y >= 0.0 else -y
+    if x <= phi1:
+        t = k1 * x
+    elif x <= phi2:
+        t = t1 + k2 * (x - phi1)
+    else:
+        t = t2 + k3 * (x - phi2)
+    return t if y >= 0.0 else -t
+
+
+def pre(S, C, cmd, noise, h, hh, friction):
+    """:meth:`CompliantPlant.step` up to the ABA: amplifier, gear, motor side, the link's
+    generalised force into ``S[LF]``. Returns False (state untouched) if ``cmd`` is not
+    finite."""
+    n = S.shape[1]
+    for i in range(n):
+        if not math.isfinite(cmd[i]):
+            return False
+    S[Q_START, :] = S[Q, :]
+    S[V_START, :] = S[V, :]
+    S[TH_START, :] = S[TH, :]
+    S[W_START, :] = S[W, :]
+    for i in range(n):
+        u = cmd[i]
+        p = C[PEAK, i]
+        if u > p:
+            u = p
+        elif u < -p:
+            u = -p
+        u = u + C[SIGMA, i] * noise[i]
+        d = S[TAU, i] - u
+        S[TAU, i] = u + d * C[ALPHA, i]
+        vi = S[V, i]
+        S[QM, i] = S[Q, i] + hh * vi
+        S[VM, i] = vi + hh * S[A_PREV, i]
+        S[THM, i] = S[TH, i] + hh * S[W, i]
+        delta = S[THM, i] - S[QM, i] + C[OFF, i]
+        yi = play(S[Y, i], delta, C[HALF, i])
+        tj = gear_torque(yi, C[T1, i], C[T2, i], C[K1, i], C[K2, i], C[K3, i])
+        if yi != S[Y, i] or C[HALF, i] == 0.0:
+            tj += C[DG, i] * (S[W, i] - vi)
+        S[Y, i] = yi
+        tj += C[RIPPLE, i] * math.sin(C[R2, i] * S[THM, i] + C[RPHASE, i])
+        S[TAU_J, i] = tj
+        S[LF, i] = tj
+        wi = S[W, i]
+        rho = u + d * C[BETA, i] - tj - C[VISC, i] * wi
+        bm = C[BM, i]
+        pm = bm * wi + h * rho
+        if friction:
+            x = wi * C[INV_VS, i]
+            level = h * (C[FC, i] + C[FSX, i] * math.exp(-x * x))
+            if pm > level:
+                wn = (pm - level) / bm
+            elif pm < -level:
+                wn = (pm + level) / bm
+            else:
+                wn = 0.0
+        else:
+            wn = pm / bm
+        S[AM_PREV, i] = (wn - wi) / h
+        S[W, i] = wn
+        S[TH, i] = S[THM, i] + hh * wn
+    for i in range(n):
+        if C[HAS_SPRING, i] != 0.0:
+            S[LF, i] += C[AMP, i] * math.cos(S[QM, i] + C[PHASE, i])
+    return True
+
+
+def finish(S, acc, h, hh):
+    """The end of :meth:`CompliantPlant.step`: the link's velocities and angles."""
+    for i in range(S.shape[1]):
+        vn = S[V, i] + h * acc[i]
+        S[A_PREV, i] = (vn - S[V, i]) / h
+        S[V, i] = vn
+        S[Q, i] = S[QM, i] + hh * vn
+
+
+def jit_all(njit) -> None:
+    """Replace every function of this module by ``njit(function)``."""
+    import types
+
+    g = globals()
+    for name, obj in list(g.items()):
+        if isinstance(obj, types.FunctionType) and obj.__module__ == __name__ and \
+                name != "jit_all":
+            g[name] = njit(obj)
