@@ -6,9 +6,11 @@ For each robot, ``mrm bench``'s window (the VDC loop on the paper's quintic, aft
 runs alternately with ``kernel="numba"`` and ``kernel="python"``; it prints the real-time factor
 of each (CPU time of this process over simulated time: the machine is shared, wall time is
 noisier), best and median of the rounds, their ratio, and that the two trace hashes are equal.
-Then one more run of each with the loop's parts timed (``--breakdown``, on by default): CPU
-µs per simulated 1 ms period spent in the plant step, the master, the gateware side (nodes,
-encoders, link) and the rest of the loop.
+Then one more run of each with the loop's parts timed (on by default, ``--no-breakdown``):
+CPU µs per simulated 1 ms period spent in the fast steps (the compiled path's plain plant
+steps, plant and nodes together: :meth:`cosim.model.ModelBackend.fast_path`), the general
+steps' plant step, the master, the general steps' gateware side (nodes, encoders, link) and
+the rest of the loop. The timers add a little to each part.
 """
 
 from __future__ import annotations
@@ -58,13 +60,30 @@ def run(robot_name: str, kernel: str, cycles: int, breakdown: bool = False):
     """One window; returns ``(rtf, trace hash, parts)`` (CPU s per part if ``breakdown``)."""
     robot = load_robot(robot_name)
     loop = _loop(robot, kernel)
-    acc = dict.fromkeys(("plant", "master", "gateware side"), 0.0)
+    acc = dict.fromkeys(("fast steps", "plant", "master", "gateware side"), 0.0)
     if breakdown:
         _timed(loop.plant, "step", acc, "plant")
         _timed(loop.plant, "encoder_changes", acc, "plant")
-        for name in ("poll", "on_packet", "on_node_event", "next_due"):
+        for name in ("poll", "on_packet", "on_node_event", "next_due", "quiet_end"):
             _timed(loop.master, name, acc, "master")
         _timed(loop.backend, "advance", acc, "gateware side")
+        fast_path = loop.backend.fast_path
+
+        def timed_fast_path(plant, rec):
+            fast = fast_path(plant, rec)
+            if fast is None:
+                return None
+            clock = time.process_time
+
+            def timed(*a):
+                t = clock()
+                k = fast(*a)
+                acc["fast steps"] += clock() - t
+                return k
+
+            return timed
+
+        loop.backend.fast_path = timed_fast_path
     # the loop's own window timer is wall time: time the CPU from period 0 to the end instead
     begin = loop.master.begin
     marks = {}

@@ -36,7 +36,9 @@ def bench_master_and_plant(robot):
 
 
 def bench_backend(backend: str, robot="mrm3", cycles: int | None = None) -> dict:
-    """Run ``cycles`` of the VDC loop after the start-up; time only the loop.
+    """Run ``cycles`` of the VDC loop after the start-up; time only the loop. Returns the
+    wall-clock real-time factor ``rtf`` and the CPU one ``cpu_rtf`` (this process's CPU time
+    over the same window: on a shared machine the steadier of the two).
 
     The loop times its own window, from period 0 to its end
     (:attr:`cosim.closed_loop.LoopResult.window_wall_s`): the start-up (link, uploads:
@@ -47,13 +49,14 @@ def bench_backend(backend: str, robot="mrm3", cycles: int | None = None) -> dict
     check_robot_fits(robot, "robot")
     cycles = WINDOWS[backend] if cycles is None else cycles
 
-    def once(n: int) -> float:
+    def once(n: int):
         master, plant = bench_master_and_plant(robot)
         result, _ = run_loop(robot, backend, master, plant, STARTS[backend],
                              node_uploads(robot, "vdc", Gains()), n)
-        return result.window_wall_s
+        return result.window_wall_s, result.window_cpu_s
 
     once(0)                              # build (compiled) and warm caches
-    wall = once(cycles)
-    return {"cycles": cycles, "wall_s": wall, "cycles_per_s": cycles / wall,
-            "rtf": wall / (cycles / CLOCK_HZ)}
+    wall, cpu = once(cycles)
+    return {"robot": robot.name, "cycles": cycles, "wall_s": wall, "cpu_s": cpu,
+            "cycles_per_s": cycles / wall, "rtf": wall / (cycles / CLOCK_HZ),
+            "cpu_rtf": cpu / (cycles / CLOCK_HZ)}

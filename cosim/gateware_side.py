@@ -177,6 +177,16 @@ class GatewareSide(ABC):
         """The loop's plant (:class:`models.plant.Plant`), before its first step: a backend
         may run its step on compiled code (the model backend's kernel does)."""
 
+    def fast_path(self, plant, rec):
+        """Optional: a callable that runs whole plant steps itself, when neither the master nor
+        the gateware side has anything but plain work in them (the model backend's compiled
+        path): ``fast(i, stop, cycle, end_limit)`` runs the steps ``i, i + 1, …`` (before
+        ``stop``) starting at ``cycle``, each ending at or before ``end_limit`` and before
+        anything the backend must hand to Python, writes trace rows ``rec[0, i]`` (angles) and
+        ``rec[1, i]`` (torques) and returns how many it ran (0: the loop's general step runs).
+        Results equal the general step's bit for bit. None (the default): no fast path."""
+        return None
+
     def begin(self, cycle: int, period_cycles: int) -> None:  # noqa: B027 - optional hook
         """Period 0 of the master's grid (``period_cycles`` long) starts at ``cycle``, the
         current cycle."""

@@ -51,11 +51,14 @@ integral).
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 
 from mrm_cosim.cosim.gateware_side import GatewareSide, Observed, PlantLines, Reply
 from mrm_cosim.cosim.model_link import LINK_UP_CYCLE, LinkTiming
+from mrm_cosim.cosim import model_kernel_src as ksrc
 from mrm_cosim.cosim.model_kernel import (KernelArrays, KernelEncoder, KernelNode,
-                                          kernel_choice, load, load_plant)
+                                          KernelVdc, kernel_choice, load, load_plant)
+from mrm_cosim.errors import InputError
 from mrm_cosim.cosim.model_node import EncoderEvents, FastNode
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.protocol import packet as ref
@@ -147,17 +150,26 @@ class ModelBackend(GatewareSide):
             self.encoders = [KernelEncoder(kern, arrays, k, enc, c)
                              for k, (enc, c) in enumerate(zip(encs, counts, strict=True))]
             for k, node in enumerate(self.nodes):
-                node.bind(arrays, k)
+                node.bind(arrays, k, kern)
+                KernelVdc.adopt(node.vdc)
             self._plain = np.zeros(self.n, dtype=np.bool_)
             self._chg_lines = None
             self._fed = 0
+            # the fast path's floats: the plant's constants, then the torque outputs
+            self._F = np.zeros(ksrc.F_SIZE + 2 * self.n)
+        self._horizon_end = None        # fast path: steps may end up to here (None: recompute)
+        #: plant steps the fast path ran, by how the plant step ended (free, stick-slip: the
+        #: likely pattern or stuck, the general solve)
+        self.fast_steps = {"free": 0, "stick-slip": 0, "solve": 0}
+        self._fast_end = 0              # fast path: the end of its last step (node._done)
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
             node.lazy = self.lazy
             node.events = []                    # the observation port, for the timeline
             node.attach(encoder)
         self._samplers = [e.sample for e in self.encoders]
         self._link = LinkTiming(self.n)
-        self._torque = np.zeros(self.n)         # (the kernel writes the plain nodes' torques)
+        # (the kernel writes the plain nodes' torques)
+        self._torque = np.zeros(self.n) if kern is None else self._F[ksrc.F_SIZE + self.n:]
 
     def attach_plant(self, plant) -> None:
         """With the compiled kernel, the plant's step runs on it too
@@ -176,11 +188,15 @@ class ModelBackend(GatewareSide):
         return self._torque
 
     def send(self, action) -> None:
+        self._horizon_end = None
         self._link.send(action, self.cycle)
 
     async def advance(self, n: int, lines: PlantLines, offset: int = 0) -> Observed:
         start = self.cycle
         end = start + n
+        self._horizon_end = None
+        if self._fast_end:
+            self._sync_done()
         if self._kern is not None:
             events = self._run_kernel(start, n, lines, offset)
         elif self.lazy:
@@ -214,12 +230,138 @@ class ModelBackend(GatewareSide):
                               f"at cycle {cycle} are not the master's grid")
 
     def finish(self) -> None:
+        if self._fast_end:
+            self._sync_done()
         if self._kern is not None:
             for node in self.nodes:
                 node.pull()
         for k, node in enumerate(self.nodes):
             if node.tripped:
                 self._violate(f"node {k + 1}: the watchdog tripped")
+
+    # --- the fast path ---------------------------------------------------------------------
+    def fast_path(self, plant, rec):
+        """With the compiled kernel and the plant on it (:meth:`attach_plant`): whole plain plant
+        steps in three calls each — :func:`models.plant_kernel_src.pre_free`, ``pin.aba`` and
+        :func:`cosim.model_kernel_src.fast_step` (the rest of the plant step, the trace row,
+        the count changes, every node's ticks and torques); the stick-slip solve, where a step
+        needs it, in Python between them (:meth:`Plant.kernel_parts
+        <models.plant.Plant.kernel_parts>`). A step is plain when it ends at or before every
+        node's next special cycle (:meth:`FastNode.next_special
+        <cosim.model_node.FastNode.next_special>`) + 1, every packet or time-code reaching a
+        node, every pending observation-port strobe and every reply reaching the master
+        (:meth:`_horizon`). The same operations as :meth:`_run_kernel` and
+        :meth:`Plant.step <models.plant.Plant.step>` in the same order, so the same results bit
+        for bit (tests/test_model_backend.py)."""
+        from mrm_cosim.models.plant import Plant
+
+        if self._kern is None or getattr(plant, "_kern", None) is None:
+            return None
+        cls = type(plant)
+        if cls.step is not Plant.step or cls._step_kernel is not Plant._step_kernel or \
+                cls.kernel_parts is not Plant.kernel_parts:
+            return None                 # a plant whose step is not this one's: its own step
+        if plant.cycles_per_step > ksrc.CHANGE_CAP or \
+                rec.shape[0] != 2 or rec.shape[2] != self.n or rec.dtype != np.float64:
+            return None
+        F = self._F
+        F[ksrc.F_H] = plant.dt
+        F[ksrc.F_HH] = 0.5 * plant.dt
+        F[ksrc.F_FRICTION] = 1.0 if plant.friction_on else 0.0
+        F[ksrc.F_SIZE:ksrc.F_SIZE + self.n] = plant.counts_per_rad
+        self._arrays.IB[ksrc.H_CYCLES] = plant.cycles_per_step
+        pk = load_plant()
+        step = plant.cycles_per_step
+
+        def fast(i: int, stop: int, cycle: int, end_limit: int) -> int:
+            return self._fast(plant, pk, rec, step, i, stop, cycle, end_limit)
+
+        return fast
+
+    def _horizon(self) -> int:
+        """The latest end of a plain step from now (:meth:`fast_path`)."""
+        end = ksrc.NEVER
+        inbox = self._link.inbox
+        for k, node in enumerate(self.nodes):
+            x = node.next_special() + 1
+            for e in inbox[k]:
+                if e[0] < x:
+                    x = e[0]
+            for c, _ in node.events:
+                if c < x:
+                    x = c
+            if x < end:
+                end = x
+        for r in self._link.replies:
+            if r[0] < end:
+                end = r[0]
+        return end
+
+    def _fast(self, plant, pk, rec, s: int, i: int, stop: int, cycle: int, lim: int) -> int:
+        """:meth:`fast_path`'s callable."""
+        hz = self._horizon_end
+        if hz is None:
+            hz = self._horizon_end = self._horizon()
+        if hz < lim:
+            lim = hz
+        if i >= stop or cycle + s > lim:
+            return 0
+        if cycle != self.cycle or cycle != self._fed:
+            raise ValueError(f"fast path at cycle {cycle}, the backend at {self.cycle}")
+        for node in self.nodes:
+            if not node.in_kernel:
+                node.push()
+        S, C, model, data, qm, vm, force, solve, stepped = plant.kernel_parts()
+        IB, F, tau = self._arrays.IB, self._F, self._torque
+        hh = float(F[ksrc.F_HH])
+        friction = float(F[ksrc.F_FRICTION])
+        pre_free, fast_step = pk.pre_free, self._kern.fast_step
+        aba, nle, crba = pin.aba, pin.nonLinearEffects, pin.crba
+        no_a, no_M = np.zeros(self.n), np.zeros((self.n, self.n))
+        j = i
+        r = 0
+        n_stick = n_solve = 0
+        while j < stop and cycle + s <= lim:
+            code = pre_free(S, C, tau, hh, friction)
+            if code == 1:
+                r = fast_step(IB, F, S, aba(model, data, qm, vm, force), no_M, rec, j, cycle, 1)
+            elif code == 0:
+                r = 1
+            else:
+                raise InputError("tau_cmd", f"must be finite, not {tau.tolist()!r}")
+            if r == 1:                  # the stick-slip solve (crba also where stuck needs
+                bias = nle(model, data, qm, vm)     # none: it changes nothing they read)
+                M = crba(model, data, qm)
+                n_stick += 1
+                r = fast_step(IB, F, S, bias, M, rec, j, cycle, 2)
+                if r == 4:
+                    n_solve += 1
+                    solve(M)
+                    r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0)
+            j += 1
+            if r:
+                break
+            cycle += s
+        stepped(j - i)
+        counts = self.fast_steps
+        counts["free"] += j - i - n_stick
+        counts["stick-slip"] += n_stick - n_solve
+        counts["solve"] += n_solve
+        if r == 2:                      # the plant stepped, the nodes did not
+            PlantLines(plant).changes()         # the reference raises EncoderOverspeed
+            raise AssertionError("model kernel: an overspeed the reference missed")
+        if r == 3:
+            raise RuntimeError("model kernel: an unobserved torque word was sampled")
+        self.cycle = self._fed = self._fast_end = cycle
+        return j - i
+
+    def _sync_done(self) -> None:
+        """After fast steps: the nodes' ``_done``, as :meth:`_run_kernel` leaves it."""
+        last = self._fast_end - 1
+        self._fast_end = 0
+        for node in self.nodes:
+            if node._done < last:
+                node._done = last
 
     # --- conditions ------------------------------------------------------------------------
     def _violate(self, message: str) -> None:
@@ -348,8 +490,11 @@ class ModelBackend(GatewareSide):
                     if reply is not None:
                         self._link.reply(k, node.reply_cycle(c, ptype), ptype, reply, seq)
                 del box[:i]
-            node.run(end - 1, sample)
-            self._torque[k] = FORCE.decode(node.torque_at(end - 1))
+            if self._kern is not None:
+                self._torque[k] = FORCE.decode(node.run_torque(end - 1, sample))
+            else:
+                node.run(end - 1, sample)
+                self._torque[k] = FORCE.decode(node.torque_at(end - 1))
             self._collect(k, node, end, out)
         return out
 

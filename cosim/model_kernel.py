@@ -32,6 +32,8 @@ from functools import cache
 import numpy as np
 
 from mrm_cosim.cosim.model_node import FastNode
+from mrm_cosim.hdl.node.core_ref import NodeModel
+from mrm_cosim.hdl.node.vdc_ref import VdcModel
 from mrm_cosim.cosim import model_kernel_src as src
 from mrm_cosim.models import compliant_kernel_src as compliant_src
 from mrm_cosim.models import plant_kernel_src as plant_src
@@ -41,13 +43,11 @@ from mrm_cosim.protocol.joint_program import MODES, joint_microcode, pid_formats
 from mrm_cosim.protocol.regs import Config
 
 __all__ = ["load", "load_plant", "kernel_choice", "KernelEncoder", "KernelNode", "KernelArrays",
-           "point_shifts", "param_row"]
+           "KernelVdc", "point_shifts", "param_row"]
 
-#: Buffer sizes per node (changes of one plant step are ≤ 500 per line; the queues empty at
-#: every observed tick, at least once a plant step). Overflow raises.
-PEND_CAP, VIS_CAP, PIPE_CAP, DUE_CAP = 2048, 2048, 64, 4096
-#: Count changes of one joint in one plant step (at most one per cycle: 500 at 10 µs).
-CHANGE_CAP = 1024
+#: Buffer sizes per node (:mod:`cosim.model_kernel_src`, which lays them out in one blob).
+PEND_CAP, VIS_CAP, PIPE_CAP, DUE_CAP = src.PEND_CAP, src.VIS_CAP, src.PIPE_CAP, src.DUE_CAP
+CHANGE_CAP = src.CHANGE_CAP
 
 _loaded = None          # the compiled module, False if it cannot be, None before trying
 
@@ -97,6 +97,7 @@ def _warm_up_plant(k) -> None:
     S = np.zeros((k.S_ROWS, 2))
     C = np.ones((k.C_ROWS, 2))
     k.pre(S, C, np.zeros(2), 5e-6)
+    k.pre_free(S, C, np.zeros(2), 5e-6, 1.0)
     k.free_force(S, 1.0)
     k.free_end(S, np.zeros(2), 1e-5, True)
     k.stuck(S, np.zeros(2))
@@ -114,9 +115,10 @@ def _warm_up_compliant(k) -> None:
     k.finish(S, np.zeros(2), 1e-5, 5e-6)
 
 
-def _warm_up(k) -> None:
-    """Compile (or load from numba's cache) every entry point once, on throw-away arrays."""
+def _throw_away() -> KernelArrays:
+    """One node's arrays in a state the kernel can run (for the warm-up)."""
     a = KernelArrays(1)
+    a.IB[src.H_CYCLES] = 500
     a.E[0, src.E_KNOWN] = -1
     a.E[0, src.E_MINWIN] = a.E[0, src.E_STOP] = 10
     a.E[0, src.E_KV] = 100
@@ -125,6 +127,20 @@ def _warm_up(k) -> None:
     a.E[0, src.E_LAST_C] = a.E[0, src.E_TAKEN] = -1
     a.N[0, src.N_TICK] = 50
     a.P[0, src.P_CYC:src.P_CYC + 3] = 40
+    return a
+
+
+def _warm_up(k) -> None:
+    """Compile (or load from numba's cache) every entry point once, on throw-away arrays."""
+    b = _throw_away()
+    F = np.zeros(src.F_SIZE + 2)
+    F[src.F_H], F[src.F_HH] = 1e-5, 5e-6
+    k.fast_step(b.IB, F, np.zeros((plant_src.S_ROWS, 1)), np.zeros(1), np.ones((1, 1)),
+                np.zeros((2, 1, 1)), 0, 0, 1)
+    z6, z13 = np.zeros(6, dtype=np.int64), np.zeros(13, dtype=np.int64)
+    k.vdc_link(z13, z6, z13, z13, z13, z6, z6, z6, np.zeros(3, dtype=np.int64), z6,
+               z13.copy())
+    a = _throw_away()
     z = np.zeros(0, dtype=np.int64)
     tau = np.zeros(1)
     k.step_changes(np.array([[0.0], [1.0], [-5e4], [1e-5]]), np.array([1.27e5]), 1e-5, 500,
@@ -191,18 +207,21 @@ class KernelArrays:
     ``E`` and the encoders' queues."""
 
     def __init__(self, n: int):
-        self.N = np.zeros((n, src.N_SIZE), dtype=np.int64)
-        self.P = np.zeros((n, src.P_SIZE), dtype=np.int64)
-        self.E = np.zeros((n, src.E_SIZE), dtype=np.int64)
-        self.PEND = np.zeros((n, 2, PEND_CAP, 2), dtype=np.int64)
-        self.VIS = np.zeros((n, VIS_CAP, 2), dtype=np.int64)
-        self.PIPE = np.zeros((n, PIPE_CAP, 4), dtype=np.int64)
-        self.DUE = np.zeros((n, DUE_CAP), dtype=np.int64)
-        # the count changes of the current plant step (step_changes) and the next one to feed
-        self.CHC = np.zeros((n, CHANGE_CAP), dtype=np.int64)
-        self.CHN = np.zeros((n, CHANGE_CAP), dtype=np.int64)
-        self.NCH = np.zeros(n, dtype=np.int64)
-        self.CUR = np.zeros(n, dtype=np.int64)
+        shapes = ((n, src.N_SIZE), (n, src.P_SIZE), (n, src.E_SIZE), (n, 2, PEND_CAP, 2),
+                  (n, VIS_CAP, 2), (n, PIPE_CAP, 4), (n, DUE_CAP), (n, CHANGE_CAP),
+                  (n, CHANGE_CAP), (n,), (n,))
+        sizes = [int(np.prod(sh)) for sh in shapes]
+        #: every array below is a view of this one (:func:`cosim.model_kernel_src.blob_views`),
+        #: so the fast path passes one argument for all of them
+        self.IB = np.zeros(src.H_SIZE + sum(sizes), dtype=np.int64)
+        self.IB[src.H_N] = n
+        views, o = [], src.H_SIZE
+        for sh, size in zip(shapes, sizes, strict=True):
+            views.append(self.IB[o:o + size].reshape(sh))
+            o += size
+        (self.N, self.P, self.E, self.PEND, self.VIS, self.PIPE, self.DUE,
+         # the count changes of the current plant step (step_changes) and the next one to feed
+         self.CHC, self.CHN, self.NCH, self.CUR) = views
 
     def rows(self, k: int) -> tuple:
         """Node ``k``'s encoder views ``(E, PEND, VIS, PIPE, DUE)``."""
@@ -300,6 +319,29 @@ class KernelEncoder:
         self._k.enc_preset(self._E, self._vis, self._pipe, self._due, c, value)
 
 
+class KernelVdc(VdcModel):
+    """:class:`~hdl.node.vdc_ref.VdcModel` whose per-link computation runs compiled
+    (:func:`cosim.model_kernel_src.vdc_link`, same words bit for bit; tests/test_model_kernel.py);
+    the step around it is the reference's. :meth:`adopt` turns a node's model into one."""
+
+    @classmethod
+    def adopt(cls, vdc: VdcModel) -> None:
+        """Make ``vdc`` (a node's :class:`VdcModel`, state kept) run its links compiled."""
+        vdc.__class__ = cls
+
+    def _link(self, i, V, V_r, dV, g):
+        p = self.params
+        F = np.empty(6, dtype=np.int64)
+        new = np.empty(13, dtype=np.int64)
+        arr = np.array
+        src.vdc_link(arr(self.theta[i], dtype=np.int64), arr(p.K[i], dtype=np.int64),
+                     arr(p.rho_T[i], dtype=np.int64), arr(p.lower[i], dtype=np.int64),
+                     arr(p.upper[i], dtype=np.int64), arr(V, dtype=np.int64),
+                     arr(V_r, dtype=np.int64), arr(dV, dtype=np.int64),
+                     arr(g, dtype=np.int64), F, new)
+        return F.tolist(), new.tolist()
+
+
 _TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX, _RAMP = (int(c) for c in (
     Config.TICK, Config.MODE, Config.TIMEOUT, Config.TAU_MIN, Config.TAU_MAX, Config.RAMP))
 
@@ -312,10 +354,64 @@ class KernelNode(FastNode):
     in_kernel = False
     _row = None
     _prow = None
+    _prow_of = None         # the joint's parameter words the row holds (None: write it again)
 
-    def bind(self, arrays: KernelArrays, k: int) -> None:
+    def _param(self, bank: int, addr: int, w: int) -> None:
+        self._prow_of = None                # a host write may change a joint word
+        FastNode._param(self, bank, addr, w)
+
+    _kern = None
+
+    def bind(self, arrays: KernelArrays, k: int, kern=None) -> None:
+        """Row ``k`` of ``arrays``; with ``kern`` (the compiled module), :meth:`run` runs the
+        plain ticks there too."""
         self._row = arrays.N[k]
         self._prow = arrays.P[k]
+        self._erows = (arrays.E[k], arrays.VIS[k], arrays.PIPE[k], arrays.DUE[k])
+        self._kern = kern
+
+    def run(self, until: int, sample=None, stay: bool = False) -> None:
+        """:meth:`FastNode.run` with its runs of plain ticks in the kernel
+        (:func:`~cosim.model_kernel_src.node_plain`, the translation of that loop's lazy
+        branch; the row is pushed first) and the timer's other events in the reference's event
+        loop (the row pulled back first). The object holds the state on return, unless
+        ``stay`` (then the row may: :meth:`pull` before reading it)."""
+        if sample is not None:
+            self._sample = sample
+        if self._kern is None or not self.lazy or self._sample is None:
+            self.pull()
+            FastNode.run(self, until)
+            return
+        node_plain = self._kern.node_plain
+        E, vis, pipe, due = self._erows
+        while True:
+            special = self.next_special()
+            lim = special if special < until else until
+            if self._nt < lim:
+                if not self.in_kernel:
+                    self.push()
+                node_plain(self._row, self._prow, E, vis, pipe, due, lim)
+            if special >= until:
+                break
+            self.pull()
+            NodeModel.run(self, special + 1)
+        if not stay:
+            self.pull()
+        if until > self._done:
+            self._done = until
+
+    def run_torque(self, until: int, sample) -> int:
+        """``run(until, sample)`` then ``torque_at(until)``, the node left in the kernel where
+        its ticks ran there (:func:`~cosim.model_kernel_src.torque_at`, the translation of
+        :meth:`FastNode.torque_at`): what the backend does at the end of every piece, without
+        a pull and the next piece's push."""
+        self.run(until, sample, stay=True)
+        if self.in_kernel:
+            w = int(self._kern.torque_at(self._row, until))
+            if self._row[src.N_TORQUE_NONE]:
+                raise RuntimeError("model kernel: an unobserved torque word was sampled")
+            return w
+        return self.torque_at(until)
 
     def push(self) -> None:
         """The object's tick state into the kernel's row; the kernel owns it from now."""
@@ -352,7 +448,9 @@ class KernelNode(FastNode):
         N[src.N_TICK], N[src.N_MODE], N[src.N_TIMEOUT] = cfg[_TICK], cfg[_MODE], cfg[_TIMEOUT]
         N[src.N_TAU_MIN], N[src.N_TAU_MAX], N[src.N_RAMP] = \
             cfg[_TAU_MIN], cfg[_TAU_MAX], cfg[_RAMP]
-        param_row(j.params, self._prow)
+        if self._prow_of is not j.params:
+            param_row(j.params, self._prow)
+            self._prow_of = j.params
         self.in_kernel = True
 
     def pull(self) -> None:

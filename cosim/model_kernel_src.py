@@ -28,11 +28,14 @@ import math
 import numpy as np
 
 from mrm_cosim.hdl.node.encoder_ref import VEL_LATENCY as _VEL_LATENCY
+from mrm_cosim.models import plant_kernel_src as plant_src
 from mrm_cosim.models.encoder import _FEW_CHANGES
 from mrm_cosim.protocol.encoder import AGE_MAX as _AGE_MAX
 from mrm_cosim.protocol.encoder import DC_MAX as _DC_MAX
 from mrm_cosim.protocol.encoder import RECIP_TABLE
 from mrm_cosim.protocol.fixed import FORCE as _FORCE
+from mrm_cosim.protocol.fixed import WORD_MAX as _WORD_MAX
+from mrm_cosim.protocol.fixed import WORD_MIN as _WORD_MIN
 
 # --- node state row (FastNode / NodeModel fields the plain ticks read or write) -------------
 N_NT, N_TORQUE, N_TORQUE_NONE = 0, 1, 2
@@ -782,6 +785,198 @@ def plain_step(NS, PS, ES, VIS, PIPE, DUE, PEND, plain, start, n, offset, CHC, C
             if NS[k, N_TORQUE_NONE]:
                 bad = True
     return bad
+
+
+# --- the VDC unit's per-link computation (VdcModel._link, hdl/node/vdc_ref.py) --------------
+# Exactness: every word is 24 bits; a regressor entry is a sum of at most three summands
+# (< 2^25.6), a product with a THETA, GAIN or error word < 2^48.6, a row's or column's sum of
+# them < 2^52.3, and the widest rounding point (the force row: the first group's sum shifted 8
+# bits left) < 2^61 (tests/test_model_kernel.py checks the bounds on the tables and runs
+# saturated words against the reference).
+
+
+def _vdc_point(fmt, *lsbs):
+    """``fx_point(fmt, *lsbs)``'s left shifts and right shift (at import time, in Python)."""
+    low = min(*lsbs, fmt.lsb)
+    return tuple(lsb - low for lsb in lsbs) + (fmt.lsb - low,)
+
+
+def _vdc_tables():
+    from mrm_cosim.protocol.fixed import ACC, FORCE, GAIN, RHOT, SIG, THETA, VEL
+    from mrm_cosim.protocol.fixed import theta_group
+    from mrm_cosim.protocol.vdc_program import Y_TABLE
+
+    def index(kind, idx):
+        return {"a": 0, "P": 3 + 3 * (idx // 10) + idx % 10, "dw": 12}[kind] + \
+            (0 if kind == "P" else idx)
+
+    terms = [(r, c, sgn, index(kind, idx)) for (r, c), summands in sorted(Y_TABLE.items())
+             for sgn, kind, idx in summands]
+    pts = {
+        "A": _vdc_point(ACC, ACC.lsb, 2 * VEL.lsb),
+        "P": _vdc_point(ACC, 2 * VEL.lsb),
+        "VEL": _vdc_point(VEL, VEL.lsb),
+        "F": _vdc_point(FORCE, *(ACC.lsb + fmt.lsb for fmt in THETA), GAIN.lsb + VEL.lsb),
+        "SIG": _vdc_point(SIG, ACC.lsb + VEL.lsb),
+    }
+    delta = [_vdc_point(THETA[g], RHOT[g].lsb + SIG.lsb) for g in range(3)]
+    theta = [_vdc_point(THETA[g], THETA[g].lsb) for g in range(3)]
+    return (np.array(terms, dtype=np.int64),
+            np.array([theta_group(j) for j in range(13)], dtype=np.int64),
+            np.array(pts["A"], dtype=np.int64), np.array(pts["P"], dtype=np.int64),
+            np.array(pts["VEL"], dtype=np.int64), np.array(pts["F"], dtype=np.int64),
+            np.array(pts["SIG"], dtype=np.int64), np.array(delta, dtype=np.int64),
+            np.array(theta, dtype=np.int64))
+
+
+(VDC_TERMS, VDC_GROUP, VDC_PT_A, VDC_PT_P, VDC_PT_VEL, VDC_PT_F, VDC_PT_SIG, VDC_PT_DELTA,
+ VDC_PT_THETA) = _vdc_tables()
+WORD_LO, WORD_HI = _WORD_MIN, _WORD_MAX
+
+
+def _vround(v, r):
+    """A rounding point's end: half up by ``r`` bits, then the 24-bit saturation."""
+    if r:
+        v = (v + (1 << (r - 1))) >> r
+    return WORD_LO if v < WORD_LO else WORD_HI if v > WORD_HI else v
+
+
+def vdc_link(th, K, rho, lower, upper, V, Vr, dV, g, F, new):
+    """:meth:`VdcModel._link <hdl.node.vdc_ref.VdcModel._link>` of one link: its parameter
+    words ``th`` (13), the gains ``K`` (6), ``rho`` (13), the bounds ``lower``/``upper`` (13)
+    and the inputs ``V``, ``Vr``, ``dV`` (6), ``g`` (3); the force words into ``F`` (6), the
+    adapted estimates into ``new`` (13)."""
+    w = np.empty(15, dtype=np.int64)
+    pa, pp, pv, pf, ps = VDC_PT_A, VDC_PT_P, VDC_PT_VEL, VDC_PT_F, VDC_PT_SIG
+    for k in range(3):
+        w[k] = _vround(((dV[k] + g[k]) << pa[0])
+                       + ((V[3 + (k + 1) % 3] * Vr[(k + 2) % 3]
+                           - V[3 + (k + 2) % 3] * Vr[(k + 1) % 3]) << pa[1]), pa[2])
+    for m in range(3):
+        for n in range(3):
+            w[3 + 3 * m + n] = _vround((V[3 + m] * Vr[3 + n]) << pp[0], pp[1])
+    for k in range(3):
+        w[12 + k] = dV[3 + k]
+    e = np.empty(6, dtype=np.int64)
+    for k in range(6):
+        e[k] = _vround((Vr[k] - V[k]) << pv[0], pv[1])
+    y = np.zeros((6, 13), dtype=np.int64)      # absent entries stay 0 and add nothing
+    for t in range(VDC_TERMS.shape[0]):
+        if VDC_TERMS[t, 2] > 0:
+            y[VDC_TERMS[t, 0], VDC_TERMS[t, 1]] += w[VDC_TERMS[t, 3]]
+        else:
+            y[VDC_TERMS[t, 0], VDC_TERMS[t, 1]] -= w[VDC_TERMS[t, 3]]
+    sums = np.zeros(3, dtype=np.int64)
+    for row in range(6):
+        sums[:] = 0
+        for col in range(13):
+            sums[VDC_GROUP[col]] += y[row, col] * th[col]
+        F[row] = _vround((sums[0] << pf[0]) + (sums[1] << pf[1]) + (sums[2] << pf[2])
+                         + ((K[row] * e[row]) << pf[3]), pf[4])
+    for j in range(13):
+        v = 0
+        for row in range(6):
+            v += y[row, j] * e[row]
+        gr = VDC_GROUP[j]
+        sig = _vround(v << ps[0], ps[1])
+        d = _vround((rho[j] * sig) << VDC_PT_DELTA[gr, 0], VDC_PT_DELTA[gr, 1])
+        t = _vround((th[j] + d) << VDC_PT_THETA[gr, 0], VDC_PT_THETA[gr, 1])
+        new[j] = min(max(t, lower[j]), upper[j])
+
+
+# --- the whole plain plant step in one call (ModelBackend's fast path) -----------------------
+#: Buffer sizes per node (changes of one plant step are ≤ 500 per line; the queues empty at
+#: every observed tick, at least once a plant step). Overflow raises.
+PEND_CAP, VIS_CAP, PIPE_CAP, DUE_CAP = 2048, 2048, 64, 4096
+#: Count changes of one joint in one plant step (at most one per cycle: 500 at 10 µs).
+CHANGE_CAP = 1024
+#: The int64 blob (:class:`cosim.model_kernel.KernelArrays`): a header (``H_N`` nodes,
+#: ``H_CYCLES`` cycles per plant step), then the arrays of :func:`blob_views`, one after the
+#: other. The float64 blob: ``F_H``, ``F_HH`` (the plant step and its half), ``F_FRICTION`` (1.0
+#: with friction), then the counts per rad (n) and the torque outputs (n).
+H_N, H_CYCLES, H_SIZE = 0, 1, 8
+F_H, F_HH, F_FRICTION, F_SIZE = 0, 1, 2, 4
+
+
+def blob_views(IB):
+    """The kernel's arrays as views of the int64 blob ``IB``: ``N, P, E, PEND, VIS, PIPE, DUE,
+    CHC, CHN, NCH, CUR`` (shapes as :class:`cosim.model_kernel.KernelArrays`)."""
+    n = IB[H_N]
+    o = H_SIZE
+    N = IB[o:o + n * N_SIZE].reshape((n, N_SIZE))
+    o += n * N_SIZE
+    P = IB[o:o + n * P_SIZE].reshape((n, P_SIZE))
+    o += n * P_SIZE
+    E = IB[o:o + n * E_SIZE].reshape((n, E_SIZE))
+    o += n * E_SIZE
+    PEND = IB[o:o + n * 2 * PEND_CAP * 2].reshape((n, 2, PEND_CAP, 2))
+    o += n * 2 * PEND_CAP * 2
+    VIS = IB[o:o + n * VIS_CAP * 2].reshape((n, VIS_CAP, 2))
+    o += n * VIS_CAP * 2
+    PIPE = IB[o:o + n * PIPE_CAP * 4].reshape((n, PIPE_CAP, 4))
+    o += n * PIPE_CAP * 4
+    DUE = IB[o:o + n * DUE_CAP].reshape((n, DUE_CAP))
+    o += n * DUE_CAP
+    CHC = IB[o:o + n * CHANGE_CAP].reshape((n, CHANGE_CAP))
+    o += n * CHANGE_CAP
+    CHN = IB[o:o + n * CHANGE_CAP].reshape((n, CHANGE_CAP))
+    o += n * CHANGE_CAP
+    NCH = IB[o:o + n]
+    o += n
+    CUR = IB[o:o + n]
+    return N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR
+
+
+def fast_step(IB, F, S, a, M, rec, i, start, mode):
+    """One whole plant step with no event anywhere in it (:meth:`ModelBackend.fast_path
+    <cosim.model.ModelBackend.fast_path>`), after :func:`models.plant_kernel_src.pre_free` and
+    pinocchio: the rest of the plant step, the trace row ``i`` (``rec[0, i]`` the angles,
+    ``rec[1, i]`` the torques that drove the step), the step's count changes
+    (:func:`step_changes`) and every node's plain ticks to the step's last cycle with the
+    torques they output there (:func:`plain_step`, every node plain).
+
+    The rest of the plant step, as :meth:`Plant._step_kernel
+    <models.plant.Plant._step_kernel>`: ``mode`` 1, ``a`` = ``pin.aba``'s accelerations:
+    :func:`~models.plant_kernel_src.free_end`; ``mode`` 2, ``a`` = ``pin.nonLinearEffects``'
+    bias and ``M`` = ``pin.crba``'s matrix: :func:`~models.plant_kernel_src.stuck`, else
+    :func:`~models.plant_kernel_src.likely_pattern`; ``mode`` 0: the end velocities are
+    already in ``S[NEW]``; then :func:`~models.plant_kernel_src.finish`.
+
+    Returns 0; 1 if the free step does not hold (nothing else done: the caller calls again in
+    mode 2) or 4 if the likely pattern does not (the caller runs the general solve and calls
+    again in mode 0); 2 if a joint moved more than one count in a cycle (the plant has
+    stepped, the nodes have not); 3 as :func:`plain_step`'s True."""
+    n = IB[H_N]
+    cycles = IB[H_CYCLES]
+    h = F[F_H]
+    hh = F[F_HH]
+    if mode == 1:
+        if not plant_src.free_end(S, a, h, F[F_FRICTION] != 0.0):
+            return 1
+    elif mode == 2:
+        if not plant_src.stuck(S, a) and plant_src.likely_pattern(S, M, h) != 1:
+            return 4
+    plant_src.finish(S, h, hh)
+    N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR = blob_views(IB)
+    K = F[F_SIZE:F_SIZE + n]
+    tau = F[F_SIZE + n:F_SIZE + 2 * n]
+    M = np.empty((4, n))
+    for j in range(n):
+        M[0, j] = S[plant_src.Q_START, j]
+        M[1, j] = S[plant_src.V_START, j]
+        M[2, j] = S[plant_src.A_PREV, j]
+        M[3, j] = S[plant_src.Q, j]
+        rec[0, i, j] = S[plant_src.Q, j]
+        rec[1, i, j] = tau[j]
+    if step_changes(M, K, h, cycles, CHC, CHN, NCH):
+        return 2
+    plain = np.ones(n, dtype=np.bool_)
+    for k in range(n):
+        CUR[k] = 0
+    if plain_step(N, P, E, VIS, PIPE, DUE, PEND, plain, start, cycles, 0, CHC, CHN, NCH, CUR,
+                  tau):
+        return 3
+    return 0
 
 
 def jit_all(njit) -> None:

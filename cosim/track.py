@@ -11,7 +11,7 @@ from mrm_cosim.cosim.closed_loop import ClosedLoop
 from mrm_cosim.cosim.experiment_config import MAX_DURATION, check_period_on_plant_grid
 from mrm_cosim.cosim.preview import paper_test_profile
 from mrm_cosim.master.cycle import Master, MasterTiming
-from mrm_cosim.master.kinematics import jacobian
+from mrm_cosim.master.kinematics import tip_points
 from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains, pid_shifts
 from mrm_cosim.models.plant import PlantConfig, make_plant
 from mrm_cosim.models.robot import load_robot
@@ -168,10 +168,8 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
                          quiet=progress is None, vcd=window, progress=progress, faults=faults)
     wall = time.perf_counter() - t0
     q_d, qd_d, _, _ = profile.evaluate(result.t)
-    tip_d = np.array([robot.tip_pose(q)[:3, 3] for q in q_d[::10]])
-    tip = np.array([robot.tip_pose(q)[:3, 3] for q in result.q[::10]])
-    speed = np.array([np.linalg.norm(jacobian(robot, q)[:3] @ v)
-                      for q, v in zip(q_d[::10], qd_d[::10], strict=True)])
+    tip_d, speed = tip_points(robot, q_d[::10], qd_d[::10])
+    tip = tip_points(robot, result.q[::10])
     err = np.linalg.norm(tip_d - tip, axis=1)
     phases = _phases_us(master)
     link_detail = link_errors_detail(result)

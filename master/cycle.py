@@ -256,6 +256,15 @@ class Master:
         self._wake = now + 1 if wake is None else wake
         return out
 
+    def quiet_end(self, step: int) -> int:
+        """For a harness stepping ``step`` cycles at a time, polling at each step's first cycle
+        and splitting its steps at :meth:`next_due`: the latest end cycle up to which no step
+        needs the master (its poll has nothing to do, no packet is due inside). Valid until the
+        master is next called."""
+        due = self.next_due()
+        end = self._wake - 1 + step
+        return end if due is None or due > end else due
+
     def next_due(self) -> int | None:
         """The earliest cycle a computed packet is waiting for (None: none waits). A harness
         that polls on a coarser grid splits its step there, so packets leave when due."""

@@ -17,7 +17,8 @@ import numpy as np
 from mrm_cosim.models.robot import Robot, load_robot
 from mrm_cosim.errors import InputError
 
-__all__ = ["forward", "jacobian", "inverse", "pose_error", "UnreachablePose", "rotation_log"]
+__all__ = ["forward", "jacobian", "inverse", "pose_error", "UnreachablePose", "rotation_log",
+           "tip_points"]
 
 
 class UnreachablePose(InputError):
@@ -48,6 +49,50 @@ def jacobian(robot, q) -> np.ndarray:
         J[:3, k] = np.cross(z, p_tip - T_A[:3, 3])
         J[3:, k] = z
     return J
+
+
+def tip_points(robot, Q, QD=None):
+    """Tool-point positions (and linear speeds) of many joint vectors at once: what
+    ``forward(robot, q)[:3, 3]`` and ``‖jacobian(robot, q)[:3] @ q̇‖`` give row by row, the
+    same frames composed on stacks of matrices (equal to them to rounding: tested within 1e-12
+    relative). For run summaries over thousands of samples.
+
+    Parameters
+    ----------
+    robot : Robot or str
+    Q : array_like, shape (m, n), rad
+    QD : array_like, shape (m, n), rad/s, optional
+
+    Returns
+    -------
+    tips : ndarray, shape (m, 3), m
+    speeds : ndarray, shape (m,), m/s (only with ``QD``)
+    """
+    robot = load_robot(robot)
+    Q = np.asarray(Q, dtype=float)
+    if Q.ndim != 2 or Q.shape[1] != robot.n:
+        raise InputError("Q", f"must have shape (samples, {robot.n}), not {Q.shape}")
+    m = Q.shape[0]
+    T = np.broadcast_to(np.eye(4), (m, 4, 4))
+    Rz = np.zeros((m, 4, 4))
+    Rz[:, 2, 2] = Rz[:, 3, 3] = 1.0
+    origins, axes = [], []
+    for k in range(robot.n):
+        c, s = np.cos(Q[:, k]), np.sin(Q[:, k])
+        Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1] = c, -s, s, c
+        T = (T @ robot.mount_transform(k)) @ Rz
+        origins.append(T[:, :3, 3])
+        axes.append(T[:, :3, 2])
+    tips = (T @ robot.tool_transform())[:, :3, 3]
+    if QD is None:
+        return tips
+    QD = np.asarray(QD, dtype=float)
+    if QD.shape != Q.shape:
+        raise InputError("QD", f"must have the shape of Q, {Q.shape}, not {QD.shape}")
+    v = np.zeros((m, 3))
+    for k in range(robot.n):
+        v += np.cross(axes[k], tips - origins[k]) * QD[:, k:k + 1]
+    return tips, np.linalg.norm(v, axis=1)
 
 
 def rotation_log(R) -> np.ndarray:

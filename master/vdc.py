@@ -57,6 +57,18 @@ def _mount_U(T) -> np.ndarray:
     return U
 
 
+def _mount_U_of(robot, k: int) -> np.ndarray:
+    """``_mount_U(robot.mount_transform(k))``, memoised on the transform's value (read it, do
+    not write it)."""
+    T = robot.mount_transform(k)
+    key = T.tobytes()
+    memo = robot.__dict__.setdefault("_mount_Us", {})
+    hit = memo.get(k)
+    if hit is None or hit[0] != key:
+        hit = memo[k] = (key, _mount_U(T))
+    return hit[1]
+
+
 _ZX = np.zeros((6, 6))
 _ZX[0, 1], _ZX[1, 0], _ZX[3, 4], _ZX[4, 3] = -1.0, 1.0, -1.0, 1.0
 
@@ -99,7 +111,7 @@ def propagate_velocities(robot, q, qd, qd_r, qdd_r) -> list[ModuleKinematics]:
     dVr = BASE_ACCELERATION.copy()
     out = []
     for k in range(robot.n):
-        Um = _mount_U(robot.mount_transform(k)).T
+        Um = _mount_U_of(robot, k).T
         V_C, Vr_C, dVr_C = Um @ V, Um @ Vr, Um @ dVr
         Uq = _joint_U(q[k]).T
         V_A = Uq @ V_C + Z_AXIS * qd[k]
@@ -162,7 +174,7 @@ def propagate_forces(robot, q, F_a, F_b):
     for k in reversed(range(robot.n)):
         F = F_a[k].copy()
         if k + 1 < robot.n:
-            F += _mount_U(robot.mount_transform(k + 1)) @ F_C_next
+            F += _mount_U_of(robot, k + 1) @ F_C_next
         F_A[k] = F
         F_C_next = F_b[k] + _joint_U(q[k]) @ F
     return F_A, F_A[:, 5].copy()

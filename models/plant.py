@@ -507,7 +507,7 @@ class Plant:
 
     def _step_kernel(self, arr: np.ndarray) -> None:
         """:meth:`step` on the compiled functions (:meth:`use_kernel`); ``arr`` of shape (n,)."""
-        from mrm_cosim.models.plant_kernel_src import FORCE, LEVEL, NEW, QM, V, VM
+        from mrm_cosim.models.plant_kernel_src import FORCE, QM, VM
 
         k, S, h = self._kern, self._S, self.dt
         hh = 0.5 * h
@@ -520,14 +520,59 @@ class Plant:
             k.free_force(S, 1.0 if self._has_friction else 0.0)
             done = k.free_end(S, pin.aba(model, data, S[QM], S[VM], S[FORCE]), h,
                               self._has_friction)
-        if not done and not k.stuck(S, pin.nonLinearEffects(model, data, S[QM], S[VM])):
-            M = pin.crba(model, data, S[QM])               # upper triangle filled
-            if k.likely_pattern(S, M, h) != 1:
-                M[self._lower] = M.T[self._lower]
-                S[NEW], _ = solve_stick_slip(M, h * S[FORCE], S[V].copy(), h * S[LEVEL])
+        if not done:
+            self._stick_slip_kernel()
         k.finish(S, h, hh)
         self._steps += 1
         self._stepped = True
+
+    def _stick_slip_kernel(self) -> None:
+        """:meth:`_step_kernel`'s set-valued friction solve (after ``pre``, where the free step
+        does not apply): the end velocities into the state's ``NEW`` row."""
+        k, S = self._kern, self._S
+        model, data, qm = self._model, self._data, self._qm
+        if not k.stuck(S, pin.nonLinearEffects(model, data, qm, self._vm)):
+            M = pin.crba(model, data, qm)                  # upper triangle filled
+            if k.likely_pattern(S, M, self.dt) != 1:
+                self._solve_kernel(M)
+
+    def _solve_kernel(self, M: np.ndarray) -> None:
+        """The stick-slip solve's general case (``M`` from ``crba``, upper triangle)."""
+        from mrm_cosim.models.plant_kernel_src import FORCE, LEVEL, NEW, V
+
+        S, h = self._S, self.dt
+        M[self._lower] = M.T[self._lower]
+        S[NEW], _ = solve_stick_slip(M, h * S[FORCE], S[V].copy(), h * S[LEVEL])
+
+    def kernel_parts(self) -> tuple:
+        """For a compiled caller that runs :meth:`step` itself (the model backend's fast
+        path, :meth:`cosim.model.ModelBackend.fast_path`), after :meth:`use_kernel`: ``(S, C,
+        model, data, qm, vm, force, solve, stepped)``: the state and constant arrays,
+        pinocchio's model and data and the rows it reads, :meth:`_solve_kernel` and
+        :meth:`_stepped_by`. A step is :meth:`_step_kernel`'s sequence:
+        ``pre_free(S, C, cmd, dt / 2, friction)`` (:func:`models.plant_kernel_src.pre_free`);
+        where it returns 1, ``free_end`` on ``pin.aba(model, data, qm, vm, force)``; where it
+        returns 0 or ``free_end`` fails, ``stuck`` on ``pin.nonLinearEffects(model, data, qm,
+        vm)``, else ``likely_pattern`` on ``pin.crba(model, data, qm)``, else ``solve(M)``;
+        then ``finish``; and ``stepped(k)`` after ``k`` such steps."""
+        from mrm_cosim.models.plant_kernel_src import FORCE
+
+        if self._kern is None:
+            raise RuntimeError("kernel_parts needs use_kernel first")
+        S = self._S
+        return (S, self._C, self._model, self._data, self._qm, self._vm, S[FORCE],
+                self._solve_kernel, self._stepped_by)
+
+    @property
+    def friction_on(self) -> bool:
+        """Whether the plant has joint friction (the stick-slip solve may run)."""
+        return self._has_friction
+
+    def _stepped_by(self, k: int) -> None:
+        """``k`` steps were taken by a :meth:`kernel_parts` caller."""
+        if k:
+            self._steps += k
+            self._stepped = True
 
     # --- stepping ----------------------------------------------------------------------------
     def step(self, tau_cmd) -> None:

@@ -66,6 +66,20 @@ def pre(S, C, cmd, hh):
     return sliding
 
 
+def pre_free(S, C, cmd, hh, friction):
+    """:func:`pre`, then :func:`free_force` where the free step applies (no friction, or every
+    joint slides): one call where the caller would make two (``friction`` 1.0 or 0.0, as the
+    plant's). Returns pre's -1 (nothing done), else 1 if ``S[FORCE]`` is ready for ``pin.aba``,
+    0 if the stick-slip solve must run."""
+    sliding = pre(S, C, cmd, hh)
+    if sliding < 0:
+        return -1
+    if friction == 0.0 or sliding:
+        free_force(S, friction)
+        return 1
+    return 0
+
+
 def free_force(S, with_friction):
     """``_free_step``'s generalised force into ``S[FORCE]`` (what ``pin.aba`` takes)."""
     for i in range(S.shape[1]):

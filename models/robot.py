@@ -164,9 +164,17 @@ class Robot:
 
         ``k`` is 0-based. The chain is then ``world → C_0 → Rz(q_0) → A_0 → mount(1) → C_1 …``.
         """
+        # memoised (the master asks for every mount several times a period) on all it depends
+        # on: the modules (frozen, so by identity) and the base (by value)
         mod = self.modules[k]
-        parent = self.base if k == 0 else _translation_x(self.modules[k - 1].type.length_a)
-        return parent @ homogeneous(rot_x(mod.twist)) @ _translation_x(mod.type.length_b)
+        dep = self.base.tobytes() if k == 0 else self.modules[k - 1]
+        memo = self.__dict__.setdefault("_mounts", {})
+        hit = memo.get(k)
+        if hit is None or hit[0] is not mod or not (hit[1] is dep or hit[1] == dep):
+            parent = self.base if k == 0 else _translation_x(self.modules[k - 1].type.length_a)
+            hit = memo[k] = (mod, dep, parent @ homogeneous(rot_x(mod.twist))
+                             @ _translation_x(mod.type.length_b))
+        return hit[2].copy()
 
     def tool_transform(self) -> np.ndarray:
         """Pose of the tool point in {A_N} (the last module's Link a frame)."""

@@ -85,3 +85,24 @@ def test_rotation_log_matches_pinocchio(angle):
     np.testing.assert_allclose(pin.exp3(rotation_log(R)), R, atol=1e-9)
     if angle < np.pi - 1e-3:
         np.testing.assert_allclose(rotation_log(R), pin.log3(R), atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["mrm3", "mrm6"])
+def test_tip_points_are_forward_and_jacobian_row_by_row(name):
+    """:func:`tip_points` (stacks of frames, for run summaries) gives each sample's
+    ``forward(q)[:3, 3]`` and ``‖jacobian(q)[:3] q̇‖`` to rounding."""
+    from mrm_cosim.master.kinematics import tip_points
+
+    robot = load_robot(name)
+    rng = np.random.default_rng(2)
+    Q = rng.uniform(-3.0, 3.0, (40, robot.n))
+    QD = rng.normal(0.0, 2.0, (40, robot.n))
+    tips, speeds = tip_points(robot, Q, QD)
+    assert np.array_equal(tip_points(robot, Q), tips)
+    for q, qd, tip, speed in zip(Q, QD, tips, speeds, strict=True):
+        np.testing.assert_allclose(tip, forward(robot, q)[:3, 3], rtol=1e-12, atol=1e-15)
+        assert speed == pytest.approx(np.linalg.norm(jacobian(robot, q)[:3] @ qd), rel=1e-12)
+    with pytest.raises(InputError):
+        tip_points(robot, Q[:, :2])
+    with pytest.raises(InputError):
+        tip_points(robot, Q, QD[:3])

@@ -208,6 +208,12 @@ def test_compiled_and_python_paths_give_the_same_trace(robot, controller):
     assert type(slow[4].nodes[0]).__name__ == "FastNode"
     assert fast[0].violations == slow[0].violations == []
     assert fast[0].trace_sha256 == slow[0].trace_sha256
+    # most plant steps took the fast path (GatewareSide.fast_path), the free step and the
+    # stick-slip solve both
+    steps = fast[4].fast_steps
+    assert sum(steps.values()) > 0.8 * cycles / 500 and steps["free"] > 0, steps
+    assert steps["stick-slip"] + steps["solve"] > 0, steps
+    assert slow[4].fast_steps == {"free": 0, "stick-slip": 0, "solve": 0}
     assert fast[1] == slow[1] and len(fast[1]) > 0
     assert fast[2] == slow[2]
     assert fast[3] == slow[3]
@@ -239,3 +245,75 @@ def test_the_kernel_is_chosen_by_name_or_environment(monkeypatch):
     assert mk.kernel_choice() == "numba"
     with pytest.raises(ValueError, match="'numba' or 'python', not 'c'"):
         mk.kernel_choice("c")
+
+
+def test_no_vdc_sum_leaves_int64():
+    """The compiled VDC link's widest sums, every word at its extreme (2^23): a regressor
+    entry has at most three summands, a row or column at most 13 entries; the force row's
+    rounding point (the widest) and the adaptation's stay below 2^63."""
+    w = 2**23
+    per_entry = np.bincount(src.VDC_TERMS[:, 0] * 13 + src.VDC_TERMS[:, 1]).max()
+    assert per_entry <= 3
+    y = per_entry * w                                   # |an entry of Y|
+    row = 13 * y * w                                    # Σ_col Y θ (a group's sum, at most)
+    pf = src.VDC_PT_F
+    force = sum(row << int(s) for s in pf[:3]) + ((w * w) << int(pf[3])) + (1 << int(pf[4]))
+    assert force < 2**62, force.bit_length()
+    col = 6 * y * w                                     # Σ_row Y e
+    assert (col << int(src.VDC_PT_SIG[0])) < 2**62
+    assert ((w * w) << int(src.VDC_PT_DELTA[:, 0].max())) < 2**62
+    cross = ((2 * w) << int(src.VDC_PT_A[0])) + ((2 * w * w) << int(src.VDC_PT_A[1]))
+    assert cross < 2**62
+
+
+@needs_numba
+@settings(max_examples=300, deadline=None)
+@given(link=st.integers(0, 1), th=st.lists(words, min_size=13, max_size=13),
+       K=st.lists(words, min_size=6, max_size=6), rho=st.lists(words, min_size=13, max_size=13),
+       bounds=st.lists(st.tuples(words, words), min_size=13, max_size=13),
+       V=st.lists(words, min_size=6, max_size=6), Vr=st.lists(words, min_size=6, max_size=6),
+       dV=st.lists(words, min_size=6, max_size=6), g=st.lists(words, min_size=3, max_size=3))
+def test_compiled_vdc_link_equals_the_reference(link, th, K, rho, bounds, V, Vr, dV, g):
+    """:class:`~cosim.model_kernel.KernelVdc`'s link (:func:`vdc_link`) gives
+    :meth:`VdcModel._link <hdl.node.vdc_ref.VdcModel._link>`'s force words and adapted
+    estimates bit for bit, saturated words included."""
+    from mrm_cosim.hdl.node.vdc_ref import VdcModel
+    from mrm_cosim.protocol.vdc_program import VdcParams
+
+    lower = [min(a, b) for a, b in bounds]
+    upper = [max(a, b) for a, b in bounds]
+    other = [0] * 13
+
+    def model():
+        p = VdcParams(K=[K, K[::-1]][::1 - 2 * link], rho_T=[rho, other][::1 - 2 * link],
+                      lower=[lower, other][::1 - 2 * link],
+                      upper=[upper, other][::1 - 2 * link], inv_T=0)
+        return VdcModel(p, [list(th), other][::1 - 2 * link])
+
+    ref, fast = model(), model()
+    mk.KernelVdc.adopt(fast)
+    assert type(fast).__name__ == "KernelVdc"
+    assert fast._link(link, V, Vr, dV, g) == ref._link(link, V, Vr, dV, g)
+
+
+@needs_numba
+def test_a_plant_with_its_own_step_gets_no_fast_path():
+    """The fast path runs :class:`~models.plant.Plant`'s step in pieces; a plant class that
+    steps otherwise (a subclass overriding ``step``) keeps its own step: no fast path."""
+    from mrm_cosim.cosim.model import ModelBackend
+    from mrm_cosim.models.plant import Plant
+    from mrm_cosim.models.robot import load_robot
+
+    class OwnStep(Plant):
+        def step(self, tau_cmd):
+            Plant.step(self, tau_cmd)
+
+    robot = load_robot("mrm3")
+    rec = np.zeros((2, 4, robot.n))
+    for cls, expect in ((Plant, True), (OwnStep, False)):
+        plant = cls(robot)
+        backend = ModelBackend(kernel="numba")
+        backend.power_on(plant.encoder_counts())
+        backend.attach_plant(plant)
+        assert (backend.fast_path(plant, rec) is not None) is expect, cls.__name__
+    assert ModelBackend(kernel="python").fast_path(Plant(robot), rec) is None

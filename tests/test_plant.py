@@ -550,3 +550,39 @@ def test_compiled_step_equals_the_python_step(robot_name, friction):
     ref.step(np.ones(robot.n))
     fast.step(np.ones(robot.n))
     assert ref.q.tobytes() == fast.q.tobytes()
+
+
+@pytest.mark.parametrize("friction", [1.0, 0.0])
+def test_pre_free_is_pre_then_free_force(friction):
+    """:func:`models.plant_kernel_src.pre_free` (the model backend's fast path) leaves the
+    state :func:`pre` and :func:`free_force` leave, bit for bit, and says which step follows:
+    joints at rest, sliding both ways, commands beyond the peak, a command that is not
+    finite."""
+    from mrm_cosim.cosim.model_kernel import load_plant
+
+    kern = load_plant()
+    if kern is None:
+        pytest.skip("numba cannot run here")
+    rng = np.random.default_rng(5)
+    n = 4
+    for i in range(300):
+        S = rng.normal(0.0, 1.0, (kern.S_ROWS, n))
+        if i % 3 == 0:
+            S[kern.V, rng.integers(n)] = 0.0            # a joint at rest
+        C = np.abs(rng.normal(1.0, 0.5, (kern.C_ROWS, n)))
+        C[kern.HAS_SPRING] = rng.integers(0, 2, n)
+        cmd = rng.normal(0.0, 2.0, n)
+        if i == 7:
+            cmd[1] = float("inf")
+        a, b = S.copy(), S.copy()
+        code = kern.pre_free(a, C, cmd, 5e-6, friction)
+        sliding = kern.pre(b, C, cmd, 5e-6)
+        if sliding < 0:
+            assert code == -1 and a.tobytes() == S.tobytes()
+            continue
+        if friction == 0.0 or sliding:
+            kern.free_force(b, friction)
+            assert code == 1
+        else:
+            assert code == 0
+        assert a.tobytes() == b.tobytes(), i

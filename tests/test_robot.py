@@ -367,3 +367,21 @@ def asdict_type(name: str) -> dict:
             "continuous_torque": t.continuous_torque, "max_speed": t.max_speed,
             "length_a": t.length_a, "length_b": t.length_b,
             "link_a": list(t.link_a.theta()), "link_b": list(t.link_b.theta())}
+
+
+def test_mount_transform_memo_follows_the_base_and_hands_out_copies():
+    """``Robot.mount_transform`` is memoised for the master: a changed base (in place or
+    replaced) gives the new transform, and writing into a result does not reach the memo."""
+    fresh = load_robot("mrm3")
+    robot = load_robot("mrm3")
+    first = [robot.mount_transform(k) for k in range(robot.n)]
+    assert all(np.array_equal(first[k], fresh.mount_transform(k)) for k in range(robot.n))
+    first[0][:] = 0.0
+    assert np.array_equal(robot.mount_transform(0), fresh.mount_transform(0))
+    robot.base[0, 3] += 0.25                      # in place
+    moved = robot.mount_transform(0)
+    assert moved[0, 3] == pytest.approx(fresh.mount_transform(0)[0, 3] + 0.25)
+    assert np.array_equal(robot.mount_transform(1), fresh.mount_transform(1))
+    robot.base = np.eye(4)                        # replaced
+    assert np.array_equal(robot.mount_transform(0)[:3, :3], fresh.mount_transform(0)[:3, :3]
+                          @ np.linalg.inv(fresh.base[:3, :3]))

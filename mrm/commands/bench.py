@@ -10,11 +10,12 @@ from mrm_cosim.mrm.flags import BENCH, named_by_flags
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("bench", help="simulated cycles/s and real-time factor per backend",
-                              epilog="example:\n  mrm bench --backend model --backend compiled "
-                              "--json")
+                              epilog="example:\n  mrm bench --backend model --robot mrm3 "
+                              "--robot mrm6 --json")
     p.add_argument("--backend", action="append", choices=["model", "compiled", "pysim"],
                    help="backend(s) to measure, repeatable (default: all)")
-    p.add_argument("--robot", default="mrm3", help="built-in name or assembly .toml")
+    p.add_argument("--robot", action="append",
+                   help="built-in name or assembly .toml, repeatable (default: mrm3 and mrm6)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=_bench)
 
@@ -22,18 +23,26 @@ def register(subparsers) -> None:
 @named_by_flags(BENCH)
 def _bench(args) -> int:
     from mrm_cosim.cosim.bench import bench_backend
+    from mrm_cosim.cosim.track import check_robot_fits
+    from mrm_cosim.models.robot import load_robot
 
     backends = args.backend or ["model", "compiled", "pysim"]
-    for name in backends:
-        if backends.count(name) > 1:
-            raise InputError("--backend", f"{name!r} given more than once")
-    out = {"robot": args.robot, "backends": {}}
-    for name in backends:
-        out["backends"][name] = bench_backend(name, args.robot)
-        if not args.json:
-            r = out["backends"][name]
-            print(f"{name:9s} {r['cycles_per_s']:12,.0f} cycles/s   RTF {r['rtf']:10.1f}   "
-                  f"({r['cycles']} cycles in {r['wall_s']:.2f} s)")
+    robots = args.robot or ["mrm3", "mrm6"]
+    for flag, given in (("--backend", backends), ("--robot", robots)):
+        for name in given:
+            if given.count(name) > 1:
+                raise InputError(flag, f"{name!r} given more than once")
+    for name in robots:                 # every robot checked before anything runs
+        check_robot_fits(load_robot(name), "robot")
+    out = {"robots": {}}
+    for robot in robots:
+        out["robots"][robot] = {}
+        for name in backends:
+            r = out["robots"][robot][name] = bench_backend(name, robot)
+            if not args.json:
+                print(f"{robot:6s} {name:9s} {r['cycles_per_s']:12,.0f} cycles/s   "
+                      f"RTF {r['rtf']:8.2f} wall, {r['cpu_rtf']:8.2f} CPU   "
+                      f"({r['cycles']} cycles in {r['wall_s']:.2f} s)")
     if args.json:
         print(json.dumps(out, indent=2))
     return 0
