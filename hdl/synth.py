@@ -87,7 +87,7 @@ def count_cells(stat: dict, family: str) -> dict[str, int]:
 
 
 def synth_verilog(verilog: str, top: str, family: str = "xc2v", *, yosys: str | None = None,
-                  pnr: bool = False, timeout: float = 1800.0) -> dict:
+                  pnr: bool = False, timeout: float = 1800.0, pnr_seed: int = 1) -> dict:
     """Synthesize Verilog text; return the counts, the device budget check, and (ECP5 with
     ``pnr`` and nextpnr present) ``fmax_mhz``.
 
@@ -125,7 +125,7 @@ def synth_verilog(verilog: str, top: str, family: str = "xc2v", *, yosys: str | 
                       fits=all(report[k] <= v for k, v in budget.items()),
                       utilization={k: round(report[k] / v, 3) for k, v in budget.items()})
         if family == "ecp5" and pnr:
-            report["fmax_mhz"], path = _nextpnr_fmax(tmp / "pnr.json", tmp, timeout)
+            report["fmax_mhz"], path = _nextpnr_fmax(tmp / "pnr.json", tmp, timeout, pnr_seed)
             if path is not None:
                 report["critical_path"] = path
             if report["fmax_mhz"] is None and find_nextpnr() is None:
@@ -133,7 +133,8 @@ def synth_verilog(verilog: str, top: str, family: str = "xc2v", *, yosys: str | 
     return report
 
 
-def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float) -> tuple[float | None, dict | None]:
+def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float,
+                  seed: int = 1) -> tuple[float | None, dict | None]:
     nextpnr = find_nextpnr()
     if nextpnr is None:
         return None, None
@@ -143,7 +144,7 @@ def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float) -> tuple[float | Non
     try:
         run = subprocess.run([nextpnr, "--25k", "--package", "CABGA381", "--json", netlist.name,
                               "--freq", "100", "--router", "router2", "--report", "report.json",
-                              "--seed", "1"],
+                              "--seed", str(seed)],
                              cwd=tmp, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         raise SynthError(f"nextpnr-ecp5 did not finish placing and routing within {timeout:g} s "

@@ -211,7 +211,9 @@ class DmpGenerator(wiring.Component):
         # change between phases 0 and 1), so that a block RAM's output meets one 2:1 mux,
         # not a 4:1, before the multipliers.
         a_alt = Signal(signed(MUL_WIDTH), name="a_alt")
+        a_rf = Signal(name="a_rf")                  # the selects, one register bit each
         with m.If(d.ph == 0):
+            m.d.sync += a_rf.eq(ins.asel == ASel.RF)
             with m.Switch(ins.asel):
                 with m.Case(ASel.R):
                     m.d.sync += a_alt.eq(Cat(C(0, 8),
@@ -220,7 +222,7 @@ class DmpGenerator(wiring.Component):
                     m.d.sync += a_alt.eq(d.f)
                 with m.Case(ASel.ONE):
                     m.d.sync += a_alt.eq(1)
-        a = Mux(d.ins_r.asel == ASel.RF, d.rfa.data[:MUL_WIDTH].as_signed(), a_alt)
+        a = Mux(a_rf, d.rfa.data[:MUL_WIDTH].as_signed(), a_alt)
         b = Mux(d.ins_r.bsel == BSel.EXT, d.ext.data, d.rfb.data[:MUL_WIDTH].as_signed())
         # a·b as four 18×18 signed products (one MULT18X18 each: 17-bit unsigned low halves,
         # 18-bit signed high halves), registered where the operands used to be, and summed
