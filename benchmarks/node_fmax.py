@@ -111,13 +111,17 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--top", choices=("core", "node"), default="core",
                         help="the compute core alone (default) or the whole slave node")
+    parser.add_argument("--seed", type=int, default=1,
+                        help="nextpnr's placement seed (default 1, as mrm hdl synth): run a few to "
+                             "see the spread, which is larger than most single changes")
     args = parser.parse_args(argv)
     t0 = time.monotonic()
     if args.top == "core":
         design, name = SerialCore(), "serial_core"
     else:
         design, name = SerialNode(slave_node_top()), "serial_node"
-    report = synth_component(design, name, "ecp5", pnr=True, timeout=7200)
+    report = synth_component(design, name, "ecp5", pnr=True, timeout=7200, pnr_seed=args.seed)
+    report["seed"] = args.seed
     report["seconds"] = round(time.monotonic() - t0)
     print(json.dumps(report, sort_keys=True))
 

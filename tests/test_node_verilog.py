@@ -134,3 +134,42 @@ def test_a_place_and_route_that_runs_out_of_time_is_a_clear_error(tmp_path, monk
         synth._nextpnr_fmax(tmp_path / "pnr.json", tmp_path, 5.0)
     with pytest.raises(synth.SynthError, match="yosys did not finish within 5 s"):
         synth.synth_verilog("module t(); endmodule", "t", "ecp5", yosys="yosys", timeout=5.0)
+
+
+def test_critical_path_names_the_slowest_path_of_a_nextpnr_report():
+    """`mrm hdl synth --family ecp5` names where the clock is lost: the slowest path of
+    nextpnr's report, its start and end cells and the logic cells it crosses."""
+    from mrm_cosim.hdl.synth import critical_path
+
+    def seg(kind, cell, delay):
+        return {"type": kind, "from": {"cell": "prev", "port": "Q"},
+                "to": {"cell": cell, "port": "D"}, "delay": delay}
+
+    fast = {"from": "clk", "to": "clk", "path": [seg("clk-to-q", "a", 0.5), seg("logic", "l1", 1)]}
+    slow = {"from": "clk", "to": "clk",
+            "path": [{"type": "clk-to-q", "from": {"cell": "rom", "port": "CLK"},
+                      "to": {"cell": "rom", "port": "DO0"}, "delay": 5.0},
+                     seg("routing", "lut", 2.0), seg("logic", "lut", 0.25),
+                     seg("routing", "mult", 1.5), seg("logic", "mult", 4.0),
+                     seg("routing", "ff", 2.0), seg("setup", "ff", 0.0)]}
+    path = critical_path({"critical_paths": [fast, slow]})
+    assert path == {"ns": 14.75, "from": "rom", "to": "ff", "logic_levels": 2,
+                    "through": ["lut", "mult"]}
+    assert critical_path({}) is None
+
+
+@pytest.mark.skipif(find_yosys() is None, reason="needs Debian yosys")
+def test_synth_without_nextpnr_says_how_to_get_it(monkeypatch, capsys):
+    """`mrm hdl synth --family ecp5` on a machine without nextpnr reports the cells and says how
+    to get place and route (the `fpga` extra), instead of printing no clock or a None."""
+    import mrm_cosim.hdl.synth as synth
+
+    monkeypatch.setattr(synth, "find_nextpnr", lambda: None)
+    tiny = "module t(input clk, input a, output reg b); always @(posedge clk) b <= a; endmodule"
+    monkeypatch.setattr(synth, "synth_top",
+                        lambda top, family, params, **kw: synth.synth_verilog(tiny, "t", family,
+                                                                              **kw))
+    assert synth.cli_report("dmp_generator", "ecp5", {}, as_json=False) == 0
+    out = capsys.readouterr().out
+    assert "fmax    not measured: place and route needs nextpnr-ecp5" in out
+    assert "'.[fpga]'" in out and "None" not in out

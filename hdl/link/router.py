@@ -18,7 +18,9 @@ Up path: a round-robin arbiter between the node's own packets and those arriving
 downstream. The grant is held from a packet's first character to its EOP/EEP, so packets are
 never interleaved; when both wait at a packet boundary, the one that did not go last goes.
 
-Every output is a register stage (one cycle of latency, one character per cycle). The router
+Every output is a register stage (one cycle of latency, one character per cycle; the two
+codec outputs hold a second character, so the codec's ``ready`` stops there: see
+``_OutputStage``). The router
 relies on the codec's link-error rules (:mod:`hdl.link.codec`): a packet cut on a receiving
 link is ended with an EEP by that codec, and the rest of a packet cut on a sending link is taken
 and dropped by that codec. So the router only has to decide about packets the codec has not
@@ -41,34 +43,61 @@ __all__ = ["Router"]
 
 
 class _OutputStage:
-    """Register stage in front of an output stream.
+    """Register stage in front of an output stream, one or two characters deep.
 
     ``opened`` mirrors the codec's own "inside a packet" flag: it is set when the codec takes a
     data character and cleared when it takes an EOP/EEP. While the link is not running and the
     codec holds no part of a packet, the stage is ``dead``: it empties and accepts everything.
+
+    With ``depth = 2`` (the two codec outputs) the stage holds a second character behind the
+    one it offers, and ``can`` ("the router may load a character") is ``not full``: a
+    register, not the codec's ``ready``. The codec's ``ready`` comes from its link state and its
+    data-strobe transmitter's free slots through logic of its own (docs/link.md, SERDES and
+    rates); without the second place it ran on through the router's routing and drop decisions
+    into the drop counter and the node's reply path in the same cycle, the slowest path of the
+    whole node (docs/node.md, Clock). The codec sees every character at the cycle it saw it
+    with one place: a character it takes is followed, the next cycle, by the one behind it.
     """
 
-    def __init__(self, m, port, running, name):
+    def __init__(self, m, port, running, name, depth=1):
         self.load   = Signal(name=f"{name}_load")
         self.char   = Signal(Char, name=f"{name}_char")
         self.can    = Signal(name=f"{name}_can")
         self.dead   = Signal(name=f"{name}_dead")
         self.opened = Signal(name=f"{name}_opened")
-        with m.If(port.valid & port.ready):
+        take = port.valid & port.ready
+        with m.If(take):
             m.d.sync += self.opened.eq(port.payload.kind == CharKind.DATA)
-        m.d.comb += [
-            self.dead.eq(~running & ~self.opened),
-            self.can.eq(~port.valid | port.ready | self.dead),
-        ]
+        m.d.comb += self.dead.eq(~running & ~self.opened)
+        if depth == 1:
+            m.d.comb += self.can.eq(~port.valid | port.ready | self.dead)
+            with m.If(self.dead):
+                m.d.sync += port.valid.eq(0)
+            with m.Elif(self.load):
+                m.d.sync += [
+                    port.valid.eq(1),
+                    port.payload.eq(self.char),
+                ]
+            with m.Elif(port.ready):
+                m.d.sync += port.valid.eq(0)
+            return
+        full = Signal(name=f"{name}_full")          # a second character waits behind
+        second = Signal(Char, name=f"{name}_second")
+        m.d.comb += self.can.eq(~full | self.dead)
         with m.If(self.dead):
-            m.d.sync += port.valid.eq(0)
+            m.d.sync += [port.valid.eq(0), full.eq(0)]
+        with m.Elif(take):
+            with m.If(full):                        # (no load: can is low)
+                m.d.sync += [port.payload.eq(second), full.eq(0)]
+            with m.Elif(self.load):
+                m.d.sync += port.payload.eq(self.char)
+            with m.Else():
+                m.d.sync += port.valid.eq(0)
         with m.Elif(self.load):
-            m.d.sync += [
-                port.valid.eq(1),
-                port.payload.eq(self.char),
-            ]
-        with m.Elif(port.ready):
-            m.d.sync += port.valid.eq(0)
+            with m.If(port.valid):
+                m.d.sync += [second.eq(self.char), full.eq(1)]
+            with m.Else():
+                m.d.sync += [port.valid.eq(1), port.payload.eq(self.char)]
 
 
 class Router(wiring.Component):
@@ -107,8 +136,8 @@ class Router(wiring.Component):
         m = Module()
 
         local = _OutputStage(m, self.local_rx, C(1),              "local")
-        down  = _OutputStage(m, self.down_tx,  self.down_running, "down")
-        up    = _OutputStage(m, self.up_tx,    self.up_running,   "up")
+        down  = _OutputStage(m, self.down_tx,  self.down_running, "down", depth=2)
+        up    = _OutputStage(m, self.up_tx,    self.up_running,   "up",   depth=2)
 
         drop_down = Signal()   # a packet from upstream went nowhere or lost its tail
         drop_up   = Signal()   # the same for a packet going upstream

@@ -47,8 +47,14 @@ QBITS = 34      # quotient bits of the divider: |f| ≤ max|w| bounds q = |num|�
 
 
 def _sat(v, width):
+    """``v`` clamped to ``width`` signed bits. ``v > hi`` and ``v < lo`` are found from the bits
+    above the sign of the result (not all equal to ``v``'s sign: it does not fit), not by two
+    compares: a wide compare is a second carry chain after the ALU's adder (docs/node.md,
+    Clock)."""
     lo, hi = -(1 << (width - 1)), (1 << (width - 1)) - 1
-    return Mux(v > hi, hi, Mux(v < lo, lo, v))
+    top = v[width - 1:]
+    fits = (top == 0) | (top == (1 << len(top)) - 1)
+    return Mux(fits, v, Mux(v[-1], lo, hi))
 
 
 class DmpGenerator(wiring.Component):
@@ -127,15 +133,20 @@ class DmpGenerator(wiring.Component):
         d.rfa, d.rfb, d.rfw = rf.read_port(), rf.read_port(), rf.write_port()
         d.ins = Signal(layout)
         m.d.comb += d.ins.eq(d.rom.data)
+        # The micro-operation's word again as a register, from phase 1 on: the ROM's output is
+        # stable from phase 0 to 3 but comes late in a cycle (a block RAM's clock-to-output),
+        # so only phase 0's addresses and the sequencer take it from the ROM.
+        d.ins_r = Signal(layout, name="ins_r")
         for name, shape in (("n", range(mb + 1)), ("gs", 1), ("init", 1), ("flag", 1),
                             ("run", 1), ("rdy", 1), ("pc", 7), ("pc_nxt", 7), ("ph", 2),
                             ("i", range(mb)), ("ein", unsigned(PHI_WIDTH)),
-                            ("a", signed(MUL_WIDTH)), ("b", signed(MUL_WIDTH)),
                             ("rc", unsigned(32)), ("p", signed(2 * MUL_WIDTH)),
                             ("f", signed(QBITS)), ("stall", 1),
                             ("pqd", signed(WORD)), ("pvd", signed(WORD)),
                             ("pad", signed(WORD))):
             setattr(d, name, Signal(shape, name=name))
+        with m.If(d.ph == 0):
+            m.d.sync += d.ins_r.eq(d.ins)
         self._host(m, ext.write_port(), d)
         self._sequencer(m, d)
         self._operands(m, d)
@@ -196,28 +207,56 @@ class DmpGenerator(wiring.Component):
             d.rfa.addr.eq(ins.ra),
             d.rfb.addr.eq(ins.rb),
         ]
-        a = Signal(signed(MUL_WIDTH))
-        with m.Switch(ins.asel):
-            with m.Case(ASel.RF):
-                m.d.comb += a.eq(d.rfa.data[:MUL_WIDTH].as_signed())
-            with m.Case(ASel.R):
-                m.d.comb += a.eq(Cat(C(0, 8), d.ein[PHI_FRAC - EXP_BITS - 24:PHI_FRAC - EXP_BITS]))
-            with m.Case(ASel.F):
-                m.d.comb += a.eq(d.f)
-            with m.Case(ASel.ONE):
-                m.d.comb += a.eq(1)
-        b = Mux(ins.bsel == BSel.EXT, d.ext.data, d.rfb.data[:MUL_WIDTH].as_signed())
-        with m.If((d.ph == 1) & ins.mul):
-            m.d.sync += [d.a.eq(a), d.b.eq(b), d.rc.eq(Array(C(v, 32) for v in RCS)[ins.rc])]
-        m.d.sync += d.p.eq(d.a * d.b + d.rc)
+        # Operand a: the register file's word, or one prepared in phase 0 (ein and f do not
+        # change between phases 0 and 1), so that a block RAM's output meets one 2:1 mux,
+        # not a 4:1, before the multipliers.
+        a_alt = Signal(signed(MUL_WIDTH), name="a_alt")
+        a_rf = Signal(name="a_rf")                  # the selects, one register bit each
+        with m.If(d.ph == 0):
+            m.d.sync += a_rf.eq(ins.asel == ASel.RF)
+            with m.Switch(ins.asel):
+                with m.Case(ASel.R):
+                    m.d.sync += a_alt.eq(Cat(C(0, 8),
+                                             d.ein[PHI_FRAC - EXP_BITS - 24:PHI_FRAC - EXP_BITS]))
+                with m.Case(ASel.F):
+                    m.d.sync += a_alt.eq(d.f)
+                with m.Case(ASel.ONE):
+                    m.d.sync += a_alt.eq(1)
+        a = Mux(a_rf, d.rfa.data[:MUL_WIDTH].as_signed(), a_alt)
+        b = Mux(d.ins_r.bsel == BSel.EXT, d.ext.data, d.rfb.data[:MUL_WIDTH].as_signed())
+        # a·b as four 18×18 signed products (one MULT18X18 each: 17-bit unsigned low halves,
+        # 18-bit signed high halves), registered where the operands used to be, and summed
+        # with the rounding constant in the next cycle: ``p`` is a·b + rc of the last
+        # operands in every cycle, as it was with the operands registered and multiplied
+        # in one cycle, but the multipliers and the sum are no longer one path.
+        h = MUL_WIDTH - 18
+        parts = {(i, j): Signal(signed(36), name=f"pp_{i}{j}") for i in "lh" for j in "lh"}
+        half = {"l": lambda v: v[:h], "h": lambda v: v[h:].as_signed()}
+        with m.If((d.ph == 1) & d.ins_r.mul):
+            m.d.sync += d.rc.eq(Array(C(v, 32) for v in RCS)[d.ins_r.rc])
+            for (i, j), pp in parts.items():
+                m.d.sync += pp.eq(half[i](a) * half[j](b))
+        m.d.comb += d.p.eq(parts["l", "l"] + d.rc
+                           + ((parts["l", "h"] + parts["h", "l"]) << h)
+                           + (parts["h", "h"] << (2 * h)))
 
     def _alu(self, m, d):
         """``z = sat((X ± Y) >> sh)`` and its write, in a micro-operation's last phase."""
-        ins = d.ins
-        x = Mux(ins.xz, 0, d.rfa.data)
-        y = Mux(ins.ysel == YSel.RF, d.rfb.data, d.p)
-        s = Signal(signed(RF_WIDTH))
-        m.d.comb += s.eq(x + Mux(ins.neg, ~y, y) + ins.neg)
+        # Phase 2 forms the sum, phase 3 shifts, saturates and writes it. The sum's inputs
+        # are registers: the register file's operands taken in phase 1 (the block RAMs'
+        # outputs are stable from phase 1 to 3) and the four partial products (``p``, their
+        # sum with the rounding constant, is ready in phase 2); phase 3 works from the sum and
+        # the micro-operation's fields, both registered (the microcode ROM's output is stable
+        # from phase 0 to 3). Every value equals, at phase 3, what a one-cycle ALU computed
+        # there from the same operands: this only cuts the path (docs/node.md, Clock).
+        x = Signal(signed(RF_WIDTH), name="alu_x")
+        y_rf = Signal(signed(RF_WIDTH), name="alu_y_rf")
+        with m.If(d.ph == 1):
+            m.d.sync += [x.eq(Mux(d.ins_r.xz, 0, d.rfa.data)), y_rf.eq(d.rfb.data)]
+        y = Mux(d.ins_r.ysel == YSel.RF, y_rf, d.p)
+        s = Signal(signed(RF_WIDTH), name="alu_s")
+        m.d.sync += s.eq(x + Mux(d.ins_r.neg, ~y, y) + d.ins_r.neg)
+        ins = d.ins_r
         z = Signal(signed(RF_WIDTH))
         with m.Switch(ins.sh):
             for k, sh in enumerate(SHIFTS):
@@ -232,7 +271,7 @@ class DmpGenerator(wiring.Component):
             with m.Case(Sat.S40):
                 m.d.comb += w.eq(_sat(z, 40))
             with m.Case(Sat.U46):
-                m.d.comb += w.eq(Mux(z < 0, 0, Mux(z > PHI_MAX, PHI_MAX, z)))
+                m.d.comb += w.eq(Mux(z[-1], 0, Mux(z[PHI_WIDTH:] != 0, PHI_MAX, z)))
             with m.Default():
                 m.d.comb += w.eq(z)
         ok = Signal()
