@@ -268,7 +268,8 @@ class Master:
     def next_due(self) -> int | None:
         """The earliest cycle a computed packet is waiting for (None: none waits). A harness
         that polls on a coarser grid splits its step there, so packets leave when due."""
-        return min((c for c, _ in self._pending), default=None)
+        pending = self._pending
+        return min([c for c, _ in pending]) if pending else None
 
     def _later(self, cycle: int, actions: list[Send]) -> None:
         self._pending.append((cycle, actions))

@@ -229,6 +229,6 @@ def _vec(robot, x, name: str) -> np.ndarray:
     a = np.asarray(x, dtype=float)
     if a.shape != (robot.n,):
         raise InputError(name, f"must have {robot.n} values, not shape {a.shape}")
-    if not np.all(np.isfinite(a)):
+    if not np.isfinite(a).all():             # (the method: no dispatch, called every period)
         raise InputError(name, "must be finite")
     return a

@@ -159,10 +159,9 @@ def pack_words(words) -> bytes:
 
 
 def unpack_words(data: bytes, n: int, offset: int = 0) -> list[int]:
-    # sign extension of a 24-bit v: (v ^ 0x800000) − 0x800000
-    frm = int.from_bytes
-    return [(frm(data[i:i + 3], "little") ^ 0x800000) - 0x800000
-            for i in range(offset, offset + 3 * n, 3)]
+    # all n words as one integer, then each 24-bit field sign-extended: (v ^ 0x800000) − 0x800000
+    v = int.from_bytes(data[offset:offset + 3 * n], "little")
+    return [(((v >> s) & 0xFFFFFF) ^ 0x800000) - 0x800000 for s in range(0, 24 * n, 24)]
 
 
 def _pad(data: bytes) -> bytes:
