@@ -34,17 +34,7 @@ from mrm_cosim.errors import InputError
 __all__ = ["ModuleKinematics", "propagate_velocities", "link_required_forces",
            "propagate_forces", "inverse_dynamics", "BASE_ACCELERATION"]
 
-Z_AXIS = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
 BASE_ACCELERATION = np.array([0.0, 0.0, 9.81, 0.0, 0.0, 0.0])
-
-
-def _joint_U(q: float) -> np.ndarray:
-    c, s = np.cos(q), np.sin(q)
-    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    U = np.zeros((6, 6))
-    U[:3, :3] = R
-    U[3:, 3:] = R
-    return U
 
 
 def _mount_U(T) -> np.ndarray:
@@ -67,10 +57,6 @@ def _mount_U_of(robot, k: int) -> np.ndarray:
     if hit is None or hit[0] != key:
         hit = memo[k] = (key, _mount_U(T))
     return hit[1]
-
-
-_ZX = np.zeros((6, 6))
-_ZX[0, 1], _ZX[1, 0], _ZX[3, 4], _ZX[4, 3] = -1.0, 1.0, -1.0, 1.0
 
 
 @dataclass
