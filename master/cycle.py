@@ -268,7 +268,8 @@ class Master:
     def next_due(self) -> int | None:
         """The earliest cycle a computed packet is waiting for (None: none waits). A harness
         that polls on a coarser grid splits its step there, so packets leave when due."""
-        return min((c for c, _ in self._pending), default=None)
+        pending = self._pending
+        return min([c for c, _ in pending]) if pending else None
 
     def _later(self, cycle: int, actions: list[Send]) -> None:
         self._pending.append((cycle, actions))
@@ -513,7 +514,8 @@ class Master:
     def gravity_in_C(self, q) -> np.ndarray:
         """Upward gravity ``[0, 0, 9.81]`` expressed in every {C_k} at joint angles ``q``."""
         frames = self.robot.link_frames(q)
-        return np.array([T_C[:3, :3].T @ np.array([0.0, 0.0, 9.81]) for T_C, _ in frames])
+        # R_Cᵀ (0, 0, 9.81) is 9.81 times R_C's third row (the other products are zeros)
+        return np.array([T_C[2, :3] * 9.81 for T_C, _ in frames])
 
     def _comm_d(self, tau, q, q_d, qd_d, qdd_d) -> list[Send]:
         # Gravity for the next period's VDC run, at the angles expected then.

@@ -85,6 +85,8 @@ class QuinticProfile:
         object.__setattr__(self, "q0", q0)
         object.__setattr__(self, "qf", qf)
         object.__setattr__(self, "tf", tf)
+        # for :meth:`at`, the master's once-a-period call: the constants of its formulas
+        object.__setattr__(self, "_at_consts", (delta, delta / tf, delta / tf**2, delta / tf**3))
 
     @property
     def n_dof(self) -> int:
@@ -141,6 +143,34 @@ class QuinticProfile:
         qd = d / self.tf * 30.0 * tau**2 * u**2
         qdd = d / self.tf**2 * 60.0 * tau * u * (1.0 - 2.0 * tau)
         qddd = np.where(moving, d / self.tf**3 * (60.0 - 360.0 * tau + 360.0 * tau**2), 0.0)
+        return q, qd, qdd, qddd
+
+    def at(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`evaluate` at one finite time ``t``: ``(q, qd, qdd, qddd)``, shape (n_dof,)
+        each.
+
+        The master evaluates its reference once a period: there the array machinery of
+        :meth:`evaluate` (a 1×n_dof broadcast, ``where``, ``clip``) costs more than the
+        arithmetic. This is the same formulas, in the same order of operations, on a scalar
+        ``τ`` — so the same floats (tests/test_quintic.py checks them bit for bit).
+        """
+        t = float(t)
+        tf = self.tf
+        d, d_tf, d_tf2, d_tf3 = self._at_consts
+        tau = min(max(t / tf, 0.0), 1.0)
+        u = 1.0 - tau
+        # numpy's array ** 2 is a product; its array ** 3 is its own vectorised pow(), which
+        # is not float's (nor τ·τ·τ) to the last bit: take it from a one-element array
+        tau2 = tau * tau
+        tau3 = float((np.array([tau]) ** 3)[0])
+        shape = tau3 * (10.0 - 15.0 * tau + 6.0 * tau2)
+        q = self.qf.copy() if tau >= 1.0 else self.q0 + d * shape
+        qd = d_tf * 30.0 * tau2 * (u * u)
+        qdd = d_tf2 * 60.0 * tau * u * (1.0 - 2.0 * tau)
+        if 0.0 <= t <= tf:                     # the jerk's one-sided values at 0 and tf
+            qddd = d_tf3 * (60.0 - 360.0 * tau + 360.0 * tau2)
+        else:
+            qddd = np.zeros_like(d)
         return q, qd, qdd, qddd
 
     def summary(self) -> dict:

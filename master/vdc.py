@@ -34,17 +34,7 @@ from mrm_cosim.errors import InputError
 __all__ = ["ModuleKinematics", "propagate_velocities", "link_required_forces",
            "propagate_forces", "inverse_dynamics", "BASE_ACCELERATION"]
 
-Z_AXIS = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
 BASE_ACCELERATION = np.array([0.0, 0.0, 9.81, 0.0, 0.0, 0.0])
-
-
-def _joint_U(q: float) -> np.ndarray:
-    c, s = np.cos(q), np.sin(q)
-    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    U = np.zeros((6, 6))
-    U[:3, :3] = R
-    U[3:, 3:] = R
-    return U
 
 
 def _mount_U(T) -> np.ndarray:
@@ -67,10 +57,6 @@ def _mount_U_of(robot, k: int) -> np.ndarray:
     if hit is None or hit[0] != key:
         hit = memo[k] = (key, _mount_U(T))
     return hit[1]
-
-
-_ZX = np.zeros((6, 6))
-_ZX[0, 1], _ZX[1, 0], _ZX[3, 4], _ZX[4, 3] = -1.0, 1.0, -1.0, 1.0
 
 
 @dataclass
@@ -106,20 +92,33 @@ def propagate_velocities(robot, q, qd, qd_r, qdd_r) -> list[ModuleKinematics]:
     robot = load_robot(robot)
     q, qd, qd_r, qdd_r = (_vec(robot, x, name) for x, name in
                           ((q, "q"), (qd, "qd"), (qd_r, "qd_r"), (qdd_r, "qdd_r")))
-    V = np.zeros(6)
-    Vr = np.zeros(6)
-    dVr = BASE_ACCELERATION.copy()
+    # The master runs this every period: the three chains (V, V_r, V̇_r) go through each
+    # mount as one 3×6 product (rows are the vectors: ``S @ U = (Uᵀ Sᵀ)ᵀ``) and through each
+    # joint as a 6×3 product with Rz (``diag(Rz, Rz)ᵀ`` on each [v; ω]), not as nine 6×6 ones.
+    S = np.zeros((3, 6))
+    S[2] = BASE_ACCELERATION
     out = []
     for k in range(robot.n):
-        Um = _mount_U_of(robot, k).T
-        V_C, Vr_C, dVr_C = Um @ V, Um @ Vr, Um @ dVr
-        Uq = _joint_U(q[k]).T
-        V_A = Uq @ V_C + Z_AXIS * qd[k]
-        Vr_A = Uq @ Vr_C + Z_AXIS * qd_r[k]
-        dVr_A = Uq @ dVr_C - qd[k] * (_ZX @ (Uq @ Vr_C)) + Z_AXIS * qdd_r[k]
-        out.append(ModuleKinematics(V_C, V_A, Vr_C, Vr_A, dVr_C, dVr_A))
-        V, Vr, dVr = V_A, Vr_A, dVr_A
+        C = S @ _mount_U_of(robot, k)                   # rows V_C, Vr_C, dVr_C
+        A = (C.reshape(6, 3) @ _rot_z(q[k])).reshape(3, 6)  # Uqᵀ of each row
+        qd_k = qd[k]
+        a0, a1, a3, a4 = A[1, 0], A[1, 1], A[1, 3], A[1, 4]  # Uqᵀ Vr_C, for the Z term
+        A[0, 5] += qd_k
+        A[1, 5] += qd_r[k]
+        # − q̇ Z Uqᵀ Vr_C with Z Uqᵀ Vr_C = (−a1, a0, 0, −a4, a3, 0)
+        A[2, 0] -= qd_k * -a1
+        A[2, 1] -= qd_k * a0
+        A[2, 3] -= qd_k * -a4
+        A[2, 4] -= qd_k * a3
+        A[2, 5] += qdd_r[k]
+        out.append(ModuleKinematics(C[0], A[0], C[1], A[1], C[2], A[2]))
+        S = A
     return out
+
+
+def _rot_z(q: float) -> np.ndarray:
+    c, s = np.cos(q), np.sin(q)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def link_required_forces(theta_a, theta_b, kin: ModuleKinematics, K_a=None, K_b=None):
@@ -176,7 +175,8 @@ def propagate_forces(robot, q, F_a, F_b):
         if k + 1 < robot.n:
             F += _mount_U_of(robot, k + 1) @ F_C_next
         F_A[k] = F
-        F_C_next = F_b[k] + _joint_U(q[k]) @ F
+        # U_q F = [Rz f; Rz m]: the rows of F as 3-vectors times Rzᵀ
+        F_C_next = F_b[k] + (F.reshape(2, 3) @ _rot_z(q[k]).T).ravel()
     return F_A, F_A[:, 5].copy()
 
 
@@ -215,6 +215,6 @@ def _vec(robot, x, name: str) -> np.ndarray:
     a = np.asarray(x, dtype=float)
     if a.shape != (robot.n,):
         raise InputError(name, f"must have {robot.n} values, not shape {a.shape}")
-    if not np.all(np.isfinite(a)):
+    if not np.isfinite(a).all():             # (the method: no dispatch, called every period)
         raise InputError(name, "must be finite")
     return a

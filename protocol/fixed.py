@@ -80,7 +80,9 @@ class Fmt:
 
     def encode(self, x: float) -> int:
         """Nearest word to ``x`` (ties up), saturated to the 24-bit range."""
-        return saturate(math.floor(math.ldexp(float(x), -self.lsb) + 0.5))
+        w = math.floor(math.ldexp(float(x), -self.lsb) + 0.5)
+        # saturate(w), inline: the master encodes some forty words a period
+        return WORD_MIN if w < WORD_MIN else WORD_MAX if w > WORD_MAX else w
 
     def encode_checked(self, x, field: str) -> int:
         """Like :meth:`encode`, but raise :class:`InputError` naming ``field`` if ``x`` is not

@@ -154,18 +154,14 @@ class NodeEvent(enum.IntFlag):
 
 def pack_words(words) -> bytes:
     """24-bit words, little-endian, two's complement."""
-    out = bytearray()
-    for w in words:
-        out += (int(w) & 0xFFFFFF).to_bytes(3, "little")
-    return bytes(out)
+    # (the master packs a few every period: one join of small conversions is the cheapest)
+    return b"".join((int(w) & 0xFFFFFF).to_bytes(3, "little") for w in words)
 
 
 def unpack_words(data: bytes, n: int, offset: int = 0) -> list[int]:
-    out = []
-    for k in range(n):
-        v = int.from_bytes(data[offset + 3 * k: offset + 3 * k + 3], "little")
-        out.append(v - (1 << WORD) if v >> (WORD - 1) else v)
-    return out
+    # all n words as one integer, then each 24-bit field sign-extended: (v ^ 0x800000) − 0x800000
+    v = int.from_bytes(data[offset:offset + 3 * n], "little")
+    return [(((v >> s) & 0xFFFFFF) ^ 0x800000) - 0x800000 for s in range(0, 24 * n, 24)]
 
 
 def _pad(data: bytes) -> bytes:
@@ -174,8 +170,9 @@ def _pad(data: bytes) -> bytes:
 
 def pack_comm_b(qd_r: float, V_C, V_rC, prime: bool = False) -> bytes:
     """Comm B payload from floats (rad/s, m/s; saturating at the VEL range)."""
-    words = [VEL.encode(qd_r)] + [VEL.encode(x) for x in V_C] + [VEL.encode(x) for x in V_rC]
-    return pack_words(words) + bytes([int(bool(prime))])
+    enc = VEL.encode
+    words = [enc(qd_r), *map(enc, V_C), *map(enc, V_rC)]
+    return pack_words(words) + (b"\1" if prime else b"\0")
 
 
 def pack_comm_d(tau: float, g_C, q_d0: float, qd_d0: float, qdd_d0: float,
