@@ -603,6 +603,8 @@ def run_sweep(spec: SweepSpec, out, executor, *, resume: bool = False, progress=
     points = expand(spec)
     done = {k: v for k, v in _finished(jsonl).items() if v.get("status") == "ok"}
     todo = [dict(p, folder=str(out / "points" / p["id"])) for p in points if p["id"] not in done]
+    # plant by plant: a sweep cut short has run every controller on the same plants
+    todo.sort(key=lambda p: spec.seeds.index(p["seed"]))
     out.mkdir(parents=True, exist_ok=True)
     (out / "sweep.toml").write_text(spec.to_toml())
     rows = {p["id"]: done[p["id"]] for p in points if p["id"] in done}

@@ -370,8 +370,24 @@ def run_tuning(spec: TuneSpec, out, executor, log=None) -> dict:
     Returns the record written to tune.json."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    results = {c: tune_controller(spec, c, out, executor, log) for c in spec.controllers}
-    record = {
+    results = {}
+    for c in spec.controllers:
+        results[c] = tune_controller(spec, c, out, executor, log)
+        # each finished controller is kept (tune.json) before the next one starts
+        partial = _record(spec, results)
+        (out / "tune.json").write_text(json.dumps(partial, indent=2) + "\n")
+        (out / "tune.md").write_text(tune_markdown(partial))
+    record = _record(spec, results)
+    (out / "tune.json").write_text(json.dumps(record, indent=2) + "\n")
+    (out / "tune.md").write_text(tune_markdown(record))
+    (out / "tuned_gains.toml").write_text(provenance_block(record) + "[gains]\n" + "".join(
+        f"{f.split('.', 1)[1]} = {v!r}\n" for c in spec.controllers
+        for f, v in results[c]["chosen"]["gains"].items()))
+    return record
+
+
+def _record(spec: TuneSpec, results: dict) -> dict:
+    return {
         "spec": spec.name, "spec_path": spec.path, "config": spec.config_path,
         "set": spec.set_fields, "seeds": list(spec.seeds),
         "held_out_seeds": list(spec.held_out_seeds), "amplitudes": list(spec.amplitudes),
@@ -380,14 +396,9 @@ def run_tuning(spec: TuneSpec, out, executor, log=None) -> dict:
         "constraints": {"max_torque_ratio": spec.max_torque_ratio,
                         "settle_error_rad": spec.settle_error, "ripple_rad": spec.ripple},
         "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
-        "commit": _git_commit(), "controllers": results,
+        "commit": _git_commit(), "controllers": dict(results),
+        "complete": len(results) == len(spec.controllers),
     }
-    (out / "tune.json").write_text(json.dumps(record, indent=2) + "\n")
-    (out / "tune.md").write_text(tune_markdown(record))
-    (out / "tuned_gains.toml").write_text(provenance_block(record) + "[gains]\n" + "".join(
-        f"{f.split('.', 1)[1]} = {v!r}\n" for c in spec.controllers
-        for f, v in results[c]["chosen"]["gains"].items()))
-    return record
 
 
 def tune_markdown(record: dict) -> str:
