@@ -56,6 +56,9 @@ __all__ = ["SweepSpec", "load_spec", "expand", "run_point", "run_sweep", "check_
 #: The figures of a point kept in points.jsonl (from :func:`cosim.track.run_track`'s summary).
 FIGURES = ("rho_s", "max_tip_error_m", "max_tip_speed_m_s", "max_joint_error_rad",
            "overruns", "link_errors", "upload_errors")
+#: A track's robustness figures (:func:`cosim.track.hold_figures`), kept too: the tuning's
+#: constraints (cosim/tune.py).
+HOLD_FIGURES = ("max_torque_ratio", "hold_error_rad", "hold_ripple_rad")
 #: A line's figures (its summary's ``line``), kept beside the common ones.
 LINE_FIGURES = ("max_position_error_mm", "max_orientation_error_mrad", "max_se3_error")
 #: The two figures summary.md and the plots show per kind: (key, label, scale to the label).
@@ -423,7 +426,7 @@ def run_point(point: dict, report=None) -> dict:
                                config.seed, gains=config.gains, timing=config.timing,
                                plant_config=config.plant,
                                **_run_kwargs(run_track, config, robot))
-        figures = {k: summary[k] for k in FIGURES}
+        figures = {k: summary[k] for k in FIGURES + HOLD_FIGURES}
     out = {"figures": figures, "faults": run_faults(summary),
            "trace_sha256": summary["trace_sha256"], "wall_s": time.perf_counter() - t0}
     if point.get("folder"):
@@ -452,6 +455,8 @@ def summary_markdown(spec: SweepSpec, rows: list[dict]) -> str:
     failed = [r for r in rows if r["status"] != "ok"]
     if failed:
         lines += [f"**{len(failed)} point(s) failed** (points.jsonl has the errors).", ""]
+    if spec.kind == "track" and len(spec.seeds) > 1:
+        lines += distribution_table(ok, spec.controllers)
     (k1, l1, _), (k2, l2, _) = SHOWN[spec.kind]
     axes = ["controller"] + (["backend"] if len(spec.backends) > 1 else []) + \
         (["profile"] if len(spec.profiles) > 1 else []) + \
@@ -478,6 +483,33 @@ def summary_markdown(spec: SweepSpec, rows: list[dict]) -> str:
             lines.append(_row(v, sel, spec.kind))
         lines.append("")
     return "\n".join(lines)
+
+
+def distribution(values) -> dict:
+    """Median and 5–95 % interval (numpy's linear percentiles) of ``values``."""
+    return _stats(values)
+
+
+def distribution_table(ok: list[dict], controllers) -> list[str]:
+    """Table 2 as a prediction: per controller, ρ's median and 5–95 % interval over the
+    finished points (over plants, and over whatever else the sweep varies) beside the MRM
+    paper's ρ (Table 2)."""
+    from mrm_cosim.cosim.table2 import PAPER_TABLE2
+
+    lines = ["## ρ over plants (Table 2 as a prediction)", "",
+             "| controller | points | ρ median (s) | ρ 5 % (s) | ρ 95 % (s) | paper ρ (s) | "
+             "tip error median (mm) | 5–95 % (mm) |", "|---|---|---|---|---|---|---|---|"]
+    for c in controllers:
+        sel = [r for r in ok if r["controller"] == c]
+        if not sel:
+            continue
+        rho = distribution([r["figures"]["rho_s"] for r in sel])
+        err = distribution([1e3 * r["figures"]["max_tip_error_m"] for r in sel])
+        paper = PAPER_TABLE2.get(c)
+        lines.append(f"| {c} | {rho['n']} | {rho['median']:.4g} | {rho['p5']:.4g} | "
+                     f"{rho['p95']:.4g} | {'–' if paper is None else f'{paper[2]:.2g}'} | "
+                     f"{err['median']:.4g} | {err['p5']:.4g} – {err['p95']:.4g} |")
+    return lines + [""]
 
 
 def _row(label, sel, kind: str = "track") -> str:
@@ -560,15 +592,19 @@ def check_out(out, resume: bool = False) -> Path:
     return out
 
 
-def run_sweep(spec: SweepSpec, out, executor, *, resume: bool = False, progress=None) -> dict:
+def run_sweep(spec: SweepSpec, out, executor, *, resume: bool = False, progress=None,
+              plots: bool = True) -> dict:
     """Run every point of ``spec`` not yet finished in ``out`` on ``executor``; append each
-    result to ``out/points.jsonl`` as it arrives; then write ``summary.md`` and the plots.
+    result to ``out/points.jsonl`` as it arrives; then write ``summary.md`` and (unless
+    ``plots`` is false) the plots.
     Returns ``{"total", "ran", "skipped", "failed", "rows"}``."""
     out = check_out(out, resume)
     jsonl = out / "points.jsonl"
     points = expand(spec)
     done = {k: v for k, v in _finished(jsonl).items() if v.get("status") == "ok"}
     todo = [dict(p, folder=str(out / "points" / p["id"])) for p in points if p["id"] not in done]
+    # plant by plant: a sweep cut short has run every controller on the same plants
+    todo.sort(key=lambda p: spec.seeds.index(p["seed"]))
     out.mkdir(parents=True, exist_ok=True)
     (out / "sweep.toml").write_text(spec.to_toml())
     rows = {p["id"]: done[p["id"]] for p in points if p["id"] in done}
@@ -596,7 +632,8 @@ def run_sweep(spec: SweepSpec, out, executor, *, resume: bool = False, progress=
                 progress(finished, len(todo), rate, (len(todo) - finished) / rate)
     ordered = [rows[p["id"]] for p in points if p["id"] in rows]
     (out / "summary.md").write_text(summary_markdown(spec, ordered))
-    _plots(out, spec, ordered)
+    if plots:
+        _plots(out, spec, ordered)
     return {"total": len(points), "ran": finished, "skipped": len(points) - len(todo),
             "failed": failed, "rows": ordered}
 

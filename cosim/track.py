@@ -182,6 +182,8 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         "max_tip_error_m": float(err.max()),
         "max_tip_speed_m_s": float(speed.max()),
         "max_joint_error_rad": float(np.abs(q_d - result.q).max()),
+        **hold_figures(robot, result.t, q_d - result.q, result.tau,
+                       getattr(profile, "tf", None)),
         "overruns": master.overruns, "missing_replies": master.missing,
         "unexpected_replies": master.unexpected, "late_replies": master.late,
         "upload_errors": master.upload_error_total(),
@@ -199,6 +201,30 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         "rtf": wall / (duration + start / CLOCK_HZ),
     }
     return result, summary
+
+
+#: The window at the end of a run over which :func:`hold_figures` judges the hold, s.
+HOLD_WINDOW = 0.1
+
+
+def hold_figures(robot, t, error, tau, t_motion_end) -> dict:
+    """Figures of a run's robustness (the tuning's constraints, cosim/tune.py):
+
+    ``max_torque_ratio``, the largest torque command of any joint over its actuator's peak
+    torque (1.0: saturated); over the last :data:`HOLD_WINDOW` s of the run, if that window
+    lies after the motion ends (``t_motion_end``), ``hold_error_rad``, the largest joint error
+    in it, and ``hold_ripple_rad``, the largest peak-to-peak joint error in it (a limit cycle
+    or a growing oscillation). Without such a window both are ``None``."""
+    from mrm_cosim.models.actuators import ACTUATORS
+
+    peak = np.array([ACTUATORS[m.type.actuator].peak_torque for m in robot.modules])
+    out = {"max_torque_ratio": float((np.abs(tau).max(axis=0) / peak).max()) if len(tau) else 0.0,
+           "hold_error_rad": None, "hold_ripple_rad": None}
+    if t_motion_end is not None and len(t) and t[-1] - HOLD_WINDOW >= t_motion_end:
+        win = error[t >= t[-1] - HOLD_WINDOW]
+        out["hold_error_rad"] = float(np.abs(win).max())
+        out["hold_ripple_rad"] = float((win.max(axis=0) - win.min(axis=0)).max())
+    return out
 
 
 #: What each node counter of a summary's ``node_counters`` counts (Comm A, docs/node.md).

@@ -17,7 +17,7 @@ from mrm_cosim.errors import InputError
 
 __all__ = ["flag_name", "named_by_flags", "OUT", "RUN_PREVIEW", "RUN_TRACK", "RUN_TABLE2",
            "RUN_LINE", "RUN_DMP_TABLE2",
-           "HDL", "PLAN_SAMPLES", "BENCH", "SWEEP", "DMP_LEARN", "DMP_ROLLOUT"]
+           "HDL", "PLAN_SAMPLES", "BENCH", "SWEEP", "TUNE", "DMP_LEARN", "DMP_ROLLOUT"]
 
 #: API argument -> flag, per command.
 OUT = {"out": "--out"}
@@ -35,6 +35,7 @@ HDL = {**OUT, "top": "--top", "family": "--family", "params": "--param"}
 PLAN_SAMPLES = {"out": "--samples"}
 BENCH = {"robot": "--robot", "backend": "--backend"}
 SWEEP = {**OUT, "workers": "--workers", "scheduler": "--scheduler", "SPEC": "SPEC"}
+TUNE = {**OUT, "workers": "--workers", "SPEC": "SPEC"}
 DMP_LEARN = {**OUT, "n_basis": "--basis", "alpha": "--alpha", "alpha_s": "--alpha-s",
              "overlap": "--overlap", "columns": "--columns", "robot": "--robot"}
 DMP_ROLLOUT = {"out": "--samples", "plot": "--plot", "g": "--goal", "tau": "--tau",

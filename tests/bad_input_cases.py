@@ -331,6 +331,36 @@ case("sweep-out-is-a-file", ["sweep", "{spec}", "--out", "{spec}"], "--out",
      spec='[sweep]\nduration = 0.01\n')
 
 
+# --- tuning specifications, through `mrm tune` (issue 20 item 3) -----------------------------
+_TUNE = ('[tune]\nseeds = {seeds}\namplitudes = {amps}\ntrajectory_duration = {tf}\n'
+         'hold = 0.11\nbudget = {budget}\ninitial = 1\ncontrollers = ["pid-fpga"]\n{extra}'
+         '\n[tune.space.pid-fpga]\n"gains.pid_fpga_hz" = {space}\n')
+
+
+def _tune(seeds="[3000]", amps="[0.002]", tf="0.02", budget="2", extra="",
+          space="[5.0, 20.0]"):
+    return _TUNE.format(seeds=seeds, amps=amps, tf=tf, budget=budget, extra=extra, space=space)
+
+
+TUNES = [
+    (_tune(seeds="[0]"), "tune.seeds"),                          # the headline table's plant
+    (_tune(seeds="[3000, 1005]", extra='held_out = ["' + str(ROOT / "configs" / "sweeps" /
+                                                             "table2-seeds.toml") + '"]\n'),
+     "tune.seeds"),                                              # a held-out test plant
+    (_tune(amps="[0.1571]", tf="1.0"), "tune.amplitudes[0]"),    # the test's quintic
+    (_tune(budget="0"), "tune.budget"),
+    (_tune(space="[20.0, 5.0]"), "tune.space.pid-fpga.gains.pid_fpga_hz"),
+    (_tune(space="[5.0, 500.0]"), "tune.space.pid-fpga.gains.pid_fpga_hz"),
+    (_tune(extra='held_out = ["/nonexistent/s.toml"]\n'), "tune.held_out[0]"),
+    (_tune(extra="budgett = 3\n"), "tune.budgett"),
+    (_tune(extra="[tune.set]\n\"plant.joints\" = \"elastic\"\n"), "tune.set.plant.joints"),
+]
+for i, (text, field) in enumerate(TUNES):
+    case(f"tune-spec-{i}", ["tune", "{spec}", "--out", "{out}"], field, spec=text)
+case("tune-flag-workers", ["tune", "{spec}", "--out", "{out}", "--workers", "0"], "--workers",
+     spec=_tune())
+
+
 # --- DMP learning and rollout, through `mrm dmp learn` and `mrm dmp rollout` (issue 17) -------
 def _joint_csv(rows: int = 21, dt: float = 0.05) -> str:
     lines = ["t,q1,q2"]

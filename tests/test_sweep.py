@@ -181,12 +181,19 @@ def test_ctrl_c_stops_every_worker_and_keeps_the_finished_points(tmp_path):
 def test_shipped_sweeps_are_valid():
     root = Path(__file__).resolve().parents[1] / "configs" / "sweeps"
     seeds = sweep.load_spec(root / "table2-seeds.toml")
-    assert seeds.controllers == ("pid-1khz", "pid-fpga", "vdc") and len(seeds.seeds) == 32
+    assert seeds.controllers == ("pid-1khz", "pid-fpga", "vdc") and len(seeds.seeds) == 64
     assert 0 not in seeds.seeds                              # the headline table's plant
-    assert len(sweep.expand(seeds)) == 96
+    assert len(sweep.expand(seeds)) == 192
     gains = sweep.load_spec(root / "vdc-gains.toml")
     assert len(sweep.expand(gains)) == 80
     assert np.all(np.array(gains.seeds) >= 1000)
+    for name, field in (("table2-stiffness.toml", "plant.gear.stiffness_scale"),
+                        ("table2-friction.toml", "plant.perturbation.friction")):
+        spec = sweep.load_spec(root / name)
+        points = sweep.expand(spec)
+        assert len(points) == 60 and set(spec.seeds) <= set(seeds.seeds), name
+        assert {p["config"]["plant"]["joints"] for p in points} == {"compliant"}
+        assert len({p["params"][field] for p in points}) == 5
 
 
 def test_a_sweep_of_the_cartesian_line(tmp_path):
