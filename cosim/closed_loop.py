@@ -34,6 +34,7 @@ from mrm_cosim.master.cycle import Master
 from mrm_cosim.master.uploads import startup_sends
 from mrm_cosim.models.plant import Plant
 from mrm_cosim.models.robot import Robot
+from mrm_cosim.protocol.link import DEFAULT_SLOTS
 from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["ClosedLoop", "LoopResult", "LineFault", "FAULT_KINDS"]
@@ -113,7 +114,7 @@ class LineFault:
         """The :class:`hdl.system.System` input it drives."""
         return f"fault_{self.direction}{self.node}"
 
-    def value(self, slots: int = 3) -> int:
+    def value(self, slots: int = DEFAULT_SLOTS) -> int:
         """The raw value of a ``line_fault_layout(slots)`` port while the fault lasts."""
         every = (1 << slots) - 1
         on = {"cut": {"clear_d": every, "clear_s": every},
