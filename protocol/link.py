@@ -160,8 +160,9 @@ def codec_params(*, slots=DEFAULT_SLOTS, start_div=None, run_div=DEFAULT_RUN_DIV
     check_cycles(disconnect_cycles, "Disconnect time", 3)
     check_cycles(wait_cycles, "Wait time")
     # Exchange of silence: the peer must have detected our silence and fallen silent itself
-    # before our receiver comes out of Error-Reset.
-    check_cycles(reset_cycles, "Reset time (disconnect time + 5)", disconnect_cycles + 5)
+    # before our receiver comes out of Error-Reset (+ 6: D falls one cycle after S, at both
+    # ends).
+    check_cycles(reset_cycles, "Reset time (disconnect time + 6)", disconnect_cycles + 6)
     if not _is_int(rx_fifo_depth) or rx_fifo_depth < FCT_CREDIT + 1:
         raise ValueError(f"Receive FIFO depth must be an integer of at least "
                          f"{FCT_CREDIT + 1}, not {rx_fifo_depth!r}")
