@@ -118,7 +118,7 @@ def test_reset_is_controlled_s_before_d(slots, div):
         ctx.set(dut.fast, 1)
         ctx.set(dut.run_div, div)
         ctx.set(dut.groups.valid, 1)
-        for run in range(40):
+        for _ in range(40):
             ctx.set(dut.enable, 1)
             for _ in range(int(rng.integers(3, 12))):
                 ctx.set(dut.groups.p.bits, int(rng.integers(0, 1 << 10)))
