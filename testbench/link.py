@@ -397,8 +397,9 @@ class PeerBench:
             await self.cycle(ctx)
         raise AssertionError(f"condition not reached within {limit} cycles")
 
-    async def bring_up(self, ctx, *, fast_div=1):
-        """Handshake to Run: NULLs once the DUT has started, an FCT once it sends FCTs."""
+    async def bring_up(self, ctx, *, fast_div=None):
+        """Handshake to Run: NULLs once the DUT has started, an FCT once it sends FCTs; then
+        the peer sends at ``fast_div`` slots per bit (default: the DUT's run rate)."""
         from mrm_cosim.hdl.link.chars import LinkState
         dut = self.dut
         ctx.set(dut.link_start, 1)
@@ -407,7 +408,7 @@ class PeerBench:
         await self.until(ctx, lambda: any(t == ("FCT",) for _, t in self.monitor.tokens))
         self.peer.send(("FCT",))
         await self.until(ctx, lambda: ctx.get(dut.running))
-        self.peer.div = fast_div
+        self.peer.div = fast_div or dut.run_div_init
 
     def errors(self, ctx):
         counts = ctx.get(self.dut.errors)
