@@ -270,7 +270,8 @@ class LineMonitor:
     first NULL on, with NULL and time-codes merged as in :func:`token_bits`; ``parity_errors``
     counts parity failures. ``bit_slots`` are the slot indices (from the start) of every bit,
     ``changes`` the ``(cycle, slot)`` of every change on either line. A drop of both lines from
-    1 1 to 0 0 (the transmitter being reset) restarts the framing and is logged in ``resets``.
+    1 1 to 0 0 in one slot (a transmitter reset that is not a controlled one; the project's
+    codec lowers S first, then D, since 25 Nov) restarts the framing and is logged in ``resets``.
     """
 
     def __init__(self, slots):
