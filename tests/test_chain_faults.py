@@ -212,8 +212,9 @@ class FaultBench:
 
 
 @pytest.mark.parametrize("name, fault, receiver_error, timers", [
-    ("cut-standard-timers", {"clear_d": 0b111, "clear_s": 0b111}, "disconnect", STANDARD),
-    ("d-wire-cut", {"clear_d": 0b111}, "parity", SHORT),
+    ("cut-standard-timers", {"clear_d": 0b111111, "clear_s": 0b111111}, "disconnect",
+     STANDARD),
+    ("d-wire-cut", {"clear_d": 0b111111}, "parity", SHORT),
 ])
 def test_cut_on_the_way_down_is_counted_and_the_cut_package_never_delivered(
         name, fault, receiver_error, timers):
@@ -314,7 +315,8 @@ def test_bit_error_on_the_way_up_is_counted_and_the_cut_reply_ends_in_eep():
         await time_code(ctx, 2)
 
     async def fault_injector(ctx):
-        await bench.inject(ctx, chain.fault_up, {"flip_d": 0b010, "flip_s": 0b010},
+        # D and S flipped for one bit period (slots 2 and 3 of 6): one bit's value inverted.
+        await bench.inject(ctx, chain.fault_up, {"flip_d": 0b001100, "flip_s": 0b001100},
                            after=FAULT_AFTER, codec_stream=n1.down_codec.rx, duration=1)
 
     async def node3(ctx):
