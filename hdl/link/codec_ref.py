@@ -82,6 +82,7 @@ class CodecRef:
         self._buf_mask = (1 << (GROUP_BITS + self.slots - 1)) - 1
         self._div_mask = _range_mask(self.max_run_div + 1)
         self._min_div = min_div(self.slots)
+        self._refill = -(-self.slots // self._min_div)     # most bits a cycle can take
         self.reset()
 
     def reset(self):
@@ -142,7 +143,7 @@ class CodecRef:
             dv |= d << i
             sv |= s << i
         remain = cnt - taken
-        return dv, sv, lft, taken, remain, enable and remain < slots
+        return dv, sv, lft, taken, remain, enable and remain < self._refill
 
     def _tx_ready(self, ds_ready: bool) -> bool:
         running = self.state == _RUN

@@ -60,7 +60,8 @@ class DSTransmitter(wiring.Component):
         ``max_run_div``; takes effect from the next bit that starts.
     groups : In(stream.Signature(TxBits))
         Bit groups to send. ``ready`` is high, whatever ``valid`` is, in the cycles where fewer
-        than ``slots`` bits would remain queued after this cycle's slots: a group accepted then
+        bits would remain queued after this cycle's slots than a cycle can take at most
+        (``ceil(slots / min_div(slots))``: ``slots`` up to 4, 3 at 6): a group accepted then
         follows the queued bits without a gap.
     d_out, s_out : Out(slots)
         Registered line samples, bit 0 = earliest slot.
@@ -148,9 +149,13 @@ class DSTransmitter(wiring.Component):
         m.d.comb += taken_all.eq(Mux(n_starts < cnt, n_starts, cnt))
         taken = taken_all
         remain = Signal.like(cnt)
+        # Refill when fewer bits remain than a cycle can take at most (`slots` up to 4 slots,
+        # 3 at 6 slots): the line never starves (a group is at least 4 bits), and a character
+        # is chosen as late as that allows, the same cycle as with one slot per bit.
+        refill = -(-slots // lo)
         m.d.comb += [
             remain.eq(cnt - taken),
-            self.groups.ready.eq(self.enable & (remain < slots)),
+            self.groups.ready.eq(self.enable & (remain < refill)),
         ]
 
         with m.If(~self.enable):
