@@ -158,13 +158,26 @@ class DSTransmitter(wiring.Component):
                                    Array(buf[k] for k in range(i + 1))[n_i - 1]))
             d_slots.append(d_i)
             s_slots.append(d_i ^ ds_last ^ n_i[0])
-        # After the last start (slot left + (taken − 1)·div) the bit runs on for div slots;
-        # with none, `left` only counts down: either way max(left + taken·div − slots, 0).
-        div = Signal(range(max(self._start_div, hi) + 1))
-        m.d.comb += div.eq(Mux(self.fast, run_div, self._start_div))
-        lft_end = Signal(signed(len(left) + 2 * len(div) + 2))
-        m.d.comb += lft_end.eq(left + taken_all * div - slots)
-        lft = Mux(lft_end < 0, 0, lft_end)
+        # `left` after this cycle: with no bit to start it only counts down (left − slots, or
+        # 0); if the bits ran out before every start (cnt < n_starts) the last one is over
+        # within the cycle (0); else the last start, in slot left + (n_starts − 1)·div, runs on
+        # for div slots: left + n_starts·div − slots, a table again (one start per cycle when
+        # div > slots: left + div − slots). No product on the path.
+        def after(lft0, div):
+            return max(lft0 + starts(lft0, div) * div - slots, 0)
+
+        lft_full = Signal.like(left)
+        with m.Switch(left):
+            for lft0 in range(slots):
+                with m.Case(lft0):
+                    run_full = Mux(run_div > slots, lft0 + run_div - slots,
+                                   Array(Const(after(lft0, max(div, lo)), len(left))
+                                         for div in range(slots + 1))[short])
+                    m.d.comb += lft_full.eq(Mux(self.fast, run_full,
+                                                after(lft0, self._start_div)))
+            with m.Default():
+                m.d.comb += lft_full.eq(left - slots)
+        lft = Mux(cnt < n_starts, 0, lft_full)
         remain = Signal.like(cnt)
         # Refill when fewer bits remain than a cycle can take at most (`slots` up to 4 slots,
         # 3 at 6 slots): the line never starves (a group is at least 4 bits), and a character
