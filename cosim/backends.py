@@ -26,6 +26,7 @@ from mrm_cosim.hdl.link.chain import char_int, char_value
 from mrm_cosim.models.encoder import quadrature_levels
 from mrm_cosim.protocol import packet as ref
 from mrm_cosim.protocol.fixed import FORCE
+from mrm_cosim.protocol.link import DEFAULT_SLOTS
 from mrm_cosim.protocol.regs import NodeEvent
 from mrm_cosim.units import CLOCK_HZ
 
@@ -226,7 +227,7 @@ class LineSide(GatewareSide):
         Keep every per-cycle output sample the loop reads (:meth:`trace`).
     """
 
-    def __init__(self, faults=(), line_slots: int = 3, record: bool = False):
+    def __init__(self, faults=(), line_slots: int = DEFAULT_SLOTS, record: bool = False):
         self.cycle = 0
         self.n = 0
         self._faults = list(faults)
@@ -399,7 +400,7 @@ class CompiledBackend(LineSide):
     name = "compiled"
 
     def __init__(self, factory, key: str, quiet: bool = True, vcd: VcdWindow | None = None,
-                 faults=(), line_slots: int = 3, record: bool = False):
+                 faults=(), line_slots: int = DEFAULT_SLOTS, record: bool = False):
         from mrm_cosim.cosim.compiled import CompiledModel
 
         super().__init__(faults, line_slots, record)
@@ -475,8 +476,8 @@ class PysimBackend(LineSide):
 
     name = "pysim"
 
-    def __init__(self, system, vcd: VcdWindow | None = None, faults=(), line_slots: int = 3,
-                 record: bool = False):
+    def __init__(self, system, vcd: VcdWindow | None = None, faults=(),
+                 line_slots: int = DEFAULT_SLOTS, record: bool = False):
         super().__init__(faults, line_slots, record)
         self.system = system
         self.vcd = vcd

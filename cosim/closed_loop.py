@@ -34,6 +34,7 @@ from mrm_cosim.master.cycle import Master
 from mrm_cosim.master.uploads import startup_sends
 from mrm_cosim.models.plant import Plant
 from mrm_cosim.models.robot import Robot
+from mrm_cosim.protocol.link import DEFAULT_SLOTS
 from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["ClosedLoop", "LoopResult", "LineFault", "FAULT_KINDS"]
@@ -42,7 +43,8 @@ __all__ = ["ClosedLoop", "LoopResult", "LineFault", "FAULT_KINDS"]
 #: Line faults :class:`LineFault` can inject (``hdl.link.chain.line_fault_layout`` controls).
 FAULT_KINDS = {
     "cut": "both wires cut (D and S read 0 in every slot): a broken cable",
-    "bit": "D and S inverted in the cycle's first slot: one bit's value flipped, framing kept",
+    "bit": ("D and S inverted for the first 6.67 ns of the cycle (one bit at 150 Mbit/s): "
+            "one bit's value flipped, framing kept"),
     "stuck-d": "the D wire stuck at 0 (S still toggles)",
 }
 
@@ -113,11 +115,12 @@ class LineFault:
         """The :class:`hdl.system.System` input it drives."""
         return f"fault_{self.direction}{self.node}"
 
-    def value(self, slots: int = 3) -> int:
+    def value(self, slots: int = DEFAULT_SLOTS) -> int:
         """The raw value of a ``line_fault_layout(slots)`` port while the fault lasts."""
         every = (1 << slots) - 1
+        bit = (1 << max(1, slots // 3)) - 1     # one 6.67 ns bit at 150 Mbit/s
         on = {"cut": {"clear_d": every, "clear_s": every},
-              "bit": {"flip_d": 1, "flip_s": 1},
+              "bit": {"flip_d": bit, "flip_s": bit},
               "stuck-d": {"clear_d": every}}[self.kind]
         layout = line_fault_layout(slots)
         return sum(v << layout[f].offset for f, v in on.items())

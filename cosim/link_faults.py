@@ -19,8 +19,10 @@ A fault starts on a quiet link (both in Run for ``SETTLE`` cycles), on one line 
 b → a), as masks on the line samples (``(clear, set, flip)`` per slot for D and S, like
 :class:`~testbench.link.FaultyLine`). Kinds:
 
-- ``bit``: one slot of D flipped; ``burst``: 2-12 consecutive slots of D and/or S flipped at
-  random; ``cut``: both lines low for 1-80 cycles (the disconnect time is 43);
+- ``bit``: D flipped for one bit period at the run rate (2 slots of the default 6; a glitch
+  of one 3.33 ns sample is mostly absorbed by the receiver's second sample per bit, docs/link.md
+  "Receiver margin"); ``burst``: 2-12 consecutive slots of D and/or S flipped at random;
+  ``cut``: both lines low for 1-80 cycles (the disconnect time is 43);
   ``stuck-d`` / ``stuck-s``: one line held high or low for 1-80 cycles;
 - ``lost-fct``: the next FCT on the line vanishes: the line holds its levels for the FCT's four
   bits, which removes them and nothing else (four is even, so the data-strobe phase is kept);
@@ -123,6 +125,7 @@ class LinkCampaign:
         self.params = {**SHORT_TIMERS, **params}
         self.codecs = {"a": CodecRef(**self.params), "b": CodecRef(**self.params)}
         self.slots = self.codecs["a"].slots
+        self.bit_slots = self.codecs["a"].run_div      # slots per bit in Run
         self.hosts = {w: _Host(np.random.default_rng([seed, i])) for i, w in enumerate("ab")}
         self.cycle = 0
         self.tc = 0
@@ -204,7 +207,9 @@ class LinkCampaign:
             m[which][op] |= 1 << i
 
         if fault.kind == "bit":
-            put(start * n + int(rng.integers(0, 4 * n)), 0, 2)
+            first = start * n + int(rng.integers(0, 4 * n))
+            for k in range(self.bit_slots):
+                put(first + k, 0, 2)
         elif fault.kind == "burst":
             first = start * n + int(rng.integers(0, 4 * n))
             for k in range(int(rng.integers(2, 13))):

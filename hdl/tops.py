@@ -15,6 +15,7 @@ from amaranth.back import verilog
 from amaranth.lib import wiring
 
 from mrm_cosim.protocol.joint_program import PID_SHIFT_MAX
+from mrm_cosim.protocol.link import DEFAULT_RUN_DIV, DEFAULT_SLOTS
 from mrm_cosim.errors import InputError
 
 from .link.node import link_node_top
@@ -39,11 +40,13 @@ class Top:
                 if p.kind is p.KEYWORD_ONLY}
 
 
-def _spw_codec(*, slots: int = 3, start_div: int | None = None, run_div: int = 1,
+def _spw_codec(*, slots: int = DEFAULT_SLOTS, start_div: int | None = None,
+               run_div: int = DEFAULT_RUN_DIV, max_run_div: int | None = None,
                reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
                rx_fifo_depth: int = 64) -> wiring.Component:
     from .link.codec import Codec
-    return Codec(slots=slots, start_div=start_div, run_div=run_div, reset_cycles=reset_cycles,
+    return Codec(slots=slots, start_div=start_div, run_div=run_div, max_run_div=max_run_div,
+                 reset_cycles=reset_cycles,
                  wait_cycles=wait_cycles, disconnect_cycles=disconnect_cycles,
                  rx_fifo_depth=rx_fifo_depth)
 

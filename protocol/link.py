@@ -23,8 +23,9 @@ import enum
 
 __all__ = ["CharKind", "ControlCode", "LinkState", "ERROR_CLASSES",
            "DATA_BITS", "CONTROL_BITS", "NULL_BITS", "TIME_BITS", "GROUP_BITS", "NULL_PATTERN",
-           "FCT_CREDIT", "MAX_CREDIT", "CREDIT_TIMEOUT",
-           "MAX_SLOTS", "check_slots", "check_div", "check_cycles",
+           "FCT_CREDIT", "MAX_CREDIT", "CREDIT_TIMEOUT", "DEFAULT_SLOTS", "DEFAULT_RUN_DIV",
+           "MAX_SLOTS", "MAX_BITS_PER_CYCLE", "min_div", "check_slots", "check_div",
+           "check_cycles",
            "codec_params"]
 
 
@@ -85,9 +86,19 @@ NULL_PATTERN = 0b1110100
 FCT_CREDIT = 8
 MAX_CREDIT = 56
 
-#: Widest SERDES supported: with at most 4 slots a cycle holds at most one character boundary,
-#: which the character receiver and the transmitter's refill rule rely on.
-MAX_SLOTS = 4
+#: Widest SERDES supported (line samples per cycle and line).
+MAX_SLOTS = 8
+
+#: Most line bits a cycle may carry: with at most 4 a cycle holds at most one character
+#: boundary, which the character receiver (one commit per cycle) and the transmitter's refill
+#: rule (a group of at least 4 bits per cycle keeps the line busy) rely on. A bit period is
+#: therefore at least ``min_div(slots)`` slots.
+MAX_BITS_PER_CYCLE = 4
+
+
+def min_div(slots: int) -> int:
+    """Shortest bit period, in slots, a transmitter of ``slots`` slots per cycle may use."""
+    return -(-slots // MAX_BITS_PER_CYCLE)
 
 
 def _is_int(value):
@@ -100,9 +111,11 @@ def check_slots(slots):
                          f"not {slots!r}")
 
 
-def check_div(div, name):
-    if not _is_int(div) or div < 1:
-        raise ValueError(f"{name} must be a positive integer number of slots, not {div!r}")
+def check_div(div, name, slots=1):
+    if not _is_int(div) or div < min_div(slots):
+        raise ValueError(f"{name} must be an integer number of slots of at least "
+                         f"{min_div(slots)} (at most {MAX_BITS_PER_CYCLE} bits per cycle), "
+                         f"not {div!r}")
 
 
 def check_cycles(cycles, name, minimum=1):
@@ -117,28 +130,46 @@ def check_cycles(cycles, name, minimum=1):
 CREDIT_TIMEOUT = 640
 
 
-def codec_params(*, slots=3, start_div=None, run_div=1, reset_cycles=320, wait_cycles=640,
-                 disconnect_cycles=43, rx_fifo_depth=64, credit_timeout=CREDIT_TIMEOUT):
-    """Check the codec's parameters; return them with ``start_div`` resolved (10 Mbit/s).
+#: Default SERDES: 6 line samples per 20 ns cycle (300 MS/s), and the default run rate: 2 slots
+#: per bit = 150 Mbit/s, two samples per bit (docs/link.md "Receiver margin").
+DEFAULT_SLOTS = 6
+DEFAULT_RUN_DIV = 2
 
-    ``credit_timeout`` 0 turns the lost-FCT check off (for hosts that pause inside packets).
+
+def codec_params(*, slots=DEFAULT_SLOTS, start_div=None, run_div=DEFAULT_RUN_DIV,
+                 max_run_div=None, reset_cycles=320, wait_cycles=640,
+                 disconnect_cycles=43, rx_fifo_depth=64, credit_timeout=CREDIT_TIMEOUT):
+    """Check the codec's parameters; return them with ``start_div`` (10 Mbit/s) and
+    ``max_run_div`` (the slowest run rate the ``run_div`` port selects: ``start_div``, or
+    ``run_div`` if that is slower) resolved.
+
+    ``run_div`` is the reset value of the codec's run-rate port. ``credit_timeout`` 0 turns the
+    lost-FCT check off (for hosts that pause inside packets).
     """
     check_slots(slots)
     if start_div is None:
         start_div = 5 * slots
-    check_div(start_div, "Start bit period")
-    check_div(run_div, "Run bit period")
+    check_div(start_div, "Start bit period", slots)
+    check_div(run_div, "Run bit period", slots)
+    if max_run_div is None:
+        max_run_div = max(start_div, run_div)
+    check_div(max_run_div, "Slowest run bit period", slots)
+    if max_run_div < run_div:
+        raise ValueError(f"Slowest run bit period must be at least the run bit period "
+                         f"{run_div}, not {max_run_div!r}")
     check_cycles(disconnect_cycles, "Disconnect time", 3)
     check_cycles(wait_cycles, "Wait time")
     # Exchange of silence: the peer must have detected our silence and fallen silent itself
-    # before our receiver comes out of Error-Reset.
-    check_cycles(reset_cycles, "Reset time (disconnect time + 5)", disconnect_cycles + 5)
+    # before our receiver comes out of Error-Reset (+ 6: D falls one cycle after S, at both
+    # ends).
+    check_cycles(reset_cycles, "Reset time (disconnect time + 6)", disconnect_cycles + 6)
     if not _is_int(rx_fifo_depth) or rx_fifo_depth < FCT_CREDIT + 1:
         raise ValueError(f"Receive FIFO depth must be an integer of at least "
                          f"{FCT_CREDIT + 1}, not {rx_fifo_depth!r}")
     if not _is_int(credit_timeout) or credit_timeout < 0:
         raise ValueError(f"Credit timeout must be an integer number of cycles, 0 (off) or "
                          f"more, not {credit_timeout!r}")
-    return dict(slots=slots, start_div=start_div, run_div=run_div, reset_cycles=reset_cycles,
+    return dict(slots=slots, start_div=start_div, run_div=run_div, max_run_div=max_run_div,
+                reset_cycles=reset_cycles,
                 wait_cycles=wait_cycles, disconnect_cycles=disconnect_cycles,
                 rx_fifo_depth=rx_fifo_depth, credit_timeout=credit_timeout)

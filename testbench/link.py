@@ -270,7 +270,8 @@ class LineMonitor:
     first NULL on, with NULL and time-codes merged as in :func:`token_bits`; ``parity_errors``
     counts parity failures. ``bit_slots`` are the slot indices (from the start) of every bit,
     ``changes`` the ``(cycle, slot)`` of every change on either line. A drop of both lines from
-    1 1 to 0 0 (the transmitter being reset) restarts the framing and is logged in ``resets``.
+    1 1 to 0 0 in one slot (a transmitter reset that is not a controlled one; the project's
+    codec lowers S first, then D, since 25 Nov) restarts the framing and is logged in ``resets``.
     """
 
     def __init__(self, slots):
@@ -397,8 +398,9 @@ class PeerBench:
             await self.cycle(ctx)
         raise AssertionError(f"condition not reached within {limit} cycles")
 
-    async def bring_up(self, ctx, *, fast_div=1):
-        """Handshake to Run: NULLs once the DUT has started, an FCT once it sends FCTs."""
+    async def bring_up(self, ctx, *, fast_div=None):
+        """Handshake to Run: NULLs once the DUT has started, an FCT once it sends FCTs; then
+        the peer sends at ``fast_div`` slots per bit (default: the DUT's run rate)."""
         from mrm_cosim.hdl.link.chars import LinkState
         dut = self.dut
         ctx.set(dut.link_start, 1)
@@ -407,7 +409,7 @@ class PeerBench:
         await self.until(ctx, lambda: any(t == ("FCT",) for _, t in self.monitor.tokens))
         self.peer.send(("FCT",))
         await self.until(ctx, lambda: ctx.get(dut.running))
-        self.peer.div = fast_div
+        self.peer.div = fast_div or dut.run_div_init
 
     def errors(self, ctx):
         counts = ctx.get(self.dut.errors)

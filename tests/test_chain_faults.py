@@ -46,15 +46,17 @@ OTHERS = ("master", "node1.up", "node2.down", "node3.up")
 #   transition and the state changes a cycle later. Under a cut the last transition is at the
 #   latest the cut's own edge, in the first faulty cycle. A bit error is found sooner (parity).
 DETECT_MAX = DISCONNECT + 1
-# - The end that detects the fault enters Error-Reset and drops its line a cycle later. If
-#   that drop changes no line its last transition was in its last Run cycle (+ DISCONNECT + 1);
-#   if it changes D and S together it is a transition but no bit (+ DISCONNECT + 2); if it
-#   changes one line it is one more bit of value 0 on the peer's line, which can complete a
-#   character whose parity then fails: the peer's state changes 1 + 3 register stages later.
-#   Either class is the standard's behaviour (a link that stops mid-character).
+# - The end that detects the fault enters Error-Reset and lowers S a cycle later, D (if it was
+#   high with S) one cycle after that: the standard's controlled reset, never both in one slot.
+#   If that changes no line its last transition was in its last Run cycle (+ DISCONNECT + 1);
+#   if S falls alone, or S and then D, the last transition is 1 or 2 cycles later
+#   (+ DISCONNECT + 2, + DISCONNECT + 3), and each is one more bit on the peer's line, which
+#   can complete a character whose parity then fails: the peer's state changes 1 + 3 or
+#   2 + 3 register stages later. Either class is the standard's behaviour (a link that stops
+#   mid-character).
 PEER_OUTCOMES = {("disconnect", DISCONNECT + 1), ("disconnect", DISCONNECT + 2),
-                 ("parity", 1 + 3)}
-SILENCE_MAX = DISCONNECT + 2
+                 ("disconnect", DISCONNECT + 3), ("parity", 1 + 3), ("parity", 2 + 3)}
+SILENCE_MAX = DISCONNECT + 3
 # - Handshake, from the later end's Ready: the link_start end (node 1's downstream codec) is
 #   Started a cycle later; its first NULL, from a freshly started transmitter, is recognised
 #   2 + 7 BIT + 3 cycles later and the auto-start end starts; that end's first NULL takes as
@@ -212,8 +214,9 @@ class FaultBench:
 
 
 @pytest.mark.parametrize("name, fault, receiver_error, timers", [
-    ("cut-standard-timers", {"clear_d": 0b111, "clear_s": 0b111}, "disconnect", STANDARD),
-    ("d-wire-cut", {"clear_d": 0b111}, "parity", SHORT),
+    ("cut-standard-timers", {"clear_d": 0b111111, "clear_s": 0b111111}, "disconnect",
+     STANDARD),
+    ("d-wire-cut", {"clear_d": 0b111111}, "parity", SHORT),
 ])
 def test_cut_on_the_way_down_is_counted_and_the_cut_package_never_delivered(
         name, fault, receiver_error, timers):
@@ -314,7 +317,8 @@ def test_bit_error_on_the_way_up_is_counted_and_the_cut_reply_ends_in_eep():
         await time_code(ctx, 2)
 
     async def fault_injector(ctx):
-        await bench.inject(ctx, chain.fault_up, {"flip_d": 0b010, "flip_s": 0b010},
+        # D and S flipped for one bit period (slots 2 and 3 of 6): one bit's value inverted.
+        await bench.inject(ctx, chain.fault_up, {"flip_d": 0b001100, "flip_s": 0b001100},
                            after=FAULT_AFTER, codec_stream=n1.down_codec.rx, duration=1)
 
     async def node3(ctx):

@@ -36,9 +36,9 @@ def test_writes_the_node_module_with_its_ports(node_verilog):
         "down__s_in", "down__d_out", "down__s_out", "tc_strobe", "tc_time", "tc_stamp",
         "tc_in_sequence", "cycle", "up_running", "down_running", "rx_stats", "dropped",
         "up_errors", "down_errors", "clk", "rst"}
-    # Beat = header (32) + data (8) + last (1); three line slots per cycle by default.
+    # Beat = header (32) + data (8) + last (1); six line slots per cycle by default.
     assert "input [40:0] tx__payload;" in text and "output [40:0] rx__payload;" in text
-    assert "input [2:0] up__d_in;" in text and "output [2:0] down__d_out;" in text
+    assert "input [5:0] up__d_in;" in text and "output [5:0] down__d_out;" in text
     assert sorted(p.name for p in node_verilog.parent.iterdir()) == written("link_node")
 
 

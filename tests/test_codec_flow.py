@@ -9,10 +9,13 @@ import pytest
 
 from mrm_cosim.hdl.link.chars import CharKind, LinkState
 from mrm_cosim.hdl.link.codec_ref import char_value
+from mrm_cosim.protocol.link import DEFAULT_SLOTS
 
 from mrm_cosim.testbench import PairBench
 
 SHORT = {"reset_cycles": 60, "wait_cycles": 150}
+SLOTS = DEFAULT_SLOTS
+ALL = (1 << SLOTS) - 1             # every slot of a cycle
 DATA, EOP, EEP = (k.value for k in CharKind)
 
 
@@ -114,7 +117,7 @@ def test_cut_packet_ends_in_eep_and_its_rest_is_spilled_at_the_sender():
         await bench.bring_up(ctx)
         bench.tx["a"] = first + second
         await bench.run(ctx, 100)                       # part of the first packet is across
-        bench.faults["ab"] = ((7, 0, 0), (7, 0, 0))    # cut, longer than the 850 ns timeout
+        bench.faults["ab"] = ((ALL, 0, 0), (ALL, 0, 0))    # cut, longer than the 850 ns timeout
         await bench.run(ctx, 100)
         bench.faults.clear()
         await bench.until(ctx, lambda: len(bench.received["b"]) >= 2 and
@@ -145,10 +148,10 @@ def test_disconnect_detected_within_the_standard_window():
         prev = None
         for n in range(200):
             if n == 50:
-                bench.faults["ab"] = ((7, 0, 0), (7, 0, 0))
+                bench.faults["ab"] = ((ALL, 0, 0), (ALL, 0, 0))
             bench.apply_faults(ctx)
             word = (ctx.get(bench.pair.ab.d_out), ctx.get(bench.pair.ab.s_out))
-            for i in range(3):
+            for i in range(SLOTS):
                 bit = ((word[0] >> i) & 1, (word[1] >> i) & 1)
                 if prev is not None and bit != prev:
                     seen.append((bench.cycles, i))
@@ -162,7 +165,7 @@ def test_disconnect_detected_within_the_standard_window():
     last_cycle, last_slot = max(c for c in seen if c[0] < result["left_run"])
     # The error is flagged in the cycle before b enters Error-Reset.
     flagged = result["left_run"] - 1
-    detect_ns = (flagged - last_cycle) * 20 - last_slot * 20 / 3
+    detect_ns = (flagged - last_cycle) * 20 - last_slot * 20 / SLOTS
     assert 727 <= detect_ns <= 1000
-    assert 846 < detect_ns <= 860, "43 cycles from the last transition's cycle"
+    assert 843 < detect_ns <= 860, "43 cycles from the last transition's cycle"
     assert result["errors"]["disconnect"] == 1

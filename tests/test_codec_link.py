@@ -74,7 +74,8 @@ def test_startup_handshake_timing_at_standard_timers():
     assert t_run - t_started == 2 + 21 * bit + 3
     assert t_run * 20 == 21420, "21.42 µs from reset to Run"
 
-    # The line: only NULLs until Connecting, then FCTs; 15 slots per bit before Run, 1 after.
+    # The line: only NULLs until Connecting, then FCTs; 10 Mbit/s before Run (30 slots of
+    # 3.33 ns per bit), 150 Mbit/s after (2 slots).
     kinds_before_conn = {tok[0] for cyc, tok in monitor.tokens if cyc < t_conn}
     assert kinds_before_conn == {"NULL"}
     first_fct = next(cyc for cyc, tok in monitor.tokens if tok == ("FCT",))
@@ -85,10 +86,11 @@ def test_startup_handshake_timing_at_standard_timers():
     slow = {b - a for a, b in zip(monitor.bit_slots, monitor.bit_slots[1:], strict=False)
             if b < run_slot}
     fast = {b - a for a, b in zip(monitor.bit_slots, monitor.bit_slots[1:], strict=False)
-            if a > run_slot + 15}
-    assert slow == {15}, "10 Mbit/s before Run"
-    assert fast == {1}, "150 Mbit/s in Run"
-    assert gaps == {1, 15}
+            if a > run_slot + 30}
+    slot_ns = 20 / pair.a.slots
+    assert {g * slot_ns for g in slow} == {100}, "10 Mbit/s before Run"
+    assert {round(g * slot_ns, 3) for g in fast} == {6.667}, "150 Mbit/s in Run"
+    assert gaps == {2, 30}
 
 
 def test_auto_start_waits_for_the_peers_null():

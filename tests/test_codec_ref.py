@@ -42,8 +42,9 @@ def run_lockstep(params, n_cycles, seed, *, faults=None, controls=None, name="lo
                                             "link_disable": 0}))
                 inputs[who] = values
                 drive_codec_inputs(ctx, codecs[who], values)
-                for port in ("link_start", "auto_start", "link_disable"):
-                    ctx.set(getattr(codecs[who], port), values[port])
+                for port in ("link_start", "auto_start", "link_disable", "run_div"):
+                    if port in values:
+                        ctx.set(getattr(codecs[who], port), values[port])
             for key, line in lines.items():
                 fd, fs = fault.get(key, (NO_FAULT, NO_FAULT))
                 ctx.set(line.clear_d, fd[0])
@@ -76,7 +77,8 @@ def run_lockstep(params, n_cycles, seed, *, faults=None, controls=None, name="lo
     return hosts, refs, run_cycles
 
 
-@pytest.mark.parametrize("slots,run_div", [(1, 1), (2, 1), (3, 1), (3, 2), (4, 1), (4, 3)])
+@pytest.mark.parametrize("slots,run_div", [(1, 1), (2, 1), (3, 1), (3, 2), (4, 1), (4, 3),
+                                           (6, 2), (8, 3)])
 def test_reference_matches_rtl_with_traffic(slots, run_div):
     params = dict(SHORT, slots=slots, run_div=run_div, rx_fifo_depth=16)
     hosts, refs, run_cycles = run_lockstep(params, 1400, seed=slots * 10 + run_div,
@@ -121,9 +123,34 @@ def test_reference_matches_rtl_with_autostart_and_disable():
     assert run_cycles["b"] > 300
 
 
+def test_reference_matches_rtl_when_the_run_rate_changes_in_run():
+    """The run rate is a register the host sets at any time (§6.6 lets the rate change in
+    Run): both ends change it independently every 150 cycles, through every legal period,
+    out-of-range values clamped (0 and 1 to 2, 31 to the slowest, 30); RTL and reference
+    agree, the link stays up and carries traffic without an error."""
+    periods = [2, 3, 7, 1, 31, 0, 4, 2, 5]
+
+    def controls(cycle):
+        k = cycle // 150
+        return {who: {"link_start": 1, "auto_start": 0, "link_disable": 0,
+                      "run_div": periods[(k + off) % len(periods)]}
+                for who, off in (("a", 0), ("b", 4))}
+
+    params = dict(SHORT, slots=6, run_div=2, rx_fifo_depth=16)
+    hosts, refs, run_cycles = run_lockstep(params, 1600, seed=11, controls=controls,
+                                           name="ref_rate_change")
+    assert run_cycles["a"] > 1200 and run_cycles["b"] > 1200
+    for who, peer in (("a", "b"), ("b", "a")):
+        assert not any(refs[who].errors.values()), refs[who].errors
+        assert len(hosts[who].sent) > 30
+        assert hosts[peer].received == hosts[who].sent[:len(hosts[peer].received)]
+
+
 def test_reference_rejects_bad_parameters():
     with pytest.raises(ValueError, match="Slots"):
-        CodecRef(slots=5)
+        CodecRef(slots=9)
+    with pytest.raises(ValueError, match="Run bit period"):
+        CodecRef(slots=6, run_div=1)
     with pytest.raises(ValueError, match="FIFO depth"):
         CodecRef(rx_fifo_depth=8)
     assert CodecRef().outputs().state == LinkState.ERROR_RESET.value

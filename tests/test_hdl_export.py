@@ -84,3 +84,18 @@ def test_a_failed_write_leaves_no_partial_set(tmp_path, monkeypatch):
         hdl_command.write_verilog("spw_codec", out, {"slots": 1})
     assert e.value.field == "--out" and "No space left" in e.value.message
     assert not out.exists()
+
+
+def test_the_command_says_what_it_wrote_and_how_to_lint_it(tmp_path, capsys):
+    """``mrm hdl verilog`` prints the Verilog's path, each companion file with what it is, and
+    the Verilator command that is clean with the shipped waivers (test_verilog_codec.py runs
+    exactly that command)."""
+    from mrm_cosim.mrm import cli
+    assert cli.main(["hdl", "verilog", "--top", "spw_codec", "--out", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    v = tmp_path / "spw_codec.v"
+    assert lines[0] == str(v)
+    for suffix, what in hdl_command.COMPANIONS.items():
+        f = tmp_path / f"spw_codec{suffix}"
+        assert f.is_file() and f"{f}  ({what})" in lines
+    assert lines[-1].endswith(f"verilator --lint-only -Wall {tmp_path / 'spw_codec.vlt'} {v}")

@@ -115,16 +115,18 @@ def test_comm_a_reports_the_link_counters_as_the_request_found_them():
 
 
 def test_line_fault_values_and_bad_input():
-    slots = 3
+    slots = 6
+    every = (1 << slots) - 1
     names = list(line_fault_layout(slots).members)
 
     def fields(value):
-        return {n: (value >> (slots * i)) & 7 for i, n in enumerate(names) if
-                (value >> (slots * i)) & 7}
+        return {n: (value >> (slots * i)) & every for i, n in enumerate(names) if
+                (value >> (slots * i)) & every}
 
-    assert fields(LineFault(1, "up", "cut", 0).value()) == {"clear_d": 7, "clear_s": 7}
-    assert fields(LineFault(1, "up", "bit", 0).value()) == {"flip_d": 1, "flip_s": 1}
-    assert fields(LineFault(1, "up", "stuck-d", 0).value()) == {"clear_d": 7}
+    assert fields(LineFault(1, "up", "cut", 0).value()) == {"clear_d": every, "clear_s": every}
+    # One 6.67 ns bit at 150 Mbit/s: two slots of 3.33 ns (one slot of 6.67 ns at 3 slots).
+    assert fields(LineFault(1, "up", "bit", 0).value()) == {"flip_d": 3, "flip_s": 3}
+    assert fields(LineFault(1, "up", "stuck-d", 0).value()) == {"clear_d": every}
     assert LineFault(2, "down", "bit", 5).port == "fault_down2"
     assert set(FAULT_KINDS) == {"cut", "bit", "stuck-d"}
     for kwargs, field in [(dict(node=0), "fault.node"), (dict(direction="left"),

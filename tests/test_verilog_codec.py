@@ -45,8 +45,9 @@ def test_writes_the_codec_module_with_its_wire_ports(codec_verilog):
     assert ports == {"d_in", "s_in", "d_out", "s_out", "tx__payload", "tx__valid", "tx__ready",
                      "rx__payload", "rx__valid", "rx__ready", "tick_in", "time_in", "tick_out",
                      "time_out", "link_start", "auto_start", "link_disable", "running", "state",
-                     "errors", "tx_credit", "rx_credit", "clk", "rst"}
-    assert "input [2:0] d_in;" in text and "output [2:0] d_out;" in text
+                     "errors", "tx_credit", "rx_credit", "run_div", "clk", "rst"}
+    assert "input [5:0] d_in;" in text and "output [5:0] d_out;" in text
+    assert "input [4:0] run_div;" in text, "the run rate, 2 .. 30 slots per bit"
     assert sorted(p.name for p in codec_verilog.parent.iterdir()) == written("spw_codec"), \
         "no temporary file may be left behind"
 

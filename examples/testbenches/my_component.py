@@ -40,8 +40,8 @@ class PacketCounter(wiring.Component):
 class Top(wiring.Component):
     """The project's codec with your component on its receive side."""
 
-    d_in: In(3)
-    s_in: In(3)
+    d_in: In(6)                 # the codec's default SERDES: 6 line samples per cycle
+    s_in: In(6)
     data_bytes: Out(16)
     packets: Out(16)
     running: Out(1)
@@ -60,7 +60,7 @@ class Top(wiring.Component):
 
 def main(vcd_dir=None) -> dict:
     top = Top()
-    peer = LinePeer(slots=3, div=10)
+    peer = LinePeer(slots=6, div=20)                # 15 Mbit/s: 20 slots of 3.33 ns a bit
     result = {}
 
     async def testbench(ctx):

@@ -6,7 +6,8 @@
 
 The codec runs from one 50 MHz clock ("sync"); its line ports carry ``slots`` samples per
 cycle (see :mod:`hdl.link.ds`). It starts at 10 Mbit/s (``start_div`` slots per bit) and sends
-at ``run_div`` slots per bit once in Run (150 Mbit/s with the defaults).
+at the ``run_div`` port's bit period once in Run (150 Mbit/s with the defaults: 6 slots per
+cycle, 2 slots per bit, so the receiver takes two samples per bit of a peer at the same rate).
 
 Flow control: ``rx_credit`` counts the N-chars the peer may still send us; an FCT is sent when
 it is at most 48 and the receive FIFO has room for 8 more beyond it, keeping one FIFO entry in
@@ -33,7 +34,8 @@ from amaranth.lib import stream, wiring
 from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.wiring import In, Out
 
-from mrm_cosim.protocol.link import CREDIT_TIMEOUT, FCT_CREDIT, MAX_CREDIT, codec_params
+from mrm_cosim.protocol.link import (CREDIT_TIMEOUT, DEFAULT_RUN_DIV, DEFAULT_SLOTS, FCT_CREDIT,
+                                     MAX_CREDIT, codec_params)
 from mrm_cosim.units import CLOCK_HZ
 
 from ..helpers import rejecting
@@ -53,11 +55,14 @@ class Codec(wiring.Component):
     Parameters
     ----------
     slots : int
-        Line slots per 20 ns cycle (1 to 4): the SERDES width.
+        Line slots per 20 ns cycle (1 to 8): the SERDES width (6: 300 MS/s).
     start_div : int or None
         Bit period before Run, in slots; ``None`` for 10 Mbit/s (``5 * slots``).
     run_div : int
-        Bit period in Run, in slots (1: ``slots`` x 50 Mbit/s).
+        Reset value of the ``run_div`` port: the bit period in Run, in slots (2 with 6 slots:
+        150 Mbit/s). At least ``ceil(slots / 4)`` (at most 4 bits per cycle).
+    max_run_div : int or None
+        Longest bit period the ``run_div`` port selects; ``None``: ``start_div`` (10 Mbit/s).
     reset_cycles : int
         Error-Reset time, cycles (320 = 6.4 µs).
     wait_cycles : int
@@ -94,19 +99,27 @@ class Codec(wiring.Component):
         character sequence, credit timeout; :class:`ErrorCounts`, lowest bits first).
     tx_credit, rx_credit : Out(range(57))
         N-chars we may still send / the peer may still send us.
+    run_div : In(range(max_run_div + 1))
+        Bit period in Run, in slots, a level the host may change at any time (§6.6: the
+        transmit rate may change in Run): registered, then used by every bit that starts while
+        the link is in Run; values outside ``ceil(slots / 4)`` … ``max_run_div`` are clamped.
+        Left undriven it is ``run_div``.
     d_in, s_in, d_out, s_out : In(slots), Out(slots)
         The line, bit 0 = earliest slot of the cycle. Outputs are registered, inputs are
         registered before use.
     """
 
-    def __init__(self, *, slots: int = 3, start_div: int | None = None, run_div: int = 1,
+    def __init__(self, *, slots: int = DEFAULT_SLOTS, start_div: int | None = None,
+                 run_div: int = DEFAULT_RUN_DIV, max_run_div: int | None = None,
                  reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
                  rx_fifo_depth: int = 64, credit_timeout: int = CREDIT_TIMEOUT):
         with rejecting(self):
             params = codec_params(slots=slots, start_div=start_div, run_div=run_div,
-                                  reset_cycles=reset_cycles, wait_cycles=wait_cycles,
+                                  max_run_div=max_run_div, reset_cycles=reset_cycles,
+                                  wait_cycles=wait_cycles,
                                   disconnect_cycles=disconnect_cycles,
                                   rx_fifo_depth=rx_fifo_depth, credit_timeout=credit_timeout)
+        self.run_div_init = params.pop("run_div")      # the port below is `run_div`
         for name, value in params.items():
             setattr(self, name, value)
         super().__init__({
@@ -124,6 +137,7 @@ class Codec(wiring.Component):
             "errors":       Out(ErrorCounts),
             "tx_credit":    Out(range(MAX_CREDIT + 1)),
             "rx_credit":    Out(range(MAX_CREDIT + 1)),
+            "run_div":      In(range(self.max_run_div + 1), init=self.run_div_init),
             "d_in":         In(self.slots),
             "s_in":         In(self.slots),
             "d_out":        Out(self.slots),
@@ -137,7 +151,7 @@ class Codec(wiring.Component):
         m.submodules.char_rx = rx = CharReceiver(slots=self.slots,
                                                  disconnect_limit=self.disconnect_cycles - 2)
         m.submodules.char_tx = tx = CharTransmitter(slots=self.slots, start_div=self.start_div,
-                                                    run_div=self.run_div)
+                                                    max_run_div=self.max_run_div)
         m.submodules.fsm = fsm = LinkFSM(reset_cycles=self.reset_cycles,
                                          wait_cycles=self.wait_cycles)
         m.submodules.fifo = fifo = SyncFIFO(width=Char.as_shape().size,
@@ -224,9 +238,13 @@ class Codec(wiring.Component):
         discard    = Signal()       # dropping the rest of a packet cut by a link reset
         tx_in_packet = Signal()     # the last N-char taken from the host was a data character
         nchar_ok = running & (tx_credit != 0) & ~discard
+        # The run rate is registered, so that `tx.ready` stays a function of registers.
+        run_div = Signal(range(self.max_run_div + 1), init=self.run_div_init)
+        m.d.sync += run_div.eq(self.run_div)
         m.d.comb += [
             tx.enable.eq((state == LinkState.STARTED) | connecting | running),
             tx.fast.eq(running),
+            tx.run_div.eq(run_div),
             tx.send_time.eq(tc_pending),
             tx.time.eq(tc_value),
             tx.send_fct.eq((connecting | running) & fct_room),

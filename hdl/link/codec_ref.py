@@ -14,9 +14,9 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from mrm_cosim.protocol.link import (CREDIT_TIMEOUT, ERROR_CLASSES, FCT_CREDIT, GROUP_BITS,
-                                     MAX_CREDIT, NULL_PATTERN, CharKind, LinkState,
-                                     codec_params)
+from mrm_cosim.protocol.link import (CREDIT_TIMEOUT, DEFAULT_RUN_DIV, DEFAULT_SLOTS,
+                                     ERROR_CLASSES, FCT_CREDIT, GROUP_BITS, MAX_CREDIT,
+                                     NULL_PATTERN, CharKind, LinkState, codec_params, min_div)
 from mrm_cosim.protocol.packet import COUNTER_MAX
 
 __all__ = ["CodecRef", "CodecOutputs", "char_value", "char_fields", "saturating_sum_ref"]
@@ -66,11 +66,13 @@ def _range_mask(n: int) -> int:
 class CodecRef:
     """Cycle-level model of one codec; parameters as :class:`hdl.link.codec.Codec`."""
 
-    def __init__(self, *, slots: int = 3, start_div: int | None = None, run_div: int = 1,
+    def __init__(self, *, slots: int = DEFAULT_SLOTS, start_div: int | None = None,
+                 run_div: int = DEFAULT_RUN_DIV, max_run_div: int | None = None,
                  reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
                  rx_fifo_depth: int = 64, credit_timeout: int = CREDIT_TIMEOUT):
         params = codec_params(slots=slots, start_div=start_div, run_div=run_div,
-                              reset_cycles=reset_cycles, wait_cycles=wait_cycles,
+                              max_run_div=max_run_div, reset_cycles=reset_cycles,
+                              wait_cycles=wait_cycles,
                               disconnect_cycles=disconnect_cycles, rx_fifo_depth=rx_fifo_depth,
                               credit_timeout=credit_timeout)
         for name, value in params.items():
@@ -78,6 +80,9 @@ class CodecRef:
         self._limit = self.disconnect_cycles - 2
         self._timer_mask = _range_mask(max(self.reset_cycles, self.wait_cycles))
         self._buf_mask = (1 << (GROUP_BITS + self.slots - 1)) - 1
+        self._div_mask = _range_mask(self.max_run_div + 1)
+        self._min_div = min_div(self.slots)
+        self._refill = -(-self.slots // self._min_div)     # most bits a cycle can take
         self.reset()
 
     def reset(self):
@@ -99,6 +104,7 @@ class CodecRef:
         # Transmitter.
         self.buf = self.cnt = self.left = self.d_out = self.s_out = 0
         self.tx_par = 0
+        self.run_div_q = self.run_div       # the run-rate register (port `run_div` registered)
         # Credits, FIFO, packet bookkeeping, time-codes.
         self.tx_credit = self.rx_credit = 0
         self.eep_pending = self.rx_in_packet = 0
@@ -118,7 +124,8 @@ class CodecRef:
         """This cycle's line slots: (d, s, left after, bits taken, remaining, ready)."""
         slots = self.slots
         enable = self.state in (_STARTED, _CONNECTING, _RUN)
-        div_m1 = (self.run_div if self.state == _RUN else self.start_div) - 1
+        run_div = min(max(self.run_div_q, self._min_div), self.max_run_div)
+        div_m1 = (run_div if self.state == _RUN else self.start_div) - 1
         d = (self.d_out >> (slots - 1)) & 1
         s = (self.s_out >> (slots - 1)) & 1
         lft, taken, cnt, buf = self.left, 0, self.cnt, self.buf
@@ -136,7 +143,7 @@ class CodecRef:
             dv |= d << i
             sv |= s << i
         remain = cnt - taken
-        return dv, sv, lft, taken, remain, enable and remain < slots
+        return dv, sv, lft, taken, remain, enable and remain < self._refill
 
     def _tx_ready(self, ds_ready: bool) -> bool:
         running = self.state == _RUN
@@ -168,8 +175,9 @@ class CodecRef:
 
     def step(self, d_in: int = 0, s_in: int = 0, tx_valid: int = 0, tx_payload: int = 0,
              rx_ready: int = 0, tick_in: int = 0, time_in: int = 0, link_start: int = 0,
-             auto_start: int = 0, link_disable: int = 0):
-        """Advance one cycle with these inputs (``tx_payload`` is a Char value)."""
+             auto_start: int = 0, link_disable: int = 0, run_div: int | None = None):
+        """Advance one cycle with these inputs (``tx_payload`` is a Char value; ``run_div``
+        None: the port left undriven, i.e. its reset value ``self.run_div``)."""
         slots = self.slots
         state = self.state
         running = state == _RUN
@@ -291,8 +299,12 @@ class CodecRef:
         self.d_q, self.s_q = d_in, s_in
 
         # Transmitter.
+        self.run_div_q = (self.run_div if run_div is None else run_div) & self._div_mask
         if not tx_enable:
-            self.buf = self.cnt = self.left = self.d_out = self.s_out = 0
+            # Controlled reset: S falls first, D (if high with S) one cycle later.
+            d_last = (self.d_out >> (slots - 1)) & (self.s_out >> (slots - 1)) & 1
+            self.d_out = (1 << slots) - 1 if d_last else 0
+            self.buf = self.cnt = self.left = self.s_out = 0
             self.tx_par = 0
         else:
             self.d_out, self.s_out, self.left = dv, sv, lft

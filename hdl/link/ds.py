@@ -9,16 +9,19 @@ earliest slot of a cycle. With ``slots = 3`` a slot is 6.67 ns, so one bit per s
 150 Mbit/s and 15 slots per bit is 10 Mbit/s.
 
 :class:`DSTransmitter` shifts out groups of line bits (one character, NULL or time-code at a
-time) at a bit period of ``start_div`` or ``run_div`` slots. :class:`DSReceiver` marks the
-slots of each cycle in which ``D xor S`` changed (each carries a new bit whose value is D) and
-registers the result. It accepts any peer rate up to one bit per slot.
+time) at a bit period of ``start_div`` slots before Run and ``run_div`` slots in Run, the latter
+a register the host may change at any time (§6.6: the rate may change in Run). When disabled it
+takes the line to zero without a simultaneous transition of D and S: S falls first, D one cycle
+later. :class:`DSReceiver` marks the slots of each cycle in which ``D xor S`` changed (each
+carries a new bit whose value is D) and registers the result. It decodes a peer whose
+transitions are at least one sample period apart (docs/link.md "Receiver margin").
 """
 
 from amaranth import *
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from mrm_cosim.protocol.link import GROUP_BITS, check_div, check_slots
+from mrm_cosim.protocol.link import GROUP_BITS, check_div, check_slots, min_div
 
 from ..helpers import rejecting
 
@@ -39,34 +42,43 @@ class DSTransmitter(wiring.Component):
     ----------
     slots : int
         Line slots per clock cycle (1 to 4).
-    start_div, run_div : int
-        Bit period in slots while ``fast`` is low (link start-up, 10 Mbit/s) and high (Run).
+    start_div : int
+        Bit period in slots while ``fast`` is low (link start-up, 10 Mbit/s).
+    max_run_div : int
+        Longest bit period ``run_div`` may select.
 
     Attributes
     ----------
     enable : In(1)
-        Low: the transmitter is reset and both lines are held low.
+        Low: the transmitter is reset and the lines go low without a simultaneous transition
+        (ECSS-E-ST-50-12C Rev.1's controlled reset of an output port): S falls in the first
+        disabled cycle, D (if it was high with S) in the next, one cycle = ``slots`` slots later.
     fast : In(1)
         Selects ``run_div`` for every bit that starts while it is high.
+    run_div : In(range(max_run_div + 1))
+        Bit period in slots while ``fast`` is high, clamped to ``min_div(slots)`` …
+        ``max_run_div``; takes effect from the next bit that starts.
     groups : In(stream.Signature(TxBits))
         Bit groups to send. ``ready`` is high, whatever ``valid`` is, in the cycles where fewer
-        than ``slots`` bits would remain queued after this cycle's slots: a group accepted then
+        bits would remain queued after this cycle's slots than a cycle can take at most
+        (``ceil(slots / min_div(slots))``: ``slots`` up to 4, 3 at 6): a group accepted then
         follows the queued bits without a gap.
     d_out, s_out : Out(slots)
         Registered line samples, bit 0 = earliest slot.
     """
 
-    def __init__(self, *, slots: int, start_div: int, run_div: int):
+    def __init__(self, *, slots: int, start_div: int, max_run_div: int):
         with rejecting(self):
             check_slots(slots)
-            check_div(start_div, "Start bit period")
-            check_div(run_div, "Run bit period")
+            check_div(start_div, "Start bit period", slots)
+            check_div(max_run_div, "Slowest run bit period", slots)
         self._slots = slots
         self._start_div = start_div
-        self._run_div = run_div
+        self._max_run_div = max_run_div
         super().__init__({
-            "enable": In(1),
-            "fast":   In(1),
+            "enable":  In(1),
+            "fast":    In(1),
+            "run_div": In(range(max_run_div + 1)),
             "groups": In(stream.Signature(TxBits)),
             "d_out":  Out(slots),
             "s_out":  Out(slots),
@@ -78,60 +90,112 @@ class DSTransmitter(wiring.Component):
 
         buf  = Signal(GROUP_BITS + slots - 1)          # queued line bits, bit 0 next
         cnt  = Signal(range(len(buf) + 1))             # how many of them are valid
-        left = Signal(range(max(self._start_div, self._run_div)))  # slots left in this bit
+        left = Signal(range(max(self._start_div, self._max_run_div)))  # slots left in this bit
 
-        div_m1 = Mux(self.fast, self._run_div - 1, self._start_div - 1)
-
-        # Walk the slots of this cycle: a new bit starts in a slot where the previous bit is over.
-        d, s, lft = self.d_out[-1], self.s_out[-1], left
-        taken = Const(0, range(slots + 1))
-        d_slots, s_slots = [], []
-        for i in range(slots):
-            take  = Signal(name=f"take_{i}")
-            bit   = Signal(name=f"bit_{i}")
-            d_i   = Signal(name=f"d_{i}")
-            s_i   = Signal(name=f"s_{i}")
-            lft_i = Signal.like(left, name=f"left_{i}")
-            tkn_i = Signal(range(slots + 1), name=f"taken_{i}")
-            m.d.comb += [
-                take.eq((lft == 0) & (taken < cnt)),
-                bit.eq(buf.bit_select(taken, 1)),
-                d_i.eq(Mux(take, bit, d)),
-                s_i.eq(Mux(take, s ^ ~(bit ^ d), s)),   # S toggles when D does not
-                lft_i.eq(Mux(take, div_m1, Mux(lft == 0, 0, lft - 1))),
-                tkn_i.eq(taken + take),
-            ]
-            d_slots.append(d_i)
-            s_slots.append(s_i)
-            d, s, lft, taken = d_i, s_i, lft_i, tkn_i
+        lo, hi = min_div(slots), self._max_run_div
+        run_div = Signal(range(hi + 1))                 # run_div clamped to lo … hi
+        m.d.comb += run_div.eq(Mux(self.run_div < lo, lo,
+                                   Mux(self.run_div > hi, hi, self.run_div)))
 
         # The bits this cycle takes, in closed form: the walk above starts a bit in slot
         # `left` (if `left < slots`) and then every `div` slots, as long as bits remain, so it
         # takes min(cnt, starts(left, div)) of them — the same number as its chain of per-slot
         # sums, without that chain on the path to `ready` (and from there to the codec's
         # credit counters), which limited the codec's clock (50.6 MHz on an ECP5).
-        def starts(div):
-            return Array(Const(0 if lft0 >= slots else 1 + (slots - 1 - lft0) // div,
-                               range(slots + 1))
-                         for lft0 in range(2 ** len(left)))[left]
+        # With a run-time bit period the table has a row per period up to `slots` (any longer
+        # period starts at most one bit per cycle, like `slots`).
+        def starts(lft0, div):
+            return 0 if lft0 >= slots else 1 + (slots - 1 - lft0) // div
 
+        n_start = Signal(range(slots + 1))
+        n_run = Signal(range(slots + 1))
+        short = Signal(range(slots + 1))                 # run_div, or `slots` if longer
+        m.d.comb += short.eq(Mux(run_div > slots, slots, run_div))
+        with m.Switch(left):
+            for lft0 in range(slots):
+                with m.Case(lft0):
+                    m.d.comb += [
+                        n_start.eq(starts(lft0, self._start_div)),
+                        n_run.eq(Array(Const(starts(lft0, max(div, lo)), range(slots + 1))
+                                       for div in range(slots + 1))[short]),
+                    ]
         n_starts = Signal(range(slots + 1))
-        m.d.comb += n_starts.eq(Mux(self.fast, starts(self._run_div), starts(self._start_div)))
+        m.d.comb += n_starts.eq(Mux(self.fast, n_run, n_start))
         taken_all = Signal(range(slots + 1))
         m.d.comb += taken_all.eq(Mux(n_starts < cnt, n_starts, cnt))
         taken = taken_all
+
+        # Each slot's line levels in closed form too. The walk of the slots (the reference,
+        # hdl/link/codec_ref.py) starts a bit in a slot where the previous bit is over: in slot
+        # `left` (if `left < slots`) and then every `div` slots while bits remain. So by slot i
+        # it has started n_i = min(cnt, t_i) bits, t_i = 0 before slot `left`, else
+        # 1 + (i − left) // div (a table over `left` and the period, as above); D is the last
+        # of them (or stays), and D xor S has toggled once per bit. Unrolled as a chain over
+        # six slots, the walk was the slowest path of the node (25 ns on an ECP5).
+        d_last, s_last = self.d_out[-1], self.s_out[-1]
+        ds_last = d_last ^ s_last
+        d_slots, s_slots = [], []
+        for i in range(slots):
+            t_start = Signal(range(slots + 1), name=f"t_start_{i}")
+            t_run = Signal(range(slots + 1), name=f"t_run_{i}")
+
+            def upto(lft0, div, i=i):
+                return 0 if lft0 > i else 1 + (i - lft0) // div
+
+            with m.Switch(left):
+                for lft0 in range(i + 1):
+                    with m.Case(lft0):
+                        m.d.comb += [
+                            t_start.eq(upto(lft0, self._start_div)),
+                            t_run.eq(Array(Const(upto(lft0, max(div, lo)), range(slots + 1))
+                                           for div in range(slots + 1))[short]),
+                        ]
+            t_i = Mux(self.fast, t_run, t_start)
+            n_i = Signal(range(slots + 1), name=f"started_{i}")
+            m.d.comb += n_i.eq(Mux(t_i < cnt, t_i, cnt))
+            d_i = Signal(name=f"d_{i}")
+            m.d.comb += d_i.eq(Mux(n_i == 0, d_last,
+                                   Array(buf[k] for k in range(i + 1))[n_i - 1]))
+            d_slots.append(d_i)
+            s_slots.append(d_i ^ ds_last ^ n_i[0])
+        # `left` after this cycle: with no bit to start it only counts down (left − slots, or
+        # 0); if the bits ran out before every start (cnt < n_starts) the last one is over
+        # within the cycle (0); else the last start, in slot left + (n_starts − 1)·div, runs on
+        # for div slots: left + n_starts·div − slots, a table again (one start per cycle when
+        # div > slots: left + div − slots). No product on the path.
+        def after(lft0, div):
+            return max(lft0 + starts(lft0, div) * div - slots, 0)
+
+        lft_full = Signal.like(left)
+        with m.Switch(left):
+            for lft0 in range(slots):
+                with m.Case(lft0):
+                    run_full = Mux(run_div > slots, lft0 + run_div - slots,
+                                   Array(Const(after(lft0, max(div, lo)), len(left))
+                                         for div in range(slots + 1))[short])
+                    m.d.comb += lft_full.eq(Mux(self.fast, run_full,
+                                                after(lft0, self._start_div)))
+            with m.Default():
+                m.d.comb += lft_full.eq(left - slots)
+        lft = Mux(cnt < n_starts, 0, lft_full)
         remain = Signal.like(cnt)
+        # Refill when fewer bits remain than a cycle can take at most (`slots` up to 4 slots,
+        # 3 at 6 slots): the line never starves (a group is at least 4 bits), and a character
+        # is chosen as late as that allows, the same cycle as with one slot per bit.
+        refill = -(-slots // lo)
         m.d.comb += [
             remain.eq(cnt - taken),
-            self.groups.ready.eq(self.enable & (remain < slots)),
+            self.groups.ready.eq(self.enable & (remain < refill)),
         ]
 
         with m.If(~self.enable):
+            # Controlled reset: S falls first; D keeps its level for one more cycle if S was
+            # high with it, so D and S never change in the same slot.
             m.d.sync += [
                 buf.eq(0),
                 cnt.eq(0),
                 left.eq(0),
-                self.d_out.eq(0),
+                self.d_out.eq(Mux(self.d_out[-1] & self.s_out[-1], (1 << slots) - 1, 0)),
                 self.s_out.eq(0),
             ]
         with m.Else():

@@ -30,6 +30,7 @@ from amaranth import *
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.link import DEFAULT_RUN_DIV, DEFAULT_SLOTS
 from mrm_cosim.protocol.packet import DEFAULT_MAX_PAYLOAD
 
 from ..helpers import rejecting
@@ -197,7 +198,8 @@ class LinkNode(wiring.Component):
         return m
 
 
-def link_node_top(*, slots: int = 3, start_div: int | None = None, run_div: int = 1,
+def link_node_top(*, slots: int = DEFAULT_SLOTS, start_div: int | None = None,
+                  run_div: int = DEFAULT_RUN_DIV,
                   reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
                   rx_fifo_depth: int = 64, max_payload: int = DEFAULT_MAX_PAYLOAD,
                   rx_slots: int = 2) -> LinkNode:

@@ -36,12 +36,12 @@ class CharTransmitter(wiring.Component):
 
     Parameters
     ----------
-    slots, start_div, run_div : int
+    slots, start_div, max_run_div : int
         See :class:`~hdl.link.ds.DSTransmitter`.
 
     Attributes
     ----------
-    enable, fast : In(1)
+    enable, fast, run_div : In
         See :class:`~hdl.link.ds.DSTransmitter`; ``enable`` low also clears the parity state.
     send_time : In(1)
         A time-code with value ``time`` is waiting; it goes out at the next opportunity.
@@ -56,15 +56,16 @@ class CharTransmitter(wiring.Component):
         Line samples.
     """
 
-    def __init__(self, *, slots: int, start_div: int, run_div: int):
+    def __init__(self, *, slots: int, start_div: int, max_run_div: int):
         with rejecting(self):
             check_slots(slots)
-            check_div(start_div, "Start bit period")
-            check_div(run_div, "Run bit period")
-        self._params = dict(slots=slots, start_div=start_div, run_div=run_div)
+            check_div(start_div, "Start bit period", slots)
+            check_div(max_run_div, "Slowest run bit period", slots)
+        self._params = dict(slots=slots, start_div=start_div, max_run_div=max_run_div)
         super().__init__({
             "enable":    In(1),
             "fast":      In(1),
+            "run_div":   In(range(max_run_div + 1)),
             "send_time": In(1),
             "time":      In(8),
             "send_fct":  In(1),
@@ -83,6 +84,7 @@ class CharTransmitter(wiring.Component):
         m.d.comb += [
             ds.enable.eq(self.enable),
             ds.fast.eq(self.fast),
+            ds.run_div.eq(self.run_div),
             ds.groups.valid.eq(1),
             self.d_out.eq(ds.d_out),
             self.s_out.eq(ds.s_out),

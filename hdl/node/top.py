@@ -17,6 +17,7 @@ from amaranth.lib.wiring import In, Out
 
 from mrm_cosim.protocol.encoder import EncoderParams
 from mrm_cosim.protocol.fixed import WORD
+from mrm_cosim.protocol.link import DEFAULT_RUN_DIV, DEFAULT_SLOTS
 
 from ..helpers import rejecting
 from ..link.node import LinkNode, line_signature
@@ -110,7 +111,8 @@ class SlaveNode(wiring.Component):
         return m
 
 
-def slave_node_top(*, slots: int = 3, start_div: int | None = None, run_div: int = 1,
+def slave_node_top(*, slots: int = DEFAULT_SLOTS, start_div: int | None = None,
+                   run_div: int = DEFAULT_RUN_DIV,
                    reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
                    rx_fifo_depth: int = 64, counts_per_rev: int = 800_000,
                    filter_cycles: int = 2, min_window: int = 2048,

@@ -124,6 +124,10 @@ def write_verilog(top: str, out: Path, params: dict[str, int]) -> Path:
 def _verilog(args) -> int:
     path = write_verilog(args.top, args.out, parse_params(args.param))
     print(path)
+    for suffix, what in COMPANIONS.items():
+        print(f"{path.with_name(path.stem + suffix)}  ({what})")
+    vlt = path.with_suffix(".vlt")
+    print(f"lint (clean with the shipped waivers): verilator --lint-only -Wall {vlt} {path}")
     return 0
 
 
