@@ -291,9 +291,14 @@ def _trajectory(robot, profile=None):
     """``t -> (q_d, q̇_d, q̈_d)`` of the paper's quintic test for ``robot``."""
     profile = profile or paper_test_profile(robot)
 
-    def trajectory(t):
-        q, qd, qdd, _ = profile.at(t)           # = profile.evaluate([t])[k][0], cheaper
-        return q, qd, qdd
+    if hasattr(profile, "at"):                  # a quintic: one time, without the arrays
+        def trajectory(t):
+            q, qd, qdd, _ = profile.at(t)       # = profile.evaluate([t])[k][0], cheaper
+            return q, qd, qdd
+    else:                                       # any other profile (a line, a delayed one)
+        def trajectory(t):
+            q, qd, qdd, _ = profile.evaluate(np.array([t]))
+            return q[0], qd[0], qdd[0]
 
     return trajectory
 
