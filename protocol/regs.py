@@ -46,7 +46,7 @@ import numpy as np
 from mrm_cosim.errors import InputError
 
 from .crc import CRC16_INIT, crc16
-from .fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, WORD, saturate, theta_group
+from .fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, saturate, theta_group
 from .joint_program import MODES as JOINT_MODES
 from .joint_program import JointParams, joint_microcode
 from .packet import DATA_PAYLOAD

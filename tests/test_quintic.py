@@ -133,5 +133,5 @@ def test_at_is_evaluate_bit_for_bit():
     p = QuinticProfile([0.1, -0.3, 0.7], [0.2571, 0.0142, 1.1713], 1.0)
     for t in [-0.5, 0.0, 1e-9] + [k * 1e-3 for k in range(1, 1001)] + [1.0, 1.0 + 1e-12, 3.0]:
         ref = p.evaluate(np.array([t]))
-        for a, b in zip(p.at(t), ref):
+        for a, b in zip(p.at(t), ref, strict=True):
             assert a.tobytes() == b[0].tobytes(), t
