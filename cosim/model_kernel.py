@@ -60,6 +60,19 @@ def kernel_choice(kernel: str | None = None) -> str:
     return choice
 
 
+def jit_module(module, njit) -> None:
+    """Replace every function defined in ``module`` (and those it names in ``CALLS``, from
+    other modules) by ``njit(function)`` in that module: they call each other through its
+    globals, so all of them compile. The originals elsewhere stay Python."""
+    import types
+
+    names = set(getattr(module, "CALLS", ()))
+    for name, obj in list(vars(module).items()):
+        if isinstance(obj, types.FunctionType) and (obj.__module__ == module.__name__
+                                                    or name in names):
+            setattr(module, name, njit(obj))
+
+
 def load():
     """The compiled kernel module (:mod:`cosim.model_kernel_src` with its functions jitted),
     or None, after one warning, if numba is missing or cannot compile it here."""
@@ -70,9 +83,8 @@ def load():
 
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")             # numba's own notices
-                src.jit_all(numba.njit(cache=True))
-                plant_src.jit_all(numba.njit(cache=True))
-                compliant_src.jit_all(numba.njit(cache=True))
+                for module in (src, plant_src, compliant_src):
+                    jit_module(module, numba.njit(cache=True))
                 _warm_up(src)
                 _warm_up_plant(plant_src)
                 _warm_up_compliant(compliant_src)

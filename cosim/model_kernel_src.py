@@ -977,15 +977,3 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode):
                   tau):
         return 3
     return 0
-
-
-def jit_all(njit) -> None:
-    """Replace every function of this module by ``njit(function)`` (they call each other
-    through the module's globals, so all of them compile)."""
-    import types
-
-    g = globals()
-    for name, obj in list(g.items()):
-        if isinstance(obj, types.FunctionType) and obj.__module__ == __name__ and \
-                name != "jit_all":
-            g[name] = njit(obj)

@@ -294,12 +294,7 @@ class CompliantPlant(Plant):
     def step(self, tau_cmd) -> None:
         """Advance one step of ``dt`` with the torque command held over it (as
         :meth:`Plant.step`)."""
-        try:
-            arr = np.asarray(tau_cmd, dtype=float)
-        except (TypeError, ValueError):
-            raise InputError("tau_cmd", f"must be {self.n} numbers, not {tau_cmd!r}") from None
-        if arr.shape != (self.n,):
-            raise InputError("tau_cmd", f"must have shape ({self.n},), not {arr.shape}")
+        arr = self._command(tau_cmd)
         if self._kern is not None:
             self._step_compiled(arr)
             return

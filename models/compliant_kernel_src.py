@@ -3,12 +3,12 @@
 :meth:`CompliantPlant.step <models.compliant.CompliantPlant.step>` but the noise draw and
 pinocchio's ABA, which stay calls from Python before and between these functions.
 
-A line-for-line translation of that method (and of ``models.gear.play`` and
-``models.gear.gear_torque``), which stays the readable source of truth and the pure-Python
-path: every float operation is the reference's, in the reference's order (no fastmath, so no
-contraction), ``exp``/``sin``/``cos`` as Python's ``math`` calls them; the states are equal bit
-for bit (tests/test_compliant.py). Kept apart from :mod:`models.plant_kernel_src` (the rigid
-plant's), which it does not change.
+A line-for-line translation of that method (``models.gear.play`` and ``gear_torque`` are
+the reference's own functions, compiled as they are), which stays the readable source of
+truth and the pure-Python path: every float operation is the reference's, in the reference's
+order (no fastmath, so no contraction), ``exp``/``sin``/``cos`` as Python's ``math`` calls
+them; the states are equal bit for bit (tests/test_compliant.py). Kept apart from
+:mod:`models.plant_kernel_src` (the rigid plant's), which it does not change.
 
 State: one float64 row per quantity (``S[Q]``, …, shape (rows, n)); constants in ``C``.
 """
@@ -16,6 +16,13 @@ State: one float64 row per quantity (``S[Q]``, …, shape (rows, n)); constants 
 from __future__ import annotations
 
 import math
+
+# The gear's curve and play are the reference's own functions (floats only): the loader
+# compiles them with this module's (cosim.model_kernel.jit_module).
+from mrm_cosim.models.gear import gear_torque, play  # noqa: F401 - called by pre, compiled
+
+#: Functions of other modules this one calls, compiled with it.
+CALLS = ("gear_torque", "play")
 
 # --- state rows ------------------------------------------------------------------------------
 (Q, V, A_PREV, Q_START, V_START, TH, W, AM_PREV, TH_START, W_START, Y, TAU, TAU_J, QM, VM, THM,
@@ -25,31 +32,6 @@ S_ROWS = 17
 (ALPHA, BETA, PEAK, FC, FSX, INV_VS, VISC, AMP, PHASE, HAS_SPRING, T1, T2, K1, K2, K3, HALF,
  DG, BM, RIPPLE, RPHASE, R2, SIGMA, OFF) = range(23)
 C_ROWS = 23
-
-
-def play(y, delta, a):
-    """``models.gear.play``."""
-    lo = delta - a
-    hi = delta + a
-    if y < lo:
-        return lo
-    if y > hi:
-        return hi
-    return y
-
-
-def gear_torque(y, t1, t2, k1, k2, k3):
-    """``models.gear.gear_torque``."""
-    phi1 = t1 / k1
-    phi2 = phi1 + (t2 - t1) / k2
-    x = y if y >= 0.0 else -y
-    if x <= phi1:
-        t = k1 * x
-    elif x <= phi2:
-        t = t1 + k2 * (x - phi1)
-    else:
-        t = t2 + k3 * (x - phi2)
-    return t if y >= 0.0 else -t
 
 
 def pre(S, C, cmd, noise, h, hh, friction):
@@ -118,14 +100,3 @@ def finish(S, acc, h, hh):
         S[A_PREV, i] = (vn - S[V, i]) / h
         S[V, i] = vn
         S[Q, i] = S[QM, i] + hh * vn
-
-
-def jit_all(njit) -> None:
-    """Replace every function of this module by ``njit(function)``."""
-    import types
-
-    g = globals()
-    for name, obj in list(g.items()):
-        if isinstance(obj, types.FunctionType) and obj.__module__ == __name__ and \
-                name != "jit_all":
-            g[name] = njit(obj)

@@ -575,6 +575,17 @@ class Plant:
             self._stepped = True
 
     # --- stepping ----------------------------------------------------------------------------
+    def _command(self, tau_cmd) -> np.ndarray:
+        """``tau_cmd`` as a float array of shape (n,), or :class:`InputError` naming it (its
+        values are checked for finiteness where each step path reads them)."""
+        try:
+            arr = np.asarray(tau_cmd, dtype=float)
+        except (TypeError, ValueError):
+            raise InputError("tau_cmd", f"must be {self.n} numbers, not {tau_cmd!r}") from None
+        if arr.shape != (self.n,):
+            raise InputError("tau_cmd", f"must have shape ({self.n},), not {arr.shape}")
+        return arr
+
     def step(self, tau_cmd) -> None:
         """Advance one step of ``dt`` with the torque command held over it.
 
@@ -588,12 +599,7 @@ class Plant:
         InputError
             A command of the wrong length or not finite (the state is left unchanged).
         """
-        try:
-            arr = np.asarray(tau_cmd, dtype=float)
-        except (TypeError, ValueError):
-            raise InputError("tau_cmd", f"must be {self.n} numbers, not {tau_cmd!r}") from None
-        if arr.shape != (self.n,):
-            raise InputError("tau_cmd", f"must have shape ({self.n},), not {arr.shape}")
+        arr = self._command(tau_cmd)
         if self._kern is not None:
             self._step_kernel(arr)
             return

@@ -203,14 +203,3 @@ def cholesky_solve(A, b, x):
         y[i] = v / L[i, i]
     x[:] = y
     return True
-
-
-def jit_all(njit) -> None:
-    """Replace every function of this module by ``njit(function)``."""
-    import types
-
-    g = globals()
-    for name, obj in list(g.items()):
-        if isinstance(obj, types.FunctionType) and obj.__module__ == __name__ and \
-                name != "jit_all":
-            g[name] = njit(obj)
