@@ -37,7 +37,10 @@ from mrm_cosim.models.robot import Robot
 from mrm_cosim.protocol.link import DEFAULT_SLOTS
 from mrm_cosim.units import CLOCK_HZ
 
-__all__ = ["ClosedLoop", "LoopResult", "LineFault", "FAULT_KINDS"]
+__all__ = ["ClosedLoop", "LoopResult", "LineFault", "FAULT_KINDS", "PERMANENT"]
+
+#: A fault's ``cycles`` that lasts to the end of any run (``+inf`` in :meth:`LineFault.parse`).
+PERMANENT = 1 << 50
 
 
 #: Line faults :class:`LineFault` can inject (``hdl.link.chain.line_fault_layout`` controls).
@@ -64,7 +67,10 @@ class LineFault:
     cycle : int
         First faulty cycle, counted from period 0 (20 ns each).
     cycles : int
-        How long it lasts, cycles.
+        How long it lasts, cycles (:data:`PERMANENT`: to the end of the run).
+
+    The model backend takes ``cut`` faults (:mod:`cosim.model_link`: packets lost while the
+    line is down and until the link is back in Run); the others need the bit-level link.
     """
 
     node: int
@@ -90,7 +96,8 @@ class LineFault:
     @classmethod
     def parse(cls, spec: str, field: str = "faults") -> LineFault:
         """``KIND:DIRECTION:NODE@TIME[+DURATION]``, times from period 0 with optional units:
-        ``bit:up:2@2.006ms`` (one cycle), ``cut:down:2@10ms+2us``. ``InputError(field)``."""
+        ``bit:up:2@2.006ms`` (one cycle), ``cut:down:2@10ms+2us``, ``cut:down:1@0.5s+inf``
+        (permanent). ``InputError(field)``."""
         from mrm_cosim.cosim.backends import parse_time
 
         text = str(spec)
@@ -104,7 +111,10 @@ class LineFault:
             raise InputError(field, f"the node must be a number, not {node!r} in {text!r}")
         at, _, length = when.partition("+")
         cycle = round(parse_time(at, field) * CLOCK_HZ)
-        cycles = max(1, round(parse_time(length, field) * CLOCK_HZ)) if length else 1
+        if length.strip() == "inf":
+            cycles = PERMANENT
+        else:
+            cycles = max(1, round(parse_time(length, field) * CLOCK_HZ)) if length else 1
         try:
             return cls(int(node), direction, kind, cycle, cycles)
         except InputError as e:

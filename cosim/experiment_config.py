@@ -36,6 +36,7 @@ from mrm_cosim.errors import (
 )
 from mrm_cosim.master.cycle import CONTROLLERS, MasterTiming
 from mrm_cosim.master.uploads import PID_DESIGN_HZ, Gains
+from mrm_cosim.models.brake import BrakeConfig
 from mrm_cosim.models.gear import GearConfig
 from mrm_cosim.models.plant import JOINTS, Perturbation, PlantConfig
 from mrm_cosim.tomlfile import parse_toml, read_toml
@@ -72,6 +73,37 @@ class TrajectoryConfig:
 
 
 @dataclass(frozen=True)
+class FaultsConfig:
+    """Faults injected into a run and what the master does when a node trips (``[faults]``;
+    docs/faults.md "Safe stop" and "Recovery").
+
+    Attributes
+    ----------
+    lines : tuple of str
+        Line faults, as ``mrm run track --line-fault`` takes them
+        (``KIND:DIRECTION:NODE@TIME[+DURATION]``, ``+inf``: to the end of the run).
+    on_trip : str
+        ``"rearm"``: when every node answers again, re-synchronise, check the uploads, re-arm
+        and blend back to the trajectory; ``"end"``: stop sending, leave the nodes holding on
+        their brakes and end the run (:data:`master.cycle.ON_TRIP`).
+    rearm_blend : float, s
+        Duration of the quintic blend from the held position back to the trajectory.
+    """
+
+    lines: tuple = ()
+    on_trip: str = "rearm"
+    rearm_blend: float = 0.2
+    parsed: tuple = field(default=(), compare=False, repr=False)
+
+    def __post_init__(self):
+        from mrm_cosim.master.cycle import ON_TRIP
+
+        if self.on_trip not in ON_TRIP:
+            raise InputError("faults.on_trip", f"must be one of {', '.join(map(repr, ON_TRIP))}"
+                             f", not {self.on_trip!r}")
+
+
+@dataclass(frozen=True)
 class ExperimentConfig:
     """A resolved experiment: every field has its value, validated.
 
@@ -104,6 +136,7 @@ class ExperimentConfig:
     plant: PlantConfig = field(default_factory=PlantConfig)
     gains: Gains = field(default_factory=Gains)
     timing: MasterTiming = field(default_factory=MasterTiming)
+    faults: FaultsConfig = field(default_factory=FaultsConfig)
 
     def with_overrides(self, *, backend: str | None = None, seed: int | None = None,
                        duration: float | None = None, field_prefix: str = ""
@@ -125,6 +158,8 @@ class ExperimentConfig:
         plant = {k: v for k, v in asdict(self.plant).items() if k != "cycle"}
         if plant["current_bandwidth"] is None:
             del plant["current_bandwidth"]
+        if plant["brake"]["holding_torque"] is None:
+            del plant["brake"]["holding_torque"]
         return {
             "experiment": {"name": self.name, "robot": self.robot,
                            "controllers": list(self.controllers), "backend": self.backend,
@@ -133,6 +168,8 @@ class ExperimentConfig:
             "plant": plant,
             "gains": asdict(self.gains),
             "timing": asdict(self.timing),
+            "faults": {"lines": list(self.faults.lines), "on_trip": self.faults.on_trip,
+                       "rearm_blend": self.faults.rearm_blend},
         }
 
     def to_toml(self) -> str:
@@ -161,7 +198,7 @@ def loads(text: str, base_dir=None) -> ExperimentConfig:
 
 def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
     """Validate a parsed configuration (the TOML layout)."""
-    _keys(data, "", {"experiment", "trajectory", "plant", "gains", "timing"})
+    _keys(data, "", {"experiment", "trajectory", "plant", "gains", "timing", "faults"})
     exp = _table(data, "experiment")
     _keys(exp, "experiment.", {"name", "robot", "controllers", "backend", "seed", "duration"})
     d = ExperimentConfig()
@@ -196,8 +233,9 @@ def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
     _gains_fit_the_nodes(robot, controllers, gains, timing.period_cycles)
     if plant.joints == "compliant":
         _gears_fit_the_step(robot, plant, seed)
+    faults = _faults(_table(data, "faults"), duration)
     return ExperimentConfig(name, robot, controllers, backend, seed, duration, trajectory,
-                            plant, gains, timing)
+                            plant, gains, timing, faults)
 
 
 #: The shortest run: one master period (half a period ran "clean" with the tip at rest, a
@@ -314,7 +352,7 @@ def _bool(value, name: str) -> bool:
 
 def _plant(table: dict) -> PlantConfig:
     known = {"dt", "friction", "springs", "current_loop", "current_bandwidth", "perturbation",
-             "joints", "gear"}
+             "joints", "gear", "brake"}
     _keys(table, "plant.", known)
     d = PlantConfig()
     pert = table.get("perturbation", {})
@@ -342,7 +380,37 @@ def _plant(table: dict) -> PlantConfig:
         current_loop=_bool(table.get("current_loop", d.current_loop), "plant.current_loop"),
         current_bandwidth=None if bw is None else _current_bandwidth(bw),
         joints=_joints(table.get("joints", d.joints)),
-        gear=_gear(table.get("gear", {})))
+        gear=_gear(table.get("gear", {})),
+        brake=_brake(table.get("brake", {})))
+
+
+def _brake(table) -> BrakeConfig:
+    if not isinstance(table, dict):
+        raise InputError("plant.brake", f"must be a table, not {table!r}")
+    _keys(table, "plant.brake.", {f.name for f in fields(BrakeConfig)})
+    d = BrakeConfig()
+    values = {}
+    for f in fields(BrakeConfig):
+        name = f"plant.brake.{f.name}"
+        v = table.get(f.name, getattr(d, f.name))
+        values[f.name] = None if v is None else require_finite(_number(v, name), name)
+    return BrakeConfig(**values)
+
+
+def _faults(table: dict, duration: float) -> FaultsConfig:
+    _keys(table, "faults.", {"lines", "on_trip", "rearm_blend"})
+    d = FaultsConfig()
+    lines = table.get("lines", [])
+    if not isinstance(lines, list) or not all(isinstance(x, str) for x in lines):
+        raise InputError("faults.lines", f"must be a list of fault strings "
+                         f"(KIND:DIRECTION:NODE@TIME[+DURATION]), not {lines!r}")
+    from mrm_cosim.cosim.closed_loop import LineFault
+
+    parsed = tuple(LineFault.parse(x, "faults.lines") for x in lines)
+    on_trip = table.get("on_trip", d.on_trip)
+    blend = require_positive(_number(table.get("rearm_blend", d.rearm_blend),
+                                     "faults.rearm_blend"), "faults.rearm_blend")
+    return FaultsConfig(tuple(lines), on_trip, blend, parsed)
 
 
 def _joints(value) -> str:

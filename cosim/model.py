@@ -112,7 +112,12 @@ class ModelBackend(GatewareSide):
     name = "model"
 
     def __init__(self, encoder=None, strict: bool = False, lazy: bool = True, pid_shift=0,
-                 kernel: str | None = None):
+                 kernel: str | None = None, faults=()):
+        for f in faults:
+            if f.kind != "cut":
+                raise InputError("faults", f"the model backend's link has no bits: it takes "
+                                 f"'cut' faults, not {f.kind!r} (use compiled or pysim)")
+        self._faults = list(faults)
         self.kernel = kernel_choice(kernel)
         self._kern = None
         self._encoder = encoder
@@ -197,6 +202,8 @@ class ModelBackend(GatewareSide):
         self._horizon_end = None
         if self._fast_end:
             self._sync_done()
+        if self._link.errors:                   # a cut's codec errors, before the nodes reply
+            self._count_cuts(end)
         if self._kern is not None:
             events = self._run_kernel(start, n, lines, offset)
         elif self.lazy:
@@ -212,13 +219,38 @@ class ModelBackend(GatewareSide):
                          else lines.cycles().counts[offset:offset + n, k])
         if self._kern is None:
             events = self._run_nodes(end)
+        if self._link.errors:
+            self._count_cuts(end)
         replies = [Reply(c, src, ptype, seq, bytes(payload))
                    for c, src, ptype, payload, seq in self._link.replies_before(end)]
         self.cycle = end
         return Observed(events, replies)
 
+    def _count_cuts(self, end: int) -> None:
+        """The codec errors of line cuts detected before ``end`` into the nodes' link health
+        (what their next Comm A reports) and the master port's count."""
+        later = []
+        for c, k, side in self._link.errors:
+            if c >= end:
+                later.append((c, k, side))
+            elif k == 0:
+                self.link_errors += 1
+            else:
+                node = self.nodes[k - 1]
+                up, down, rx, dropped = node.link_health
+                if side == "up":
+                    up = min(up + 1, 0xFFFF)
+                else:
+                    down = min(down + 1, 0xFFFF)
+                node.link_health = (up, down, rx, dropped)
+        self._link.errors = later
+
     def begin(self, cycle: int, period_cycles: int) -> None:
         self._start = cycle
+        for f in self._faults:                  # line cuts (cosim.model_link), from period 0
+            if f.node > self.n:
+                raise InputError("fault.node", f"the robot has {self.n} nodes, not {f.node}")
+            self._link.cut(f.node, cycle + f.cycle, f.cycles)
         for k, c in self._early_configs:
             if c >= cycle - _MARGIN:
                 self._violate(f"node {k + 1}: CONFIG {c - cycle} cycles before period 0 (an "

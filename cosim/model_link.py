@@ -12,6 +12,26 @@ reaches the master ``1 + 9 + 11 (k − 1)`` cycles plus its frame time later, or
 after the upstream link is free; a time-code reaches node k after ``12 k`` cycles
 (docs/link.md "Per-hop latency"). These are approximations, within
 :data:`EVENT_TOLERANCE` cycles of the gateware's (cosim/model.py says why that is enough).
+
+Cuts (:meth:`LinkTiming.cut`, from ``LineFault(kind="cut")``: the same spec drives the
+gateware backends). Line ``k`` (above node ``k``) cut from cycle ``c`` for ``d`` cycles is down,
+in both directions, from ``c`` until the link would be back in Run: a cut of either direction
+takes the whole link down (the receiver that loses the line flags a disconnect after
+:data:`DISCONNECT_CYCLES`, resets and goes silent, and its peer flags the silence in turn:
+docs/link.md "Disconnect detection and the exchange of silence"); once the line is whole
+again both ends start over from Error-Reset, :data:`RESTART_CYCLES` to Run (Error-Reset
+6.4 µs, Error-Wait 12.8 µs, the handshake 111 cycles: docs/link.md "Start-up"). Every packet,
+reply or time-code whose characters would cross line ``k`` while it is down is lost; each end
+of the line counts one codec error at ``c +`` :data:`DISCONNECT_CYCLES` (node ``k``'s upstream
+codec, node ``k − 1``'s downstream codec or the master port's).
+
+Not modelled (bit level, on the gateware backends only): which error class each end counts
+(a disconnect or a parity error, docs/link.md), the further disconnects each failed restart
+attempt adds during a long cut (the gateware's counters grow by about one per 20–40 µs of
+cut; this model counts one per cut and end), the partial frame a cut truncates (the gateware
+ends it with an EEP and counts it in the depacketizer's ``rx_dropped``), a packet waiting in the
+master's transmit FIFO for the link to come back (here it is lost), and where in its restart
+cycle the link is when the line is whole again (here: at the start of Error-Reset).
 """
 
 from __future__ import annotations
@@ -19,7 +39,13 @@ from __future__ import annotations
 from mrm_cosim.protocol import packet as ref
 
 __all__ = ["LinkTiming", "LINK_UP_CYCLE", "EVENT_TOLERANCE", "frame_cycles",
-           "delivery_cycles"]
+           "delivery_cycles", "DISCONNECT_CYCLES", "RESTART_CYCLES"]
+
+#: Disconnect detection, cycles after the line's last transition (``disconnect_cycles`` = 43:
+#: 843–860 ns, docs/link.md "Disconnect detection").
+DISCONNECT_CYCLES = 43
+#: From Error-Reset to Run at standard timers: 320 + 640 + 111 cycles (docs/link.md).
+RESTART_CYCLES = 1_071
 
 #: Cycle at which the modelled link reaches Run (the gateware: about 21.4 µs at standard timers).
 LINK_UP_CYCLE = 1_100
@@ -75,6 +101,36 @@ class LinkTiming:
         self._down_free = 0                     # master → node 1 link free from this cycle
         self._up_free = 0                       # node 1 → master link free from this cycle
         self._rx_free = [0] * n                 # node k's core takes bytes from this cycle
+        #: cuts: (line k 1-based, first cycle down, first cycle back in Run)
+        self.cuts: list[tuple[int, int, int]] = []
+        #: codec errors the cuts make: (cycle, node 1-based or 0 for the master port,
+        #: "up" or "down" codec), not yet taken by the caller
+        self.errors: list[tuple[int, int, str]] = []
+        self.lost = 0                           # packets, replies and time-codes lost
+
+    def cut(self, line: int, first: int, cycles: int) -> None:
+        """Line ``line`` (1-based, above that node) cut from cycle ``first`` for ``cycles``
+        cycles (module docstring)."""
+        if not 1 <= line <= self.n:
+            raise ValueError(f"line {line} is not in a chain of {self.n} nodes")
+        self.cuts.append((line, first, first + cycles + RESTART_CYCLES))
+        detect = first + DISCONNECT_CYCLES
+        self.errors.append((detect, line, "up"))
+        self.errors.append((detect, line - 1, "down"))
+
+    def _crosses(self, last: int, length: int, node: int, hop: int, up: bool = False) -> bool:
+        """Whether characters cross a cut line while it is down: ``length`` cycles of them,
+        the last reaching node ``node`` (0-based) at ``last`` on the way down, or, ``up``,
+        leaving node ``node`` towards the master and the last reaching the master at
+        ``last``; ``hop``: cycles per further hop."""
+        for line, lo, hi in self.cuts:
+            if line > node + 1:
+                continue                    # below the node: not on the way
+            # the last character at the line's upper end (up) or its lower end (down)
+            t = last - hop * (line - 1) if up else last - hop * (node + 1 - line)
+            if t > lo and t - length < hi:
+                return True
+        return False
 
     def send(self, action, now: int) -> None:
         """The master hands ``action`` (:class:`master.cycle.Send`) to its port in cycle
@@ -82,7 +138,11 @@ class LinkTiming:
         if action.kind == "timecode":
             t = max(now, self._down_free)
             for k in range(self.n):
-                self.inbox[k].append((t + _TC_HOP * (k + 1), 0, "timecode", action.time))
+                at = t + _TC_HOP * (k + 1)
+                if self.cuts and self._crosses(at, _TC_LINE, k, _TC_HOP):
+                    self.lost += 1
+                    continue
+                self.inbox[k].append((at, 0, "timecode", action.time))
             self._down_free = t + _TC_LINE          # the packets behind it wait for it
             return
         t = max(now, self._down_free) + frame_cycles(len(action.payload))
@@ -90,6 +150,10 @@ class LinkTiming:
         dests = range(self.n) if action.dest == ref.BROADCAST else [action.dest - 1]
         for k in dests:
             if 0 <= k < self.n:
+                if self.cuts and self._crosses(t + _FIRST_HOP + _HOP * k,
+                                               frame_cycles(len(action.payload)), k, _HOP):
+                    self.lost += 1
+                    continue
                 taken = max(t + _FIRST_HOP + _HOP * k, self._rx_free[k]) + \
                     delivery_cycles(action.ptype, len(action.payload))
                 self._rx_free[k] = taken + 1
@@ -99,8 +163,12 @@ class LinkTiming:
     def reply(self, k: int, ready: int, ptype: int, payload: bytes, seq: int) -> None:
         """Queue a reply leaving node ``k``'s (0-based) reply FSM in cycle ``ready``; like the
         gateware's, its header echoes the request's ``seq``."""
-        t = max(ready + _REPLY + _FIRST_HOP + _HOP * k, self._up_free) + \
-            frame_cycles(len(payload))
+        length = frame_cycles(len(payload))
+        if self.cuts and self._crosses(ready + _REPLY + _FIRST_HOP + _HOP * k + length, length,
+                                       k, _HOP, up=True):
+            self.lost += 1                      # (it never reaches the master's link)
+            return
+        t = max(ready + _REPLY + _FIRST_HOP + _HOP * k, self._up_free) + length
         self._up_free = t
         self.replies.append((t, k + 1, ptype, payload, seq))
 

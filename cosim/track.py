@@ -328,17 +328,16 @@ def loop_backend(robot, backend: str, record: bool = False, quiet: bool = True, 
                  faults=()):
     """The gateware side of ``robot``'s loop on the backend named ``backend``
     (:data:`BACKENDS`): :func:`loop_system` simulated (pysim) or compiled, or the nodes'
-    references (model, which has no signals to record and an ideal link)."""
+    references (model, which has no signals to record and a link at packet level: it takes
+    line cuts, :mod:`cosim.model_link`)."""
     if backend == "model":
         from mrm_cosim.cosim.model import ModelBackend
 
-        if faults:
-            raise InputError("faults", "the model backend's link is ideal: inject line "
-                             "faults on compiled or pysim")
         if record or vcd is not None:
             raise InputError("vcd" if vcd is not None else "record",
                              "the model backend has no signals; use pysim or compiled")
-        return ModelBackend(encoder=node_encoders(robot), pid_shift=pid_shifts(robot))
+        return ModelBackend(encoder=node_encoders(robot), pid_shift=pid_shifts(robot),
+                            faults=faults)
     if backend == "compiled":
         return CompiledBackend(lambda: loop_system(robot), loop_system_key(robot),
                                quiet=quiet, vcd=vcd, faults=faults, record=record)

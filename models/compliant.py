@@ -271,7 +271,7 @@ class CompliantPlant(Plant):
                           (k.Q_START, "_q_start"), (k.V_START, "_v_start"), (k.TH, "_th"),
                           (k.W, "_w"), (k.AM_PREV, "_am_prev"), (k.TH_START, "_th_start"),
                           (k.W_START, "_w_start"), (k.Y, "_y"), (k.TAU, "_tau"),
-                          (k.TAU_J, "_tau_j")):
+                          (k.TAU_J, "_tau_j"), (k.BRAKE, "_bh"), (k.BRAKE_SLIP, "_bs")):
             if hasattr(self, name):
                 S[row] = getattr(self, name)
             setattr(self, name, S[row])
@@ -289,6 +289,7 @@ class CompliantPlant(Plant):
         k.finish(S, pin.aba(self._model, self._data, S[k.QM], S[k.VM], S[k.LF]), h, hh)
         self._steps += 1
         self._stepped = True
+        self._brake_advance()
 
     # --- stepping ----------------------------------------------------------------------------
     def step(self, tau_cmd) -> None:
@@ -316,6 +317,7 @@ class CompliantPlant(Plant):
         half, dg, bm, off = self._a, self._dg, self._bm, self._off
         ripple, rphase, r2, sigma = self._ripple, self._rphase, self._r2, self._noise
         friction = self._has_friction
+        bh, bs = self._bh, self._bs
         self._q_start = q[:]
         self._v_start = v[:]
         self._th_start = th[:]
@@ -350,9 +352,12 @@ class CompliantPlant(Plant):
             wi = w[i]
             rho = u + d * beta[i] - tj - visc[i] * wi
             pm = bm[i] * wi + h * rho
-            if friction:
+            if friction or bh[i] != 0.0:
                 x = wi * inv_vs[i]
-                level = h * (fc[i] + fsx[i] * exp(-x * x))
+                lv = fc[i] + fsx[i] * exp(-x * x)
+                if bh[i] != 0.0:                    # an engaged brake: held or slipping
+                    lv += bh[i] if wi == 0.0 else bs[i]
+                level = h * lv
                 if pm > level:
                     wn = (pm - level) / bm[i]
                 elif pm < -level:
@@ -374,6 +379,7 @@ class CompliantPlant(Plant):
             q[i] = qm[i] + hh * vn
         self._steps += 1
         self._stepped = True
+        self._brake_advance()
 
     # --- encoder: on the motor ---------------------------------------------------------------
     def encoder_counts(self) -> np.ndarray:

@@ -27,7 +27,9 @@ CALLS = ("gear_torque", "play")
 # --- state rows ------------------------------------------------------------------------------
 (Q, V, A_PREV, Q_START, V_START, TH, W, AM_PREV, TH_START, W_START, Y, TAU, TAU_J, QM, VM, THM,
  LF) = range(17)
-S_ROWS = 17
+#: the holding brakes' levels (output-referred, on the motor side) where engaged, else 0
+BRAKE, BRAKE_SLIP = 17, 18
+S_ROWS = 19
 # --- constant rows ---------------------------------------------------------------------------
 (ALPHA, BETA, PEAK, FC, FSX, INV_VS, VISC, AMP, PHASE, HAS_SPRING, T1, T2, K1, K2, K3, HALF,
  DG, BM, RIPPLE, RPHASE, R2, SIGMA, OFF) = range(23)
@@ -73,9 +75,12 @@ def pre(S, C, cmd, noise, h, hh, friction):
         rho = u + d * C[BETA, i] - tj - C[VISC, i] * wi
         bm = C[BM, i]
         pm = bm * wi + h * rho
-        if friction:
+        if friction or S[BRAKE, i] != 0.0:
             x = wi * C[INV_VS, i]
-            level = h * (C[FC, i] + C[FSX, i] * math.exp(-x * x))
+            lv = C[FC, i] + C[FSX, i] * math.exp(-x * x)
+            if S[BRAKE, i] != 0.0:
+                lv += S[BRAKE, i] if wi == 0.0 else S[BRAKE_SLIP, i]
+            level = h * lv
             if pm > level:
                 wn = (pm - level) / bm
             elif pm < -level:

@@ -41,6 +41,7 @@ import numpy as np
 import pinocchio as pin
 
 from mrm_cosim.models.actuators import ACTUATORS, ActuatorSpec
+from mrm_cosim.models.brake import BrakeConfig
 from mrm_cosim.models.drive import CurrentLoop, FrictionParams, solve_stick_slip
 from mrm_cosim.models.encoder import (
     CYCLE, EncoderCycles, count_changes_lists, counts_per_rad, cycle_counts, joint_counts,
@@ -125,6 +126,9 @@ class PlantConfig:
         system through its harmonic drive: :class:`models.compliant.CompliantPlant`).
     gear : GearConfig
         The compliant joints' settings (unused by the rigid plant).
+    brake : BrakeConfig
+        The joints' holding brakes (``[plant.brake]``, :mod:`models.brake`); released unless
+        :meth:`Plant.set_brake` engages them.
     """
 
     dt: float = 1e-5
@@ -136,6 +140,7 @@ class PlantConfig:
     cycle: float = CYCLE
     joints: str = "rigid"
     gear: GearConfig = field(default_factory=GearConfig)
+    brake: BrakeConfig = field(default_factory=BrakeConfig)
 
     def __post_init__(self):
         if self.joints not in JOINTS:
@@ -143,6 +148,8 @@ class PlantConfig:
                              f"not {self.joints!r}")
         if not isinstance(self.gear, GearConfig):
             raise InputError("plant.gear", f"must be a table, not {self.gear!r}")
+        if not isinstance(self.brake, BrakeConfig):
+            raise InputError("plant.brake", f"must be a table, not {self.brake!r}")
         dt = require_positive(self.dt, "plant.dt")
         cycle = require_positive(self.cycle, "plant.cycle")
         cycles = round(dt / cycle)
@@ -405,6 +412,14 @@ class Plant:
         self._level = [0.0] * n
         self._sign = [0.0] * n
         self._lower = np.tril_indices(n, -1)
+        # the holding brakes (models.brake): at the joint, static and slipping; the rows the
+        # step reads (the level where engaged, else 0) and the command's progress
+        bc = self.config.brake
+        self._brake_hold = bc.holding_at_joint(tr.actuators)
+        self._brake_slip = [bc.slip_ratio * x for x in self._brake_hold]
+        self._brake_engage, self._brake_release = bc.steps(self.dt)
+        self._bh = [0.0] * n
+        self._bs = [0.0] * n
         self._stepped = False
         self._kern = None                       # use_kernel: the compiled step's functions
         self._S = None
@@ -472,8 +487,68 @@ class Plant:
         self._a_prev = [0.0] * self.n
         self._steps = 0
         self._stepped = False
+        self._brake_reset()
         if self._kern is not None:
             self._bind_state()
+
+    # --- the holding brakes --------------------------------------------------------------------
+    def _brake_reset(self) -> None:
+        n = self.n
+        self._brake_cmd = [False] * n           # commanded engaged
+        self._brake_eff = [False] * n           # engaged (the torque acts)
+        self._brake_left = [0] * n              # steps until the effective state follows
+        self._brake_on = False                  # any engaged: the step's friction solve runs
+        self._bh = [0.0] * n
+        self._bs = [0.0] * n
+
+    def set_brake(self, engage) -> None:
+        """Command the joints' holding brakes from the next step on (the command holds until
+        changed; :mod:`models.brake`): ``engage`` array_like of bool, shape (n,), True engages.
+        The torque follows ``engage_time`` / ``release_time`` later (whole steps)."""
+        cmd = self._brake_cmd
+        for i, e in enumerate(self._brake_mask(engage)):
+            if e == cmd[i]:
+                continue
+            cmd[i] = e
+            if e == self._brake_eff[i]:
+                self._brake_left[i] = 0         # taken back before it acted
+            else:
+                self._brake_left[i] = self._brake_engage if e else self._brake_release
+
+    def _brake_mask(self, engage) -> list[bool]:
+        try:
+            a = np.asarray(engage)
+        except (TypeError, ValueError):
+            a = None
+        if a is None or a.shape != (self.n,) or a.dtype.kind not in "bui":
+            raise InputError("brake", f"must be {self.n} booleans, not {engage!r}")
+        return [bool(x) for x in a.tolist()]
+
+    @property
+    def brake_engaged(self) -> np.ndarray:
+        """Which joints' brakes hold (their torque acts), bool, shape (n,)."""
+        return np.array(self._brake_eff, dtype=bool)
+
+    @property
+    def brake_idle(self) -> bool:
+        """Every brake released and none commanded: the step is the brake-free one (a caller
+        that steps the plant itself, :meth:`kernel_parts`, may run only then)."""
+        return not (any(self._brake_cmd) or self._brake_on or any(self._brake_left))
+
+    def _brake_advance(self) -> None:
+        """After a step: the commands' timers; the levels the next step reads."""
+        left = self._brake_left
+        if not any(left):
+            return
+        eff, bh, bs = self._brake_eff, self._bh, self._bs
+        for i in range(self.n):
+            if left[i]:
+                left[i] -= 1
+                if not left[i]:
+                    eff[i] = self._brake_cmd[i]
+                    bh[i] = self._brake_hold[i] if eff[i] else 0.0
+                    bs[i] = self._brake_slip[i] if eff[i] else 0.0
+        self._brake_on = any(eff)
 
     # --- the compiled step ---------------------------------------------------------------------
     def use_kernel(self, kern) -> None:
@@ -500,7 +575,8 @@ class Plant:
 
         S = self._S = np.zeros((ks.S_ROWS, self.n))
         for row, name in ((ks.Q, "_q"), (ks.V, "_v"), (ks.TAU, "_tau"), (ks.A_PREV, "_a_prev"),
-                          (ks.Q_START, "_q_start"), (ks.V_START, "_v_start")):
+                          (ks.Q_START, "_q_start"), (ks.V_START, "_v_start"),
+                          (ks.BRAKE, "_bh"), (ks.BRAKE_SLIP, "_bs")):
             S[row] = getattr(self, name)
             setattr(self, name, S[row])
         self._qm, self._vm = S[ks.QM], S[ks.VM]
@@ -516,15 +592,16 @@ class Plant:
             raise InputError("tau_cmd", f"must be finite, not {arr.tolist()!r}")
         model, data = self._model, self._data
         done = False
-        if not self._has_friction or sliding:
-            k.free_force(S, 1.0 if self._has_friction else 0.0)
-            done = k.free_end(S, pin.aba(model, data, S[QM], S[VM], S[FORCE]), h,
-                              self._has_friction)
+        fr = self._has_friction or self._brake_on
+        if not fr or sliding:
+            k.free_force(S, 1.0 if fr else 0.0)
+            done = k.free_end(S, pin.aba(model, data, S[QM], S[VM], S[FORCE]), h, fr)
         if not done:
             self._stick_slip_kernel()
         k.finish(S, h, hh)
         self._steps += 1
         self._stepped = True
+        self._brake_advance()
 
     def _stick_slip_kernel(self) -> None:
         """:meth:`_step_kernel`'s set-valued friction solve (after ``pre``, where the free step
@@ -614,6 +691,7 @@ class Plant:
         rho, level, sign = self._rho, self._level, self._sign
         alpha, beta, peak = self._alpha, self._beta, self._peak
         fc, fsx, inv_vs, visc = self._fc, self._fs_excess, self._inv_vs, self._visc
+        bh, bs = self._bh, self._bs
         self._q_start = q[:]
         self._v_start = v[:]
         sliding = True
@@ -632,6 +710,8 @@ class Plant:
             vm[i] = vi + hh * a_prev[i]
             x = vi * inv_vs[i]
             level[i] = fc[i] + fsx[i] * exp(-x * x)
+            if bh[i] != 0.0:                                # an engaged brake: held or slipping
+                level[i] += bh[i] if vi == 0.0 else bs[i]
             rho[i] = u + d * beta[i] - visc[i] * vi          # mean motor torque − viscous
             if vi > 0.0:
                 sign[i] = 1.0
@@ -643,7 +723,7 @@ class Plant:
         for i, amp, phase in self._springs:
             rho[i] += amp * cos(qm[i] + phase)
 
-        if not self._has_friction:
+        if not (self._has_friction or self._brake_on):
             v_new = self._free_step(rho, 0.0)
         else:
             v_new = self._free_step(rho, 1.0) if sliding else None
@@ -659,6 +739,7 @@ class Plant:
             q[i] = qm[i] + hh * w
         self._steps += 1
         self._stepped = True
+        self._brake_advance()
 
     def _free_step(self, rho, with_friction: float) -> list:
         """End-of-step velocity when every joint slides (or there is no friction): one ABA."""

@@ -21,7 +21,9 @@ import numpy as np
 
 # --- state rows ------------------------------------------------------------------------------
 Q, V, TAU, A_PREV, Q_START, V_START, QM, VM, FORCE, RHO, LEVEL, SIGN, NEW = range(13)
-S_ROWS = 13
+#: the holding brakes' levels at the joint where engaged (else 0): held, slipping
+BRAKE, BRAKE_SLIP = 13, 14
+S_ROWS = 15
 # --- constant rows ---------------------------------------------------------------------------
 ALPHA, BETA, PEAK, FC, FSX, INV_VS, VISC, AMP, PHASE, HAS_SPRING = range(10)
 C_ROWS = 10
@@ -52,6 +54,8 @@ def pre(S, C, cmd, hh):
         S[VM, i] = vi + hh * S[A_PREV, i]
         x = vi * C[INV_VS, i]
         S[LEVEL, i] = C[FC, i] + C[FSX, i] * math.exp(-x * x)
+        if S[BRAKE, i] != 0.0:
+            S[LEVEL, i] += S[BRAKE, i] if vi == 0.0 else S[BRAKE_SLIP, i]
         S[RHO, i] = u + d * C[BETA, i] - C[VISC, i] * vi
         if vi > 0.0:
             S[SIGN, i] = 1.0

@@ -271,9 +271,10 @@ def _track(args) -> int:
         raise InputError("signals", "selects the signals of a --vcd or --fst window; give "
                          "one of them too")
     faults = [LineFault.parse(spec) for spec in args.line_fault]
-    if faults and config.backend == "model":
-        raise InputError("faults", "the model backend's link is ideal: inject line "
-                         "faults on compiled or pysim")
+    faults += list(config.faults.parsed)
+    if config.backend == "model" and any(f.kind != "cut" for f in faults):
+        raise InputError("faults", "the model backend's link has no bits: it takes 'cut' "
+                         "faults only; inject the others on compiled or pysim")
     for f in faults:
         if f.node > robot.n:
             raise InputError("faults", f"the robot has {robot.n} nodes, not {f.node}")
