@@ -88,12 +88,16 @@ class Config(enum.IntEnum):
     COMMIT     = 12  # phase at which an armed node commits the last Comm D
     DMP        = 13  # joint-side motion primitive (:class:`DmpControl`): off, start, stop
     DMP_STEP   = 14  # cycles per step of the primitive generator (PERIOD a multiple of it)
+    STOP_CYCLES  = 15  # safe stop: cycles of stop-and-hold after a trip before the brake
+    BRAKE_CYCLES = 16  # safe stop: cycles of hold with the brake engaged before STO
 
 
 CONFIG_DEFAULTS = {Config.MODE: 0, Config.TICK: 50, Config.TIMEOUT: 100_000, Config.RAMP: 0,
                    Config.TAU_MIN: 0, Config.TAU_MAX: 0, Config.PERIOD: 50_000,
                    Config.SYNC_WINDOW: 2_500, Config.COMMIT: 10_000, Config.DMP: 0,
-                   Config.DMP_STEP: 50_000}
+                   Config.DMP_STEP: 50_000, Config.STOP_CYCLES: 0, Config.BRAKE_CYCLES: 0}
+# (STOP_CYCLES = BRAKE_CYCLES = 0: a trip goes straight to STO, the torque ramp of a node that
+# has no safe-stop upload; protocol/safe_stop.py gives the master's values.)
 
 
 class DmpControl(enum.IntEnum):
@@ -121,13 +125,15 @@ class Status(enum.IntFlag):
     """Status bits (Comm A and Comm C)."""
 
     ARMED   = 1 << 0
-    TRIPPED = 1 << 1   # watchdog fired: torque ramping to / at zero until re-armed
+    TRIPPED = 1 << 1   # watchdog fired: safe stop (HOLD, BRAKE, then STO) until re-armed
     SAFE    = 1 << 2   # tripped and torque zero
     FRESH   = 1 << 3   # Comm C: forces from this period's Comm B
     PRIME   = 1 << 4   # next VDC run restarts its derivative history
     MODE0   = 1 << 5   # mode, 2 bits
     MODE1   = 1 << 6
     DMP     = 1 << 7   # the joint takes its references from the primitive generator
+    HOLD    = 1 << 8   # safe stop: tripped, the joint engine holds the trip position (SS1/SS2)
+    BRAKE   = 1 << 9   # safe stop: the node's brake output is asserted (brake engaged)
 
 
 class NodeEvent(enum.IntFlag):
