@@ -151,6 +151,7 @@ class LoopResult:
     violations: list = field(default_factory=list)   # model backend: conditions not met
     window_wall_s: float = 0.0    # wall time from period 0 to the end (start-up excluded)
     window_cpu_s: float = 0.0     # CPU time of this process over the same window
+    brake: np.ndarray | None = None   # (steps, n) bool: the plant's brakes holding after each step
 
 
 class ClosedLoop:
@@ -239,6 +240,7 @@ class ClosedLoop:
         t_rec = np.arange(steps) * s / CLOCK_HZ        # step i starts at cycle i · s
         rec = np.zeros((2, steps, self.n))              # (the fast path writes both at once)
         q_rec, tau_rec = rec[0], rec[1]
+        engaged = np.zeros((steps, self.n), dtype=bool)   # the brakes holding, per step
         while self.cycle < self.start_cycle:
             if backend.link_up and not uploads_sent:
                 sends, self._seq = startup_sends(self._uploads, master, plant.q, self._seq)
@@ -254,7 +256,11 @@ class ClosedLoop:
         t_window, cpu_window = time.perf_counter(), time.process_time()
         i = 0
         while i < steps:
-            if fast is not None:        # plain steps in one go (GatewareSide.fast_path)
+            brake = backend.brake()
+            plant.set_brake(brake)
+            # plain steps in one go (fast_path) while the brakes are released and none is
+            # commanded: its compiled plant step carries no brake
+            if fast is not None and plant.brake_idle:
                 stop = steps if progress is None else min(steps, (i // 100 + 1) * 100)
                 k = fast(i, stop, self.cycle, master.quiet_end(s))
                 if k:
@@ -270,6 +276,8 @@ class ClosedLoop:
             lines = PlantLines(plant)
             q_rec[i] = plant.q
             tau_rec[i] = tau
+            if brake.any() or not plant.brake_idle:
+                engaged[i] = plant.brake_engaged
             await self._step(lines)
             i += 1
             if progress is not None and i % 100 == 0:
@@ -284,4 +292,4 @@ class ClosedLoop:
         return LoopResult(t_rec, q_rec, tau_rec, master, backend.link_errors,
                           backend.crc_errors, self.frames, digest.hexdigest(),
                           violations=list(backend.violations), window_wall_s=window,
-                          window_cpu_s=window_cpu)
+                          window_cpu_s=window_cpu, brake=engaged)

@@ -86,7 +86,8 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
               plant_config: PlantConfig | None = None, progress=None, profile=None,
               vcd: str | None = None, signals: str | None = None, vcd_path=None, faults=(),
               references: str = "full", dmp=None, dmp_step_cycles: int = 50_000,
-              commit_cycles: int | None = None):
+              commit_cycles: int | None = None, on_trip: str | None = "rearm",
+              rearm_blend: float = 0.2):
     """Run the quintic test (q_i = i·q_d, 0.1571 rad in 1 s, then hold) in closed loop.
 
     Parameters
@@ -112,6 +113,9 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         ``dmp_step_cycles``.
     commit_cycles : int, optional
         Comm D's commit phase (default: a fifth of the period, :func:`node_uploads`).
+    on_trip, rearm_blend : str, float
+        What the master does when nodes trip or stop answering, and the blend back to the
+        trajectory after a re-arm (:mod:`master.recovery`, ``[faults]``).
 
     Returns
     -------
@@ -144,7 +148,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     # the master checks every Comm A against the uploads (CRC and count per node)
     master = Master(robot, controller, trajectory, robot.counts_per_rev, timing, lam=gains.lam,
                     pid=pid_gains(robot, gains.pid_1khz_hz), uploads=uploads,
-                    references=references)
+                    references=references, on_trip=on_trip, rearm_blend=rearm_blend)
     plant = make_plant(robot, plant_config or PlantConfig(), seed=seed)
     plant.reset(robot.home)
     duration_cycles = int(round(duration * CLOCK_HZ))
@@ -189,6 +193,11 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         "upload_errors": master.upload_error_total(),
         "upload_errors_per_node": [master.upload_errors[k] for k in range(1, robot.n + 1)],
         "tripped_nodes": sorted(master.tripped),
+        "lost_nodes": sorted(master.lost),
+        "ended": master.ended,
+        "rearms": master.rearms,
+        "recovery": [{"t_s": (c - start) / CLOCK_HZ, "event": e}
+                     for c, e in master.recovery_log],
         "references": references,
         "dmp_errors": int(sum(master.dmp_errors.values())),
         "node_counters": master.node_totals(),
@@ -247,6 +256,12 @@ def run_faults(summary: dict) -> list[str]:
             out.append(f"{summary[key]} {text}")
     if summary.get("tripped_nodes"):
         out.append("watchdog tripped on node " + ", ".join(map(str, summary["tripped_nodes"])))
+    lost = [k for k in summary.get("lost_nodes", []) if k not in summary.get("tripped_nodes", [])]
+    if lost:
+        out.append("no Comm A from node " + ", ".join(map(str, lost)) + " in some period (the "
+                   "link lost: silent beyond their watchdog's timeout, nodes trip)")
+    if summary.get("ended"):
+        out.append(f"the master ended the run: {summary['ended']}")
     for key, value in summary.get("node_counters", {}).items():
         if value:
             out.append(f"{value} {NODE_COUNTER_NAMES.get(key, key)} (nodes' {key})")

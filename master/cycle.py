@@ -52,12 +52,13 @@ from mrm_cosim.protocol.fixed import FORCE, VEL
 from mrm_cosim.protocol.regs import (
     LINK_HEALTH, Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c, upload_check,
 )
+from mrm_cosim.master.recovery import ON_TRIP, Blend
 from mrm_cosim.master.vdc import propagate_forces, propagate_velocities
 from mrm_cosim.models.robot import Robot
 from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["Send", "Master", "MasterTiming", "PeriodRecord", "CONTROLLERS", "NODE_COUNTERS",
-           "REFERENCES"]
+           "REFERENCES", "ON_TRIP"]
 
 CONTROLLERS = ("vdc", "pid-fpga", "pid-1khz")
 #: What Comm D's references are (docs/dmp.md "The master"): ``full`` — ``q_d, q̇_d, q̈_d`` at
@@ -145,11 +146,32 @@ class Master:
         starts none and counts the nodes in :attr:`dmp_errors` — before any motion, since the
         trajectory of a primitive run starts at period 1. From period 2 every Comm A must
         report the generator selected (``Status.DMP``); one that does not is counted too.
+    on_trip : str or None
+        What to do when nodes trip or stop answering (:data:`ON_TRIP`,
+        :mod:`master.recovery`): ``"rearm"``, ``"end"``, or ``None`` (only count it).
+    rearm_blend : float, s
+        With ``"rearm"``: the blend from the held positions back to the trajectory.
     """
 
     def __init__(self, robot: Robot, controller: str, trajectory, counts_per_rev,
                  timing: MasterTiming | None = None, lam: float = 50.0, pid=None,
-                 clock_hz: float = float(CLOCK_HZ), uploads=None, references: str = "full"):
+                 clock_hz: float = float(CLOCK_HZ), uploads=None, references: str = "full",
+                 on_trip: str | None = None, rearm_blend: float = 0.2):
+        if on_trip is not None and on_trip not in ON_TRIP:
+            raise ValueError(f"on_trip must be one of {ON_TRIP} or None, not {on_trip!r}")
+        if not rearm_blend > 0.0:
+            raise ValueError(f"rearm_blend must be positive, not {rearm_blend!r}")
+        self.on_trip = on_trip
+        self.rearm_blend = float(rearm_blend)
+        #: why the master stopped sending (``on_trip = "end"``), None while it runs
+        self.ended: str | None = None
+        #: nodes whose Comm A went missing in some period (silent: their watchdogs trip)
+        self.lost: set[int] = set()
+        #: what the master saw and did about trips: (cycle, text)
+        self.recovery_log: list[tuple[int, str]] = []
+        self.rearms = 0          # re-arm sequences sent (on_trip = "rearm")
+        self._blend: Blend | None = None
+        self._rearm_period = -1  # the period the last ARM lands in
         if controller not in CONTROLLERS:
             raise ValueError(f"controller must be one of {CONTROLLERS}, not {controller!r}")
         if references not in REFERENCES:
@@ -238,6 +260,10 @@ class Master:
         (:attr:`_wake`) there is nothing to do and nothing is computed."""
         if now < self._wake:
             return []
+        if self.ended is not None:
+            self._pending = []
+            self._wake = 1 << 62        # silent for good
+            return []
         out = []
         period = self.timing.period_cycles
         if self.start is not None and now >= self.start:
@@ -286,12 +312,33 @@ class Master:
         if self._judged is rec:
             return
         self._judged = rec
+        if self.ended is not None:
+            return                      # the master is silent: nothing was asked
         if not rec.complete or self._pending:
             self.overruns += 1
             if not rec.complete:
                 self.missing += (self.n - len(self._a)) + (
                     0 if self.controller != "vdc" else self.n - len(self._c))
             rec.complete = False
+        silent = [k for k in range(1, self.n + 1) if k not in self._a]
+        if silent:
+            new = [k for k in silent if k not in self.lost]
+            self.lost.update(silent)
+            end = rec.start + self.timing.period_cycles
+            if new:
+                self.recovery_log.append((end, f"period {rec.index}: no Comm A from node "
+                                          f"{', '.join(map(str, new))} (link lost?)"))
+            if self.on_trip == "end":
+                self._end(end, f"link lost: no Comm A from node "
+                          f"{', '.join(map(str, silent))} in period {rec.index}")
+
+    def _end(self, now: int, reason: str) -> None:
+        """``on_trip = "end"``: stop sending for good (the nodes' watchdogs trip, they stop,
+        hold and brake)."""
+        if self.ended is None:
+            self.ended = reason
+            self.recovery_log.append((now, f"ended: {reason}"))
+            self._pending = []
 
     def finish(self, now: int) -> None:
         """The run ends at cycle ``now`` (both harnesses call this once, after their last
@@ -306,6 +353,8 @@ class Master:
     def _new_period(self, index: int, start: int) -> list[Send]:
         if self._rec is not None:
             self._judge(self._rec)
+        if self.ended is not None:
+            return []
         self._rec = PeriodRecord(index, start)
         self.records.append(self._rec)
         self._a, self._c = {}, {}
@@ -396,7 +445,7 @@ class Master:
         self._a[src] = a
         self.node_counters[src] = {k: a[k] for k in NODE_COUNTERS}
         self.node_link[src] = {k: a[k] for k in LINK_HEALTH}
-        if a["status"] & Status.TRIPPED:
+        if a["status"] & (Status.TRIPPED | Status.HOLD | Status.BRAKE):
             self.tripped.add(src)
         exp = self.expected_uploads
         if exp is not None and (a["upload_crc"], a["upload_count"]) != exp[src]:
@@ -406,19 +455,69 @@ class Master:
             rec.events["A_done"] = now
             if self.references == "dmp":
                 self._dmp_check(now)
+            if self.on_trip is not None and self._on_trip(now):
+                return
             self._after_a(now)
 
+    def _on_trip(self, now: int) -> bool:
+        """Every Comm A of the period is in: if a node reports a trip, recover as
+        :attr:`on_trip` says (:mod:`master.recovery`) and return True (no motion this period)."""
+        rec = self._rec
+        tripped = sorted(k for k, a in self._a.items()
+                         if a["status"] & (Status.TRIPPED | Status.HOLD | Status.BRAKE))
+        if not tripped or rec.index == self._rearm_period:
+            # (the period the ARM lands in: its snapshot, at the boundary, is from before it)
+            return False
+        names = ", ".join(map(str, tripped))
+        self.recovery_log.append((now, f"period {rec.index}: node {names} tripped"))
+        rec.complete = True                 # nothing more is asked this period
+        if self.on_trip == "end":
+            self._end(now, f"node {names} tripped (period {rec.index})")
+            return True
+        exp = self.expected_uploads
+        bad = [k for k, a in self._a.items()
+               if exp is not None and (a["upload_crc"], a["upload_count"]) != exp[k]]
+        if bad:
+            self._end(now, f"cannot re-arm: the upload read-back of node "
+                      f"{', '.join(map(str, sorted(bad)))} disagrees (period {rec.index})")
+            return True
+        from mrm_cosim.protocol.regs import Config, config_payloads
+
+        q = np.array([a["count"] for a in (self._a[k + 1] for k in range(self.n))]) * \
+            (2 * math.pi) / self.counts_per_rev
+        z = np.zeros(self.n)
+        arm = [self._packet(k, PacketType.CONFIG, p)
+               for k in range(1, self.n + 1) for p in config_payloads({Config.ARM: 1})]
+        sends = self._comm_d(z, q, q, z, z) + arm
+        self._later(now + self.timing.kinematics_cycles, sends)
+        if self._uploads is not None:       # the ARM joins what every Comm A reads back
+            self._uploads += [(s.dest, PacketType.CONFIG, s.payload) for s in arm]
+            errors = dict(self.upload_errors)
+            self.expect_uploads(self._uploads)
+            self.upload_errors = errors
+        t0 = (rec.index + 1) * self.dt         # the nodes re-arm at the next boundary
+        self._rearm_period = rec.index + 1
+        self._blend = Blend(self.trajectory, q, t0, self.rearm_blend)
+        self._integral = np.zeros(self.n)
+        self.rearms += 1
+        self.recovery_log.append((now, f"period {rec.index}: uploads read back on every "
+                                  f"node; hold, ARM; blend back to the trajectory from "
+                                  f"{t0:.4f} s to {t0 + self.rearm_blend:.4f} s"))
+        return True
+
     def _references(self, t: float):
-        """The references at ``t``; the trajectory (a function of ``t``) is evaluated once
-        for the Comm B and Comm D of a period (the arrays are only read)."""
+        """The references at ``t``; the trajectory (a function of ``t``; after a re-arm the
+        blend back to it) is evaluated once for the Comm B and Comm D of a period (the arrays
+        are only read)."""
+        source = self.trajectory if self._blend is None else self._blend
         last = self._ref_at
-        if last is not None and last[0] == t and last[2] is self.trajectory:
+        if last is not None and last[0] == t and last[2] is source:
             return last[1]
-        q_d, qd_d, qdd_d = self.trajectory(t)
+        q_d, qd_d, qdd_d = source(t)
         q_d, qd_d, qdd_d = (np.asarray(x, float) for x in (q_d, qd_d, qdd_d))
         if self.references == "hold":
             qd_d, qdd_d = np.zeros_like(qd_d), np.zeros_like(qdd_d)
-        self._ref_at = (t, (q_d, qd_d, qdd_d), self.trajectory)
+        self._ref_at = (t, (q_d, qd_d, qdd_d), source)
         return q_d, qd_d, qdd_d
 
     def send_uploads(self, packets) -> None:

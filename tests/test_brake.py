@@ -70,9 +70,9 @@ def test_released_arm_falls_and_the_brake_stops_it():
 
 @pytest.mark.parametrize("compliant", [False, True])
 def test_brake_slips_above_its_holding_torque(compliant):
-    """A joint whose load exceeds the holding torque slips: the brake's holding torque set
-    below the most loaded joint's gravity torque lets it fall, decelerated by the kinetic torque; the
-    joints whose gravity torque is below it stay."""
+    """A joint whose load exceeds the holding torque slips: a holding torque below the most
+    loaded joint's gravity torque lets it fall, decelerated by the kinetic torque; the joints
+    whose gravity torque is below it stay."""
     robot = load_robot("mrm3")
     cfg0 = PlantConfig(friction=False, joints="compliant" if compliant else "rigid")
     plant = (CompliantPlant if compliant else Plant)(robot, cfg0, seed=1)

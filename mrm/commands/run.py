@@ -308,7 +308,9 @@ def _track(args) -> int:
                                         timing=config.timing, plant_config=config.plant,
                                         progress=progress, profile=profile,
                                         vcd=wave and wave[1], signals=args.signals,
-                                        vcd_path=vcd_path, faults=faults)
+                                        vcd_path=vcd_path, faults=faults,
+                                        on_trip=config.faults.on_trip,
+                                        rearm_blend=config.faults.rearm_blend)
         summary["version"] = __version__
         _write_track(tmp, args, config, robot, result, summary, profile)
     if args.json:
