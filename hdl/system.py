@@ -68,6 +68,8 @@ class System(wiring.Component):
         Encoder lines, bit k for node k+1.
     torque1 … torqueN : Out(signed(24))
         Torque commands (FORCE words, N·m · 2^13).
+    brake1 … brakeN : Out(1)
+        The nodes' brake outputs (the safe stop, docs/node.md "Safe stop").
     status1 … statusN : Out(16)
         The nodes' :class:`~mrm_cosim.protocol.regs.Status` bits.
     count1 … countN : Out(signed(32))
@@ -108,6 +110,7 @@ class System(wiring.Component):
         }
         for k in range(1, n_nodes + 1):
             members[f"torque{k}"] = Out(signed(WORD))
+            members[f"brake{k}"] = Out(1)
             members[f"status{k}"] = Out(16)
             members[f"count{k}"] = Out(signed(32))
             if self.line_faults:
@@ -134,6 +137,7 @@ class System(wiring.Component):
                 node.enc_a.eq(self.enc_a[k]),
                 node.enc_b.eq(self.enc_b[k]),
                 getattr(self, f"torque{k + 1}").eq(node.torque),
+                getattr(self, f"brake{k + 1}").eq(node.brake),
                 getattr(self, f"status{k + 1}").eq(node.status),
                 getattr(self, f"count{k + 1}").eq(node.count),
             ]

@@ -36,7 +36,7 @@ def joint_angle(cycle):
     return 0.2 + 0.3 * t + 40.0 * t * t
 
 
-def uploads(mode=0):
+def uploads(mode=0, safe=None):
     theta = load_robot("mrm3").nominal_theta[1]
     K = np.full((2, 6), 40.0)
     rho = np.zeros((2, 13))
@@ -49,6 +49,8 @@ def uploads(mode=0):
     cfg = {Config.MODE: mode, Config.TICK: TICK, Config.TIMEOUT: 3000,
            Config.RAMP: FORCE.encode(1.5), Config.TAU_MIN: FORCE.encode(-8.0),
            Config.TAU_MAX: FORCE.encode(8.0)}
+    if safe is not None:
+        cfg.update({Config.STOP_CYCLES: safe[0], Config.BRAKE_CYCLES: safe[1]})
     packets = [(PacketType.CONFIG, p) for p in config_payloads(cfg)]
     packets += [(PacketType.PARAM, p) for p in vdc_upload(theta, K, rho, lower, upper)]
     packets += [(PacketType.PARAM, p) for p in joint_upload(jp)]
@@ -72,12 +74,18 @@ def timing_config():
     return {Config.PERIOD: PERIOD, Config.COMMIT: COMMIT, Config.SYNC_WINDOW: WINDOW}
 
 
-@pytest.mark.parametrize("mode, n_periods, end", [(0, 2, 11_500), (1, 1, 9_500),
-                                                  (2, 1, 9_500)])
-def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
+@pytest.mark.parametrize("mode, n_periods, end, safe", [
+    (0, 2, 11_500, None), (1, 1, 9_500, None), (2, 1, 9_500, None),
+    # the safe stop (STOP_CYCLES, BRAKE_CYCLES, re-arm cycle): hold, brake, STO, re-armed
+    (0, 1, 13_000, (700, 500, 11_000)), (1, 1, 13_000, (400, 900, 11_000)),
+    # re-armed while still holding (a VDC node holds on the PID words)
+    (0, 1, 12_000, (3000, 2000, 9_400))])
+def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end, safe):
     """mode 0 VDC, 1 PID, 2 torque-only. Periods of 2000 cycles on the node's own timer; the
     time-codes arrive inside the window, the last period has a late Comm D and an
-    out-of-window time-code (a resynchronisation), then the master falls silent."""
+    out-of-window time-code (a resynchronisation), then the master falls silent. With
+    ``safe``, the node's safe stop runs after the trip and an ARM at cycle ``safe[2]``
+    re-arms it."""
     dut = NodeCore(encoder=ENC)
     rng = np.random.default_rng(0)
     trace = {}              # cycle -> (count, velocity, torque, status, errors)
@@ -97,10 +105,10 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
 
     async def monitor(ctx):
         for c in range(end):
-            _, _, cnt, vel, tq, st, valid, ready, last, ps, ev = await ctx.tick().sample(
+            _, _, cnt, vel, tq, st, valid, ready, last, ps, ev, br = await ctx.tick().sample(
                 dut.count, dut.velocity, dut.torque, dut.status, dut.rx.valid, dut.rx.ready,
-                dut.rx.p.last, dut.period_start, dut.events)
-            trace[c] = (cnt, vel, tq, st)
+                dut.rx.p.last, dut.period_start, dut.events, dut.brake)
+            trace[c] = (cnt, vel, tq, st, br)
             if ev:
                 strobes.extend((c, f) for f in NodeEvent if ev & f)
             if valid and ready and last:
@@ -130,7 +138,7 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
     async def master(ctx):
         ctx.set(dut.period, 0)
         for ptype, payload in [(PacketType.CONFIG, p) for p in
-                               config_payloads(timing_config())] + uploads(mode):
+                               config_payloads(timing_config())] + uploads(mode, safe):
             await send(ctx, ptype, payload)
         marks["armed_sent"] = ctx.get(dut_cycle)
         first = (ctx.get(dut_cycle) // PERIOD + 1) * PERIOD
@@ -157,6 +165,10 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
                 await ctx.tick().repeat(60)
                 await send(ctx, PacketType.COMM_A, b"\0", seq=99)
                 replies.append((PacketType.COMM_A, *await get_packet(ctx, dut.tx)))
+        if safe is not None:
+            await wait_until(ctx, safe[2])
+            for p in config_payloads({Config.ARM: 1}):
+                await send(ctx, PacketType.CONFIG, p)
 
     from amaranth import Signal
     dut_cycle = Signal(32)
@@ -188,6 +200,7 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
     for c in range(end - 1):
         model.run(c, sample)
         assert model.torque_at(c) == trace[c][2], f"torque in cycle {c}"
+        assert model.brake_at(c) == trace[c][4], f"brake in cycle {c}"
         # FRESH rises when the VDC passes its MARK, the model has the forces at once; CONFIG
         # records apply as their bytes arrive, in the model at the packet's end (so compare
         # after the uploads)
@@ -231,7 +244,8 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
     a = parse_comm_a(replies[0][2])
     assert a["count"] == trace[period_starts[0]][0]
     assert a["period"] == 1 and a["sync_errors"] == 0 and a["late_d"] == 0
-    ups = [p for t, p in sent if t in (PacketType.CONFIG, PacketType.PARAM)]
+    first_a = next(i for i, (t, _) in enumerate(sent) if t == PacketType.COMM_A)
+    ups = [p for t, p in sent[:first_a] if t in (PacketType.CONFIG, PacketType.PARAM)]
     assert (a["upload_crc"], a["upload_count"]) == (crc16(b"".join(ups)), len(ups))
     F_a, F_b, status, per = parse_comm_c(replies[1][2])
     assert status & Status.FRESH and per == 1
@@ -249,12 +263,37 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end):
         d0 = period_packets(np.random.default_rng(0), 0)[1]
         tau_d = int.from_bytes(d0[:3], "little", signed=True)
         assert trace[land][2] == tau_d != trace[land - 1][2]
+    if safe is not None:
+        check_safe_stop(trace, safe, end)
+        return
     # Master silent after the last period: the watchdog trips and the torque ramps to zero.
     st_end = trace[end - 1][3]
     assert st_end & Status.TRIPPED and st_end & Status.SAFE
     assert trace[end - 1][2] == 0
     trip = min(c for c in trace if trace[c][3] & Status.TRIPPED)
     assert trip > period_starts[-1]
+
+
+def check_safe_stop(trace, safe, end):
+    """The safe stop's sequence in a gateware trace: HOLD for STOP + BRAKE cycles from the
+    trip with the commands still landing, BRAKE from STOP cycles on, then STO (SAFE once the
+    torque is zero) until the ARM's boundary releases it all."""
+    stop, brake, _ = safe
+    trip = min(c for c in trace if trace[c][3] & Status.TRIPPED)
+    rearmed = min(c for c in range(trip, end) if not trace[c][3] & Status.TRIPPED)
+    hold = [c for c in range(trip, rearmed) if trace[c][3] & Status.HOLD]
+    braked = [c for c in range(trip, rearmed) if trace[c][4]]
+    assert hold == list(range(trip, min(trip + stop + brake, rearmed)))
+    assert braked == list(range(trip + stop, rearmed))
+    assert all(bool(trace[c][3] & Status.BRAKE) == bool(trace[c][4]) for c in trace)
+    torques = {trace[c][2] for c in hold}
+    assert len(torques) > 2                             # the hold loop acts, tick by tick
+    if trip + stop + brake < rearmed:                   # STO: ramped to zero, SAFE
+        assert trace[rearmed - 1][2] == 0 and trace[rearmed - 1][3] & Status.SAFE
+        assert not any(trace[c][3] & Status.SAFE for c in hold)
+    after = range(rearmed, end)
+    assert all(trace[c][3] & Status.ARMED and not trace[c][4] and
+               not trace[c][3] & (Status.HOLD | Status.BRAKE) for c in after)
 
 
 def test_payload_helpers_round_trip_and_refuse_bad_uploads():

@@ -1,5 +1,6 @@
 # amaranth: UnusedElaboratable=no
-"""Torque output stage: RTL == cycle-level reference; the safe state after silence."""
+"""Torque output stage: RTL == cycle-level reference; the safe stop after silence (hold,
+brake, STO) and its re-arm."""
 
 from amaranth.sim import Simulator
 from hypothesis import given, settings
@@ -14,7 +15,7 @@ from mrm_cosim.testbench import run_simulation
 PULSES = ("packet", "tick", "cmd_valid", "arm", "disarm")
 
 
-def run_both(events, timeout, ramp, tau_min, tau_max):
+def run_both(events, timeout, ramp, tau_min, tau_max, stop_cycles=0, brake_cycles=0):
     """events: list of dicts of pulses (and cmd) per cycle."""
     dut = Watchdog()
     ref = WatchdogModel()
@@ -25,15 +26,19 @@ def run_both(events, timeout, ramp, tau_min, tau_max):
         ctx.set(dut.ramp, ramp)
         ctx.set(dut.tau_min, tau_min)
         ctx.set(dut.tau_max, tau_max)
+        ctx.set(dut.stop_cycles, stop_cycles)
+        ctx.set(dut.brake_cycles, brake_cycles)
         for ev in events:
             for name in PULSES:
                 ctx.set(getattr(dut, name), int(ev.get(name, False)))
             ctx.set(dut.cmd, ev.get("cmd", 0))
             await ctx.tick()
             rtl_out.append((ctx.get(dut.torque), ctx.get(dut.armed), ctx.get(dut.tripped),
-                            ctx.get(dut.safe)))
-            ref.cycle(timeout=timeout, ramp=ramp, tau_min=tau_min, tau_max=tau_max, **ev)
-            ref_out.append((ref.torque, int(ref.armed), int(ref.tripped), int(ref.safe)))
+                            ctx.get(dut.safe), ctx.get(dut.holding), ctx.get(dut.brake)))
+            ref.cycle(timeout=timeout, ramp=ramp, tau_min=tau_min, tau_max=tau_max,
+                      stop_cycles=stop_cycles, brake_cycles=brake_cycles, **ev)
+            ref_out.append((ref.torque, int(ref.armed), int(ref.tripped), int(ref.safe),
+                            int(ref.holding), int(ref.brake)))
 
     sim = Simulator(dut)
     sim.add_clock(20e-9)
@@ -55,7 +60,7 @@ def test_trips_after_two_periods_of_silence_and_ramps_to_zero():
     trip = next(k for k, o in enumerate(rtl) if o[2])
     last_packet = 1 + 250                              # event index of the last packet
     assert trip == last_packet + 1 + timeout
-    assert rtl[-1] == (0, 1, 1, 1)                     # safe: tripped, torque zero
+    assert rtl[-1] == (0, 1, 1, 1, 0, 1)               # safe: tripped, torque zero, braked
     torques = [o[0] for o in rtl[trip:]]
     assert all(a - b in (0, ramp) or b == 0 for a, b in zip(torques, torques[1:], strict=False))
 
@@ -80,7 +85,40 @@ event = st.fixed_dictionaries({"packet": pulse, "tick": pulse, "cmd_valid": puls
 @settings(max_examples=30, deadline=None)
 @given(events=st.lists(event, min_size=1, max_size=80), timeout=st.integers(0, 40),
        ramp=st.integers(0, 2**22), lim=st.tuples(st.integers(WORD_MIN, WORD_MAX),
-                                                 st.integers(WORD_MIN, WORD_MAX)))
-def test_rtl_equals_reference_on_random_pulses(events, timeout, ramp, lim):
-    rtl, ref = run_both(events, timeout, ramp, min(lim), max(lim))
+                                                 st.integers(WORD_MIN, WORD_MAX)),
+       stop=st.integers(0, 12), brake=st.integers(0, 12))
+def test_rtl_equals_reference_on_random_pulses(events, timeout, ramp, lim, stop, brake):
+    rtl, ref = run_both(events, timeout, ramp, min(lim), max(lim), stop, brake)
     assert rtl == ref
+
+
+def test_safe_stop_holds_then_brakes_then_ramps_and_arm_releases():
+    """SS1-t: after the trip the commands still apply (the engine holds) for stop + brake
+    cycles, the brake from stop cycles on, then STO's ramp; ARM releases the brake."""
+    timeout, ramp, stop, brake = 20, 1000, 30, 40
+    events = [{"arm": True}] + [{"packet": True, "cmd_valid": True, "cmd": 4000}] * 5
+    events += [{"tick": k % 10 == 0, "cmd_valid": k % 10 == 5, "cmd": 3000 + k}
+               for k in range(150)]
+    events += [{"arm": True}] + [{"cmd_valid": True, "cmd": 10}] * 3
+    rtl, ref = run_both(events, timeout, ramp, -5000, 5000, stop, brake)
+    assert rtl == ref
+    trip = next(k for k, o in enumerate(rtl) if o[2])
+    assert trip == 5 + 1 + timeout                     # the last packet's index is 5
+    assert all(o[4] for o in rtl[trip:trip + stop + brake])      # holding
+    assert not any(o[5] for o in rtl[trip:trip + stop])          # brake released
+    assert all(o[5] for o in rtl[trip + stop:-4])                # brake engaged to the ARM
+    hold_cmds = [o[0] for o in rtl[trip + 10:trip + stop + brake]]
+    assert len(set(hold_cmds)) > 1 and all(t > 3000 for t in hold_cmds)   # commands applied
+    sto = rtl[trip + stop + brake:-4]
+    assert not any(o[4] for o in sto) and sto[-1][0] == 0 and sto[-1][3] == 1
+    assert rtl[-1][:6] == (10, 1, 0, 0, 0, 0)          # re-armed: brake off, commands apply
+
+
+def test_disarm_while_holding_engages_the_brake_at_once():
+    timeout, stop, brake = 5, 50, 50
+    events = [{"arm": True}] + [{"cmd_valid": True, "cmd": 100}] * 12 + [{"disarm": True}] + \
+        [{"cmd_valid": True, "cmd": 100}] * 3
+    rtl, ref = run_both(events, timeout, 1, -1000, 1000, stop, brake)
+    assert rtl == ref
+    assert rtl[12][4] == 1 and rtl[12][5] == 0          # holding, brake released
+    assert rtl[-1] == (0, 0, 1, 1, 0, 1)                # disarmed: no torque, brake engaged

@@ -58,6 +58,9 @@ class NodeConfig(wiring.Component):
         CONFIG DMP_STEP: cycles per step of the primitive generator.
     dmp_off, dmp_start, dmp_stop : Out(1)
         Strobes: CONFIG DMP = OFF, START, STOP (:class:`~protocol.regs.DmpControl`).
+    stop_cycles, brake_cycles : Out(32)
+        The watchdog's safe stop: hold before the brake, hold with the brake engaged
+        (:mod:`~protocol.safe_stop`).
     """
 
     config:       In(stream.Signature(ConfigRecord, always_ready=True))
@@ -84,6 +87,8 @@ class NodeConfig(wiring.Component):
     dmp_off:      Out(1)
     dmp_start:    Out(1)
     dmp_stop:     Out(1)
+    stop_cycles:  Out(32, init=CONFIG_DEFAULTS[Config.STOP_CYCLES])
+    brake_cycles: Out(32, init=CONFIG_DEFAULTS[Config.BRAKE_CYCLES])
 
     def elaborate(self, platform):
         m = Module()
@@ -137,6 +142,10 @@ class NodeConfig(wiring.Component):
                 with m.Case(Config.DMP_STEP):
                     with m.If((value >= 2) & (value < (1 << 24))):
                         m.d.sync += self.dmp_step.eq(value)
+                with m.Case(Config.STOP_CYCLES):
+                    m.d.sync += self.stop_cycles.eq(value)
+                with m.Case(Config.BRAKE_CYCLES):
+                    m.d.sync += self.brake_cycles.eq(value)
 
         # ARM at the next boundary, the integral cleared in its cycle and the one before;
         # disarming wins over both.

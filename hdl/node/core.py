@@ -48,6 +48,10 @@ cycle a packet or time-code arrived (docs/node.md "Timing"):
   runs with the latched count, velocity, Comm D values and ``t_next`` (from the boundary); its
   torque goes through the :class:`~hdl.node.watchdog.Watchdog`. A tick that finds the joint
   engine busy is skipped and counted (``overruns``).
+* Safe stop (IEC 61800-5-2 SS1-t, docs/node.md "Safe stop"): after a watchdog trip the ticks
+  run the PID entry on node-local references (hold the count of the first hold tick) for
+  STOP_CYCLES + BRAKE_CYCLES, the ``brake`` output from STOP_CYCLES on, then the torque ramps
+  to zero (STO); status bits HOLD and BRAKE.
 * Words arrive over the byte stream; a word for a busy engine waits (``rx.ready`` low).
 * Every payload byte of a CONFIG or PARAM packet goes, in arrival order, into a running
   CRC-16/CCITT-FALSE (the link's, :mod:`hdl.link.crc`, from 0xFFFF at reset) and every such
@@ -118,6 +122,8 @@ class NodeCore(wiring.Component):
         Encoder lines.
     torque : Out(signed(24))
         Torque command (FORCE word: N·m · 2^13).
+    brake : Out(1)
+        Engage the joint's holding brake (the watchdog's safe stop, docs/node.md "Safe stop").
     status : Out(16)
         :class:`~protocol.regs.Status` bits.
     count : Out(signed(32))
@@ -143,6 +149,7 @@ class NodeCore(wiring.Component):
     enc_a:        In(1)
     enc_b:        In(1)
     torque:       Out(signed(WORD))
+    brake:        Out(1)
     status:       Out(16)
     count:        Out(signed(32))
     velocity:     Out(signed(WORD))
@@ -262,6 +269,7 @@ class NodeCore(wiring.Component):
             ticks.busy.eq(joint.busy),
             ticks.clear_lo.eq(cfg.clear_lo),
             ticks.clear_hi.eq(cfg.clear_hi),
+            ticks.hold.eq(wd.holding),
             joint.start.eq(ticks.start),
             joint.entry.eq(ticks.entry),
             joint.host_addr.eq(ticks.host_addr),
@@ -271,6 +279,8 @@ class NodeCore(wiring.Component):
             wd.ramp.eq(cfg.ramp),
             wd.tau_min.eq(cfg.tau_min),
             wd.tau_max.eq(cfg.tau_max),
+            wd.stop_cycles.eq(cfg.stop_cycles),
+            wd.brake_cycles.eq(cfg.brake_cycles),
             wd.arm.eq(cfg.arm),
             wd.disarm.eq(cfg.disarm),
             wd.packet.eq(dec.ends.valid),
@@ -278,6 +288,7 @@ class NodeCore(wiring.Component):
             wd.cmd_valid.eq(joint.done),
             wd.cmd.eq(joint.outputs[jmc.addr("tau") - IO_BASE]),
             self.torque.eq(wd.torque),
+            self.brake.eq(wd.brake),
         ]
         for n in JOINT_INPUTS:
             m.d.comb += joint.inputs[jmc.addr(n) - IO_BASE].eq(ticks.inputs[n])
@@ -285,7 +296,7 @@ class NodeCore(wiring.Component):
         # --- status and replies ---------------------------------------------------------------
         m.d.comb += [
             status.eq(Cat(wd.armed, wd.tripped, wd.safe, vseq.fresh, vseq.primed, cfg.mode,
-                          dmp_select)),
+                          dmp_select, wd.holding, wd.brake)),
             self.status.eq(status),
             reply.snapshot.eq(timer.snapshot),
             reply.sync_errors.eq(timer.sync_errors),

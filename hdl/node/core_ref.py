@@ -18,6 +18,11 @@ Internal events follow the node's period timer (free-running from reset, phase 0
   limits and the watchdog apply;
 * commit point (phase ``COMMIT``): an armed node's last full Comm D becomes the joint
   engine's input (disarmed: at its last byte);
+* the safe stop after a watchdog trip (IEC 61800-5-2 SS1-t, docs/node.md "Safe stop",
+  :mod:`~hdl.node.watchdog_ref`): for STOP_CYCLES + BRAKE_CYCLES from the trip the ticks run
+  the PID entry on node-local references (the count of the hold's first tick, zero velocity,
+  acceleration and ``τ_D``) and their commands land; the brake from STOP_CYCLES on; then the
+  ramp to zero (STO);
 * steps of the primitive generator (:class:`~hdl.node.dmp_ref.DmpGeneratorModel`, CONFIG DMP,
   :mod:`~hdl.node.dmp_seq`): at every boundary and every DMP_STEP cycles after one while it
   runs; while it is selected its references replace Comm D's (``τ_D`` stays Comm D's) and
@@ -46,7 +51,7 @@ from functools import cache
 from mrm_cosim.hdl.link.codec_ref import saturating_sum_ref
 from mrm_cosim.protocol.crc import CRC16_INIT, crc16
 from mrm_cosim.protocol.encoder import EncoderParams
-from mrm_cosim.protocol.fixed import saturate
+from mrm_cosim.protocol.fixed import POS, saturate
 from mrm_cosim.protocol.joint_program import MODES as JOINT_MODES
 from mrm_cosim.protocol.joint_program import JointParams, joint_microcode
 from mrm_cosim.protocol.link import ERROR_CLASSES
@@ -125,6 +130,10 @@ class NodeModel:
     presets : list of (int, int)
         Every CONFIG PRESET (homing) taken, ``(cycle, count)``: the encoder interface (the
         caller's) loads the count then (``EncoderModel.cycle(..., preset=count)``).
+    trip_cycle : int
+        First cycle of the last watchdog trip (``tripped`` visible).
+    hold_pos : int or None
+        The safe stop's hold position (POS word), taken at the hold's first tick; None before.
     encoder_preset : callable or None
         ``encoder_preset(cycle, count)``, called for each PRESET: the caller's encoder
         interface (``cosim.model`` attaches its own). None: the caller applies
@@ -158,6 +167,9 @@ class NodeModel:
     fresh: bool = False
     armed: bool = False
     tripped: bool = False
+    trip_cycle: int = 0
+    hold_pos: int | None = None
+    _now: int = 0                         # the cycle of the last _watch (for status)
     arm_pending: bool = False
     arming: bool = False
     torque: int = 0
@@ -284,14 +296,15 @@ class NodeModel:
             if resync:
                 self.events.append((c, Ev.RESYNC))
         arm = self.arming
-        if arm and self.armed and self.tripped:
+        hold = self.holding_at(c)               # the watchdog's, before the ARM takes effect
+        if arm and self.armed and self.tripped and not hold:
             self._ramp()
         if arm:
             self.arming = False
             self.joint.i_hi = 0
             self.armed, self.tripped, self.prime = True, False, True
             self.last_packet = c
-        self._tick(c, sample, c - self.d_base, ramped=arm)
+        self._tick(c, sample, c - self.d_base, ramped=arm, hold=hold)
         if self.dmp_waiting or self.dmp_running:
             self._dmp_step(c)
 
@@ -300,33 +313,67 @@ class NodeModel:
         self.torque = 0 if abs(self.torque) <= ramp else \
             self.torque - ramp if self.torque > 0 else self.torque + ramp
 
-    def _tick(self, now: int, sample, tt: int, ramped: bool = False) -> None:
+    def holding_at(self, c: int) -> bool:
+        """The safe stop holds the joint in cycle ``c`` (armed, tripped, fewer than STOP_CYCLES
+        + BRAKE_CYCLES cycles into the trip; :meth:`_watch` up to ``c`` done)."""
+        cfg = self.config
+        return (self.armed and self.tripped
+                and c < self.trip_cycle + cfg[Config.STOP_CYCLES] + cfg[Config.BRAKE_CYCLES])
+
+    def brake_at(self, c: int) -> bool:
+        """The ``brake`` output in cycle ``c``: tripped and STOP_CYCLES into the trip, or
+        tripped and disarmed (:meth:`_watch` up to ``c`` done)."""
+        return self.tripped and (c >= self.trip_cycle + self.config[Config.STOP_CYCLES]
+                                 or not self.armed)
+
+    def _sto_at(self, c: int) -> bool:
+        """Tripped by cycle ``c`` (the trip predicted if not seen yet) and not holding: the
+        watchdog ignores the engine's commands (STO's ramp)."""
+        cfg = self.config
+        if self.tripped:
+            trip = self.trip_cycle
+        else:
+            trip = self.last_packet + 2 + cfg[Config.TIMEOUT]
+            if not (self.armed and c >= trip):
+                return False
+        return not (self.armed
+                    and c < trip + cfg[Config.STOP_CYCLES] + cfg[Config.BRAKE_CYCLES])
+
+    def _tick(self, now: int, sample, tt: int, ramped: bool = False,
+              hold: bool | None = None) -> None:
         """Control tick at cycle ``now``, ``tt`` cycles after the period boundary the
-        committed references are for (the boundary of the period their Comm D arrived in)."""
+        committed references are for (the boundary of the period their Comm D arrived in).
+        ``hold``: whether the safe stop holds in this cycle (None: from the state)."""
         self._watch(now)
+        if hold is None:
+            hold = self.holding_at(now)
         tick = self.config[Config.TICK]
         self._nt = now + tick
-        if self.armed and self.tripped and not ramped:
+        if self.armed and self.tripped and not ramped and not hold:
             self._ramp()
         count, qd, _ = sample(now)              # every tick strobes the velocity estimator
         if now < self._busy_until:
             self.overruns = min(self.overruns + 1, 0xFFFF)
             return
-        mode = JOINT_MODES[self.config[Config.MODE]]
         tt = min(tt, _TIME_MAX)
+        if hold:                                # the safe stop's PID on node-local references
+            if self.hold_pos is None:
+                self.hold_pos = saturate(count << -POS.lsb)
+            mode = "pid"
+            refs = (0, self.hold_pos, 0, 0)
+        else:
+            mode = JOINT_MODES[self.config[Config.MODE]]
+            refs = self.d_words
         x = JointInputs(q=saturate(count), qd=qd, tn=min(tt + tick, _TIME_MAX),
-                        tau_D=self.d_words[0], qd0=self.d_words[1], vd0=self.d_words[2],
-                        ad0=self.d_words[3])
+                        tau_D=refs[0], qd0=refs[1], vd0=refs[2], ad0=refs[3])
         tau, _, _ = self.joint.tick(mode, x)
         cycles = joint_microcode(self.joint.params.pid_shift).cycles(mode)
         self._started = now
         self._busy_until = now + cycles + 1
         done = now + cycles
-        tripped = self.tripped or (
-            self.armed and done >= self.last_packet + 2 + self.config[Config.TIMEOUT])
         if not self.armed:
             self._landing = (done + 1, 0)
-        elif not tripped:                       # visible from the cycle after the command
+        elif not self._sto_at(done):            # visible from the cycle after the command
             self._landing = (done + 1, min(max(tau, self.config[Config.TAU_MIN]),
                                            self.config[Config.TAU_MAX]))
 
@@ -452,10 +499,13 @@ class NodeModel:
         if landing is not None and now >= landing[0]:
             self.torque = landing[1]
             self._landing = None
+        self._now = now
         if self.armed and not self.tripped:
             trip = self.last_packet + 2 + self.config[Config.TIMEOUT]
             if now >= trip:
                 self.tripped = True
+                self.trip_cycle = trip
+                self.hold_pos = None
                 self._prime_due = trip + 1
         prime_due = self._prime_due
         if prime_due is not None and now >= prime_due:
@@ -469,8 +519,12 @@ class NodeModel:
             s |= Status.ARMED
         if self.tripped:
             s |= Status.TRIPPED
-            if self.torque == 0:
+            if self.holding_at(self._now):
+                s |= Status.HOLD
+            elif self.torque == 0:
                 s |= Status.SAFE
+            if self.brake_at(self._now):
+                s |= Status.BRAKE
         if self.fresh:
             s |= Status.FRESH
         if self.prime:
@@ -543,6 +597,8 @@ class NodeModel:
                 self._landing = None
         elif reg == Config.PRIME:
             self.prime = True
+        elif reg in (Config.STOP_CYCLES, Config.BRAKE_CYCLES):
+            self.config[Config(reg)] = value
         elif reg == Config.DMP_STEP and 2 <= value < (1 << 24):
             self.config[Config.DMP_STEP] = value
         elif reg == Config.DMP and value in (DmpControl.OFF, DmpControl.START, DmpControl.STOP):

@@ -7,6 +7,12 @@ velocity, the Comm D references in effect and ``t_next``, the time their referen
 is evaluated at (``ref_time + TICK``, saturating). A tick that finds the joint engine busy is
 skipped and counted (``overruns`` in Comm A).
 
+While the watchdog holds the joint (``hold``: the safe stop's SS1/SS2 stage after a trip,
+:class:`~hdl.node.watchdog.Watchdog`, docs/node.md "Safe stop") every tick runs the PID entry
+whatever the mode, on node-local references: ``q_d0`` the encoder count of the hold's first
+tick (as a POS word, saturated), ``q̇_d0 = q̈_d0 = 0`` and ``τ_D = 0`` (no feed-forward); the
+PID words ``kp, ki, kd`` are the hold gains.
+
 Between runs the joint engine's host port takes, in priority order, the PID integral clears
 of an ARM (:class:`~hdl.node.config.NodeConfig`) and the PARAM words for the joint bank.
 """
@@ -15,7 +21,7 @@ from amaranth import *
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
-from mrm_cosim.protocol.fixed import WORD
+from mrm_cosim.protocol.fixed import POS, WORD
 from mrm_cosim.protocol.isa import ADDR_BITS, Microcode
 from mrm_cosim.protocol.joint_program import INPUTS as JOINT_INPUTS
 from mrm_cosim.protocol.regs import MODES
@@ -57,6 +63,8 @@ class ControlTicks(wiring.Component):
         The joint engine runs.
     clear_lo, clear_hi : In(1)
         Strobes: write zero into ``ilo_s`` / ``ihi_s``.
+    hold : In(1)
+        The safe stop holds the joint (PID entry, node-local references).
     words : In(stream.Signature(HostWrite))
         PARAM words for the joint bank (the bank field is not looked at).
     tick : Out(1)
@@ -87,6 +95,7 @@ class ControlTicks(wiring.Component):
             "busy":       In(1),
             "clear_lo":   In(1),
             "clear_hi":   In(1),
+            "hold":       In(1),
             "words":      In(stream.Signature(HostWrite)),
             "tick":       Out(1),
             "overruns":   Out(16),
@@ -107,7 +116,14 @@ class ControlTicks(wiring.Component):
         count24  = Signal(signed(WORD))
         j_in     = self.inputs
         entries  = Array(C(jmc.entries[mode], range(len(jmc.instrs))) for mode in MODES)
+        hold_set = Signal()             # the hold's position is taken
+        hold_pos = Signal(signed(WORD))
+        pos_now  = Signal(signed(WORD)) # the count as a POS word (counts · 2^4), saturated
+        lim = 1 << (WORD - 1 + POS.lsb)
         m.d.comb += [
+            pos_now.eq(Mux(self.count >= lim, (1 << (WORD - 1)) - 1,
+                           Mux(self.count < -lim, -(1 << (WORD - 1)),
+                               self.count << -POS.lsb))),
             tick.eq(self.boundary | (tick_cnt == 0)),
             tn.eq(self.ref_time + self.cycles),
             count24.eq(Mux(self.count > (1 << 23) - 1, (1 << 23) - 1,
@@ -123,15 +139,29 @@ class ControlTicks(wiring.Component):
                     j_in.q.eq(count24),
                     j_in.qd.eq(self.velocity),
                     j_in.tn.eq(Mux(tn > TIME_MAX, TIME_MAX, tn)),
-                    j_in.tauD.eq(self.refs.tau),
-                    j_in.qd0.eq(self.refs.qd0),
-                    j_in.vd0.eq(self.refs.vd0),
-                    j_in.ad0.eq(self.refs.ad0),
                 ]
-                m.d.comb += [
-                    self.start.eq(1),
-                    self.entry.eq(entries[self.mode]),
-                ]
+                with m.If(self.hold):
+                    m.d.sync += [
+                        j_in.tauD.eq(0),
+                        j_in.qd0.eq(Mux(hold_set, hold_pos, pos_now)),
+                        j_in.vd0.eq(0),
+                        j_in.ad0.eq(0),
+                        hold_set.eq(1),
+                    ]
+                    with m.If(~hold_set):
+                        m.d.sync += hold_pos.eq(pos_now)
+                    m.d.comb += self.entry.eq(jmc.entries["pid"])
+                with m.Else():
+                    m.d.sync += [
+                        j_in.tauD.eq(self.refs.tau),
+                        j_in.qd0.eq(self.refs.qd0),
+                        j_in.vd0.eq(self.refs.vd0),
+                        j_in.ad0.eq(self.refs.ad0),
+                    ]
+                    m.d.comb += self.entry.eq(entries[self.mode])
+                m.d.comb += self.start.eq(1)
+        with m.If(~self.hold):
+            m.d.sync += hold_set.eq(0)
 
         # Host port: the ARM's integral clears first, then a PARAM word while idle.
         clear = self.clear_lo | self.clear_hi

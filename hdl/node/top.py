@@ -5,7 +5,7 @@
     up line ═══ LinkNode ═══ down line        (codecs, router, packet layer, time-codes)
                   │ rx/tx beats, tc_strobe
                NodeCore ── enc_a, enc_b (encoder lines)
-                  └──────── torque, status
+                  └──────── torque, brake, status
 
 This is the ``node`` top of ``mrm hdl verilog`` / ``mrm hdl synth``; ``node_core`` is the
 compute core alone (for its resource figures without the link).
@@ -45,6 +45,8 @@ class SlaveNode(wiring.Component):
         Encoder lines.
     torque : Out(signed(24))
         Torque command, FORCE word (N·m · 2^13).
+    brake : Out(1)
+        Engage the joint's holding brake (the safe stop, docs/node.md "Safe stop").
     status : Out(16)
         :class:`~mrm_cosim.protocol.regs.Status` bits.
     count : Out(signed(32))
@@ -66,6 +68,7 @@ class SlaveNode(wiring.Component):
             "enc_a":   In(1),
             "enc_b":   In(1),
             "torque":  Out(signed(WORD)),
+            "brake":   Out(1),
             "status":  Out(16),
             "count":   Out(signed(32)),
             "events":  Out(16),
@@ -100,6 +103,7 @@ class SlaveNode(wiring.Component):
             core.enc_a.eq(self.enc_a),
             core.enc_b.eq(self.enc_b),
             self.torque.eq(core.torque),
+            self.brake.eq(core.brake),
             self.status.eq(core.status),
             self.count.eq(core.count),
             core.up_errors.eq(link.up_errors),

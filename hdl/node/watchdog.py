@@ -1,10 +1,17 @@
-"""Torque output stage: command limits, arming and the watchdog's safe state.
+"""Torque output stage: command limits, arming, the watchdog and its safe stop.
+
+# Ref: IEC 61800-5-2:2016 §4.2.2: SS1-t (stop, then STO after a time), SS2 (stop, then
+# standstill held by the drive), STO (safe torque off).
 
 Behaviour, cycle by cycle, is specified by :mod:`.watchdog_ref` (the gateware equals it bit
 for bit): a joint starts disarmed with zero torque; once armed it applies the joint
 controller's commands clamped to the uploaded limits; when no valid packet has arrived for
-``timeout`` cycles it trips, says so in its status, and ramps the torque to zero by ``ramp``
-per control tick. Only a new ``arm`` (CONFIG) leaves the tripped state.
+``timeout`` cycles it trips, says so in its status, and runs the safe stop: for
+``stop_cycles`` + ``brake_cycles`` cycles it still applies the joint engine's commands, which
+then hold the joint still (``holding``: the core runs the engine's PID on node-local
+references), from ``stop_cycles`` on it asserts ``brake``, and after both it ramps the torque
+to zero by ``ramp`` per control tick (STO). Only a new ``arm`` (CONFIG) leaves the tripped
+state and releases the brake; a disarm while tripped engages the brake at once.
 """
 
 from amaranth import *
@@ -31,8 +38,16 @@ class Watchdog(wiring.Component):
         Torque decrement per tick in the tripped state (FORCE LSBs, unsigned).
     tau_min, tau_max : In(signed(24))
         Command limits (FORCE).
+    stop_cycles, brake_cycles : In(32)
+        The safe stop's hold before the brake, and hold with the brake engaged, cycles.
     torque : Out(signed(24))
     armed, tripped, safe : Out(1)
+        ``safe``: tripped, past the hold (STO) and the torque zero.
+    holding : Out(1)
+        Armed, tripped and within the hold (the first ``stop_cycles`` + ``brake_cycles``
+        cycles of the trip): the joint engine holds the joint.
+    brake : Out(1)
+        Tripped and either ``stop_cycles`` into the trip or disarmed: engage the brake.
     """
 
     packet:    In(1)
@@ -45,14 +60,19 @@ class Watchdog(wiring.Component):
     ramp:      In(WORD)
     tau_min:   In(signed(WORD))
     tau_max:   In(signed(WORD))
+    stop_cycles:  In(32)
+    brake_cycles: In(32)
     torque:    Out(signed(WORD))
     armed:     Out(1)
     tripped:   Out(1)
     safe:      Out(1)
+    holding:   Out(1)
+    brake:     Out(1)
 
     def elaborate(self, platform):
         m = Module()
         silence = Signal(32)
+        since   = Signal(32)            # cycles since the trip (0 in the first tripped cycle)
 
         with m.If(self.disarm):
             m.d.sync += self.armed.eq(0)
@@ -67,7 +87,17 @@ class Watchdog(wiring.Component):
             m.d.sync += silence.eq(silence + 1)
         with m.If(self.armed & ~self.tripped & ~self.arm & ~self.disarm &
                   (silence >= self.timeout)):
-            m.d.sync += self.tripped.eq(1)
+            m.d.sync += [
+                self.tripped.eq(1),
+                since.eq(0),
+            ]
+        with m.Elif(self.tripped & (since != (1 << 32) - 1)):
+            m.d.sync += since.eq(since + 1)
+        m.d.comb += [
+            self.holding.eq(self.armed & self.tripped &
+                            (since < self.stop_cycles + self.brake_cycles)),
+            self.brake.eq(self.tripped & ((since >= self.stop_cycles) | ~self.armed)),
+        ]
 
         tau = self.torque
         # |τ| ≤ ramp without negating τ: τ ≤ ramp when positive, τ ≥ −ramp otherwise.
@@ -75,7 +105,7 @@ class Watchdog(wiring.Component):
         m.d.comb += small.eq(Mux(tau > 0, tau <= self.ramp, tau >= -self.ramp))
         with m.If(~self.armed):
             m.d.sync += tau.eq(0)
-        with m.Elif(self.tripped):
+        with m.Elif(self.tripped & ~self.holding):          # STO: ramp to zero
             with m.If(self.tick):
                 with m.If(small):
                     m.d.sync += tau.eq(0)
@@ -90,5 +120,5 @@ class Watchdog(wiring.Component):
                 m.d.sync += tau.eq(self.tau_max)
             with m.Else():
                 m.d.sync += tau.eq(self.cmd)
-        m.d.comb += self.safe.eq(self.tripped & (tau == 0))
+        m.d.comb += self.safe.eq(self.tripped & ~self.holding & (tau == 0))
         return m
