@@ -74,7 +74,7 @@ class TrajectoryConfig:
 
 @dataclass(frozen=True)
 class FaultsConfig:
-    """Faults injected into a run and what the master does when a node trips (``[faults]``;
+    """Faults injected into a run and what the master does when a node trips (``[safety]``;
     docs/faults.md "Safe stop" and "Recovery").
 
     Attributes
@@ -99,7 +99,7 @@ class FaultsConfig:
         from mrm_cosim.master.cycle import ON_TRIP
 
         if self.on_trip not in ON_TRIP:
-            raise InputError("faults.on_trip", f"must be one of {', '.join(map(repr, ON_TRIP))}"
+            raise InputError("safety.on_trip", f"must be one of {', '.join(map(repr, ON_TRIP))}"
                              f", not {self.on_trip!r}")
 
 
@@ -168,8 +168,8 @@ class ExperimentConfig:
             "plant": plant,
             "gains": asdict(self.gains),
             "timing": asdict(self.timing),
-            "faults": {"lines": list(self.faults.lines), "on_trip": self.faults.on_trip,
-                       "rearm_blend": self.faults.rearm_blend},
+            "safety": {"line_faults": list(self.faults.lines),
+                       "on_trip": self.faults.on_trip, "rearm_blend": self.faults.rearm_blend},
         }
 
     def to_toml(self) -> str:
@@ -198,7 +198,7 @@ def loads(text: str, base_dir=None) -> ExperimentConfig:
 
 def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
     """Validate a parsed configuration (the TOML layout)."""
-    _keys(data, "", {"experiment", "trajectory", "plant", "gains", "timing", "faults"})
+    _keys(data, "", {"experiment", "trajectory", "plant", "gains", "timing", "safety"})
     exp = _table(data, "experiment")
     _keys(exp, "experiment.", {"name", "robot", "controllers", "backend", "seed", "duration"})
     d = ExperimentConfig()
@@ -233,7 +233,7 @@ def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
     _gains_fit_the_nodes(robot, controllers, gains, timing.period_cycles)
     if plant.joints == "compliant":
         _gears_fit_the_step(robot, plant, seed)
-    faults = _faults(_table(data, "faults"), duration)
+    faults = _safety(_table(data, "safety"))
     return ExperimentConfig(name, robot, controllers, backend, seed, duration, trajectory,
                             plant, gains, timing, faults)
 
@@ -397,19 +397,19 @@ def _brake(table) -> BrakeConfig:
     return BrakeConfig(**values)
 
 
-def _faults(table: dict, duration: float) -> FaultsConfig:
-    _keys(table, "faults.", {"lines", "on_trip", "rearm_blend"})
+def _safety(table: dict) -> FaultsConfig:
+    _keys(table, "safety.", {"line_faults", "on_trip", "rearm_blend"})
     d = FaultsConfig()
-    lines = table.get("lines", [])
+    lines = table.get("line_faults", [])
     if not isinstance(lines, list) or not all(isinstance(x, str) for x in lines):
-        raise InputError("faults.lines", f"must be a list of fault strings "
+        raise InputError("safety.line_faults", f"must be a list of fault strings "
                          f"(KIND:DIRECTION:NODE@TIME[+DURATION]), not {lines!r}")
     from mrm_cosim.cosim.closed_loop import LineFault
 
-    parsed = tuple(LineFault.parse(x, "faults.lines") for x in lines)
+    parsed = tuple(LineFault.parse(x, "safety.line_faults") for x in lines)
     on_trip = table.get("on_trip", d.on_trip)
     blend = require_positive(_number(table.get("rearm_blend", d.rearm_blend),
-                                     "faults.rearm_blend"), "faults.rearm_blend")
+                                     "safety.rearm_blend"), "safety.rearm_blend")
     return FaultsConfig(tuple(lines), on_trip, blend, parsed)
 
 

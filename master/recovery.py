@@ -27,7 +27,7 @@ import numpy as np
 
 __all__ = ["ON_TRIP", "Blend", "quintic_blend"]
 
-#: What the master does when nodes trip or the link is lost (``[faults] on_trip``).
+#: What the master does when nodes trip or the link is lost (``[safety] on_trip``).
 ON_TRIP = ("rearm", "end")
 
 

@@ -188,6 +188,28 @@ for key, values in (("stiffness_scale", ["0", "-1", "nan", '"1"', "1e7"]),
              config=_COMPLIANT + f"\n[plant.gear]\n{key} = {value}\n")
 case("config-plant-gear-unknown", ["run", "table2", "--config", "{config}", "--out", "{out}"],
      "plant.gear.stiffness", config=_COMPLIANT + "\n[plant.gear]\nstiffness = 2.0\n")
+# the holding brakes (models.brake.BrakeConfig) and the faults (cosim.experiment_config)
+for key, values in (("holding_torque", ["0", "-1", '"x"']), ("slip_ratio", ["0", "1.5"]),
+                    ("engage_time", ["-0.1", "2"]), ("release_time", ["nan"])):
+    for i, value in enumerate(values):
+        case(f"config-plant-brake-{key}-{i}", ["run", "track", "--config", "{config}",
+                                               "--out", "{out}"], f"plant.brake.{key}",
+             config=TABLE2 + f"\n[plant.brake]\n{key} = {value}\n")
+case("config-plant-brake-unknown", ["run", "track", "--config", "{config}", "--out", "{out}"],
+     "plant.brake.torque", config=TABLE2 + "\n[plant.brake]\ntorque = 1.0\n")
+for i, (key, value, field) in enumerate([
+        ("on_trip", '"retry"', "safety.on_trip"), ("rearm_blend", "0", "safety.rearm_blend"),
+        ("line_faults", '"cut:down:1@1ms"', "safety.line_faults"),
+        ("line_faults", '["cut:sideways:1@1ms"]', "safety.line_faults"),
+        ("line_faults", '["cut:down:1@1ms+forever"]', "safety.line_faults"),
+        ("colour", "1", "safety.colour")]):
+    case(f"config-safety-{i}", ["run", "track", "--config", "{config}", "--out", "{out}"],
+         field, config=TABLE2 + f"\n[safety]\n{key} = {value}\n")
+case("track-model-bit-fault", ["run", "track", "--config", "{config}", "--backend", "model",
+                               "--out", "{out}"], "safety.line_faults",
+     config=TABLE2 + '\n[safety]\nline_faults = ["bit:up:1@1ms"]\n')
+case("track-fault-node-beyond-robot", ["run", "track", "--line-fault", "cut:down:4@1ms",
+                                       "--backend", "model", "--out", "{out}"], "--line-fault")
 case("config-unknown-section", ["run", "table2", "--config", "{config}", "--out", "{out}"],
      "colour", config=TABLE2 + "\n[colour]\nred = 1\n")
 case("config-duplicate-key", ["run", "table2", "--config", "{config}", "--out", "{out}"],

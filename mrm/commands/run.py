@@ -271,13 +271,14 @@ def _track(args) -> int:
         raise InputError("signals", "selects the signals of a --vcd or --fst window; give "
                          "one of them too")
     faults = [LineFault.parse(spec) for spec in args.line_fault]
+    for where, given in (("faults", faults), ("safety.line_faults", config.faults.parsed)):
+        for f in given:
+            if config.backend == "model" and f.kind != "cut":
+                raise InputError(where, "the model backend's link has no bits: it takes "
+                                 "'cut' faults only; inject the others on compiled or pysim")
+            if f.node > robot.n:
+                raise InputError(where, f"the robot has {robot.n} nodes, not {f.node}")
     faults += list(config.faults.parsed)
-    if config.backend == "model" and any(f.kind != "cut" for f in faults):
-        raise InputError("faults", "the model backend's link has no bits: it takes 'cut' "
-                         "faults only; inject the others on compiled or pysim")
-    for f in faults:
-        if f.node > robot.n:
-            raise InputError("faults", f"the robot has {robot.n} nodes, not {f.node}")
     if wave is not None:            # refused before anything runs or prints
         from mrm_cosim.cosim.backends import VcdWindow
 
