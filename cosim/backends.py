@@ -239,6 +239,7 @@ class LineSide(GatewareSide):
         self._timecode: int | None = None
         self._running = False
         self._torque = np.zeros(0)
+        self._brake = np.zeros(0, dtype=bool)
         self._lines: PlantLines | None = None
         self._enc = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
         self.crc_errors = 0
@@ -249,6 +250,7 @@ class LineSide(GatewareSide):
     def power_on(self, counts) -> None:
         self.n = len(counts)
         self._torque = np.zeros(self.n)
+        self._brake = np.zeros(self.n, dtype=bool)
         for f in self._faults:
             if f.node > self.n:
                 raise InputError("fault.node", f"the robot has {self.n} nodes, not {f.node}")
@@ -260,6 +262,9 @@ class LineSide(GatewareSide):
     @property
     def torque(self) -> np.ndarray:
         return self._torque
+
+    def brake(self) -> np.ndarray:
+        return self._brake
 
     def send(self, action) -> None:
         if action.kind == "timecode":
@@ -293,7 +298,7 @@ class LineSide(GatewareSide):
         if self._faults:
             self._fault_inputs(inputs, n)
         names = ["rx_valid", "rx_char", "tx_level", "running", "link_errors"] + \
-            [f"torque{j + 1}" for j in range(self.n)] + [f"events{j + 1}" for j in range(self.n)]
+            [f"{port}{j + 1}" for port in ("torque", "events", "brake") for j in range(self.n)]
         out = await self.run(n, inputs, names)
         if self.samples is not None:
             for name, v in out.items():
@@ -307,6 +312,7 @@ class LineSide(GatewareSide):
         # torque words at the next cycle's edge are the ones sampled last in this chunk
         self._torque = np.array([FORCE.decode(int(out[f"torque{j + 1}"][-1]))
                                  for j in range(self.n)])
+        self._brake = np.array([bool(out[f"brake{j + 1}"][-1]) for j in range(self.n)])
         self.cycle += n
         return Observed(events, replies)
 

@@ -163,14 +163,11 @@ class GatewareSide(ABC):
     def torque(self) -> np.ndarray:
         """The nodes' torque words in the last cycle run, N·m, shape (n,)."""
 
+    @abstractmethod
     def brake(self) -> np.ndarray:
         """The nodes' ``brake`` outputs in the last cycle run (True: the node asks its joint's
         holding brake to engage; the safe stop's BRAKE and STO stages, docs/node.md "Safe
-        stop"), bool, shape (n,).
-
-        Interim default, correct while no backend's node drives a brake yet: all False.
-        Every backend overrides it once its nodes have the safe stop."""
-        return np.zeros(len(self.torque), dtype=bool)
+        stop"), bool, shape (n,)."""
 
     @abstractmethod
     def send(self, action) -> None:

@@ -192,6 +192,24 @@ class ModelBackend(GatewareSide):
     def torque(self) -> np.ndarray:
         return self._torque
 
+    def brake(self) -> np.ndarray:
+        """The nodes' ``brake`` outputs in the last cycle run
+        (:meth:`NodeModel.brake_at <hdl.node.core_ref.NodeModel.brake_at>`). A node whose
+        state the compiled kernel holds is not in a safe stop (:meth:`FastNode.safe_stop_near
+        <cosim.model_node.FastNode.safe_stop_near>` keeps those on the reference), so its
+        brake is its trip with STOP_CYCLES = 0: tripped by then."""
+        c = self.cycle - 1
+        out = np.zeros(self.n, dtype=bool)
+        for k, node in enumerate(self.nodes):
+            if getattr(node, "in_kernel", False):
+                N = node._row
+                out[k] = bool(N[ksrc.N_TRIPPED]) or bool(
+                    node.armed and c >= N[ksrc.N_LAST_PACKET] + 2 + N[ksrc.N_TIMEOUT])
+            else:
+                node._watch(c)
+                out[k] = node.brake_at(c)
+        return out
+
     def send(self, action) -> None:
         self._horizon_end = None
         self._link.send(action, self.cycle)

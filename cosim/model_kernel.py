@@ -397,6 +397,10 @@ class KernelNode(FastNode):
         node_plain = self._kern.node_plain
         E, vis, pipe, due = self._erows
         while True:
+            if self.safe_stop_near(until):     # the safe stop: the reference's event loop
+                self.pull()
+                FastNode.run(self, until)
+                return
             special = self.next_special()
             lim = special if special < until else until
             if self._nt < lim:
@@ -482,6 +486,9 @@ class KernelNode(FastNode):
         self._deferred = tuple(N[src.N_DEF_TN:src.N_DEF_A + 1]) if N[src.N_DEF] else None
         j = self.joint
         j.q_des, j.v_des, j.i_lo, j.i_hi = N[src.N_QDES:src.N_IHI + 1]
+        if N[src.N_TRIPPED] and not self.tripped:        # the kernel tripped it
+            self.trip_cycle = N[src.N_LAST_PACKET] + 2 + N[src.N_TIMEOUT]
+            self.hold_pos = None
         self.tripped = bool(N[src.N_TRIPPED])
         self.prime = bool(N[src.N_PRIME])
         self._prime_due = N[src.N_PRIME_DUE] if N[src.N_PRIME_SET] else None

@@ -32,8 +32,10 @@ __all__ = ["FastNode", "EncoderEvents"]
 
 _PHASE = {(0, 0): 0, (1, 0): 1, (1, 1): 2, (0, 1): 3}
 _CYCLES = tuple(joint_microcode().cycles(m) for m in JOINT_MODES)
-_TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX, _COMMIT = (int(c) for c in (
-    Config.TICK, Config.MODE, Config.TIMEOUT, Config.TAU_MIN, Config.TAU_MAX, Config.COMMIT))
+_CYCLES_MAX = max(_CYCLES)
+_TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX, _COMMIT, _STOP, _BRAKE = (int(c) for c in (
+    Config.TICK, Config.MODE, Config.TIMEOUT, Config.TAU_MIN, Config.TAU_MAX, Config.COMMIT,
+    Config.STOP_CYCLES, Config.BRAKE_CYCLES))
 
 
 class FastNode(NodeModel):
@@ -76,8 +78,28 @@ class FastNode(NodeModel):
         self._materialize()                 # a host write comes after the Part B before it
         NodeModel._param(self, bank, addr, w)
 
-    def _tick(self, now, sample, tt, ramped=False):       # the event loop's ticks
+    def _tick(self, now, sample, tt, ramped=False, hold=None):   # the event loop's ticks
+        if hold or self.safe_stop_near(now + 1):
+            self._materialize()
+            NodeModel._tick(self, now, sample, tt, ramped, hold)
+            return
         self._fast_tick(now, lambda c: sample(c)[:2], tt, ramped)
+
+    def safe_stop_near(self, until: int) -> bool:
+        """Whether the safe stop may act before cycle ``until``: STOP_CYCLES + BRAKE_CYCLES
+        > 0 and the node tripped, or armed with its watchdog's trip (predicted from the last
+        packet) within a margin of two ticks and the engine's longest program before
+        ``until``. The fast paths (this class's plain ticks, the compiled kernel) do not
+        model the hold; such a node runs on the reference's event loop
+        (:class:`~hdl.node.core_ref.NodeModel`) until it is re-armed. With both zero (the
+        reset values) the trip is the plain ramp the fast paths model."""
+        cfg = self.config
+        if not (cfg[_STOP] or cfg[_BRAKE]):
+            return False
+        if self.tripped:
+            return True
+        return self.armed and (self.last_packet + 2 + cfg[_TIMEOUT]
+                               - 2 * cfg[_TICK] - _CYCLES_MAX - 2) <= until
 
     def run(self, until: int, sample=None) -> None:
         """As :meth:`NodeModel.run`; runs of plain ticks between the timer's other events
@@ -95,6 +117,9 @@ class FastNode(NodeModel):
         count_only = self._defer_sample or (lambda c: fast(c)[0])
         batch = self._defer_sample is not None
         while True:
+            if self.safe_stop_near(until):     # the safe stop: the reference's event loop
+                NodeModel.run(self, until)
+                break
             special = self.next_special()
             lim = special if special < until else until
             if dead is not None:
@@ -135,7 +160,22 @@ class FastNode(NodeModel):
         """The cycle of the next event of the node's timer that is not a plain tick (the
         boundary, the commit point, the cycle before an arming boundary): :meth:`run` hands
         it to the reference event loop, and the compiled kernel (:mod:`cosim.model_kernel`)
-        runs only pieces that end before it. A step of the primitive generator is one."""
+        runs only pieces that end before it. A step of the primitive generator is one, and so
+        is the safe stop (:meth:`safe_stop_near`): the margin before a predicted trip, or −1
+        while it may act (no plain piece at all)."""
+        special = self._special_plain()
+        cfg = self.config
+        if cfg[_STOP] or cfg[_BRAKE]:
+            if self.tripped:
+                return -1
+            if self.armed:
+                near = (self.last_packet + 2 + cfg[_TIMEOUT] - 2 * cfg[_TICK]
+                        - _CYCLES_MAX - 2)
+                if near < special:
+                    return near
+        return special
+
+    def _special_plain(self) -> int:
         nb = self._nb
         special = nb
         if self._commit_seen != self._lb:

@@ -22,6 +22,8 @@ from mrm_cosim.protocol import packet as ref
 from mrm_cosim.protocol.fixed import FORCE
 from mrm_cosim.protocol.joint_program import PID_SHIFT_MAX, JointParams, pid_formats
 from mrm_cosim.protocol.regs import MODES, Config, config_payloads, joint_upload, vdc_upload
+from mrm_cosim.protocol.safe_stop import SafeStopParams, hold_gains, safe_stop_config
+from mrm_cosim.protocol.safe_stop import triple_pole_gains
 from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["Gains", "pid_gains", "node_uploads", "check_node_period", "startup_sends",
@@ -70,9 +72,7 @@ def _joint_inertia(robot: Robot) -> np.ndarray:
 
 def pid_gains(robot: Robot, hz: float) -> dict:
     """PID gains placing a triple pole at ``−2π·hz`` for each joint's nominal inertia."""
-    J = _joint_inertia(robot)
-    w = 2 * np.pi * hz
-    return {"kp": 3 * J * w * w, "ki": J * w**3, "kd": 3 * J * w}
+    return triple_pole_gains(_joint_inertia(robot), hz)
 
 
 #: The closed-loop bandwidth the nodes' PID gain words are sized for (Hz): the largest triple
@@ -105,10 +105,16 @@ def pid_shifts(robot: Robot, tick_cycles: int = 50) -> list[int]:
 
 def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int = 50,
                  timeout_cycles: int | None = None, period_cycles: int = 50_000,
-                 commit_cycles: int | None = None,
-                 sync_window: int = 2_500) -> list[tuple[int, int, bytes]]:
-    """``(dest, type, payload)`` packets that configure every node before the run (the PID
-    gains are zero unless ``controller`` is ``pid-fpga``).
+                 commit_cycles: int | None = None, sync_window: int = 2_500,
+                 safe_stop: SafeStopParams | None = None) -> list[tuple[int, int, bytes]]:
+    """``(dest, type, payload)`` packets that configure every node before the run.
+
+    Safe stop (docs/node.md "Safe stop", :mod:`~mrm_cosim.protocol.safe_stop`): every node
+    gets STOP_CYCLES and BRAKE_CYCLES from ``safe_stop`` (None: :class:`SafeStopParams`'
+    defaults), and, unless ``controller`` is ``pid-fpga`` (whose nodes hold with their
+    tracking PID), PID words holding the hold gains (:func:`hold_gains` at
+    ``safe_stop.hold_hz`` for each joint's nominal inertia): VDC and torque-mode nodes read
+    them only while they hold.
 
     Homing: the arm rests at ``robot.home`` until period 0 (the brakes hold it), and a node's
     incremental encoder counts from 0 at its reset, so each node's count is preset (CONFIG
@@ -134,13 +140,22 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
         timeout_cycles = max(2 * period_cycles, 2 * 50_000)
     mode = {"vdc": MODES["vdc"], "pid-fpga": MODES["pid"], "pid-1khz": MODES["torque"]}
     check_node_period(period_cycles, tick_cycles, commit_cycles, sync_window)
+    if safe_stop is None:
+        safe_stop = SafeStopParams()
+    elif not isinstance(safe_stop, SafeStopParams):
+        raise InputError("safe_stop", f"must be a SafeStopParams, not {safe_stop!r}")
+    if safe_stop.hold_hz > PID_DESIGN_HZ:
+        raise InputError("safe_stop.hold_hz", f"{safe_stop.hold_hz!r} Hz is above the "
+                         f"{PID_DESIGN_HZ:g} Hz the nodes' PID words are sized for")
+    stop_cfg = safe_stop_config(safe_stop)
     out = [(k + 1, ref.PacketType.CONFIG, p) for k in range(robot.n) for p in config_payloads(
         {Config.PERIOD: period_cycles, Config.COMMIT: commit_cycles,
          Config.SYNC_WINDOW: sync_window})]
-    # The PID words only where the node runs its PID: a gain a run never uses must not stop
-    # it (gains.pid_fpga_hz is bounded for the pid-fpga runs alone).
+    # The PID words: the node's PID where it runs it, else the safe stop's hold gains (a
+    # tracking gain a run never uses must not stop it: gains.pid_fpga_hz is bounded for the
+    # pid-fpga runs alone).
     pid = (pid_gains(robot, gains.pid_fpga_hz) if controller == "pid-fpga"
-           else dict.fromkeys(("kp", "ki", "kd"), np.zeros(robot.n)))
+           else hold_gains(safe_stop, _joint_inertia(robot)))
     home_counts = joint_counts(robot.home, counts_per_rad(robot.counts_per_rev))
     shifts = pid_shifts(robot, tick_cycles)
     for k, mod in enumerate(robot.modules):
@@ -148,7 +163,7 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
         peak = FORCE.encode(mod.type.peak_torque)
         cfg = {Config.MODE: mode[controller], Config.TICK: tick_cycles,
                Config.TIMEOUT: timeout_cycles, Config.RAMP: FORCE.encode(0.01),
-               Config.TAU_MIN: -peak, Config.TAU_MAX: peak}
+               Config.TAU_MIN: -peak, Config.TAU_MAX: peak, **stop_cfg}
         out += [(dest, ref.PacketType.CONFIG, p) for p in config_payloads(cfg)]
         theta = robot.nominal_theta[k]
         lo = np.minimum(0.7 * theta, 1.3 * theta)

@@ -1,0 +1,178 @@
+"""The node's safe stop (IEC 61800-5-2 SS1-t: hold, brake, STO) through the master's uploads
+and every backend: its parameters' words, the model backend's paths (kernel, Python, eager)
+against each other, and the model against the gateware (compiled) around a trip.
+
+The RTL == reference tests of the sequence are in tests/test_node_watchdog.py (the output
+stage) and tests/test_node_core.py (the node core: hold → brake → STO → re-arm)."""
+
+import numpy as np
+import pytest
+
+from mrm_cosim.errors import InputError
+from mrm_cosim.protocol import packet as ref
+from mrm_cosim.protocol.regs import Config, Status, parse_comm_a
+from mrm_cosim.protocol.safe_stop import SafeStopParams, hold_gains, safe_stop_config
+from mrm_cosim.units import CLOCK_HZ
+
+#: A trip in every period (the master talks for ~0.1 ms of each 1 ms period, the nodes time
+#: out after 0.6 ms) and a short safe stop, so a run of a few periods sees all of it.
+TIMEOUT = 30_000
+SHORT = SafeStopParams(stop_s=0.002, brake_s=0.002)
+
+
+def test_safe_stop_words_follow_the_durations_and_bad_values_name_their_field():
+    p = SafeStopParams(stop_s=0.05, brake_s=0.03, hold_hz=10.0)
+    assert safe_stop_config(p) == {Config.STOP_CYCLES: round(0.05 * CLOCK_HZ),
+                                   Config.BRAKE_CYCLES: round(0.03 * CLOCK_HZ)}
+    g = hold_gains(p, 2.0)
+    w = 2 * np.pi * 10.0
+    assert g["kp"] == pytest.approx(3 * 2.0 * w * w) and g["kd"] == pytest.approx(6.0 * w)
+    for kw, field in (({"stop_s": -1e-3}, "safe_stop.stop_s"),
+                      ({"brake_s": float("nan")}, "safe_stop.brake_s"),
+                      ({"stop_s": 100.0}, "safe_stop.stop_s"),
+                      ({"hold_hz": 0.0}, "safe_stop.hold_hz")):
+        with pytest.raises(InputError) as e:
+            SafeStopParams(**kw)
+        assert e.value.field == field
+
+
+def _cfg_and_kp(uploads, dest):
+    """The CONFIG values and the kp word uploaded to node ``dest``."""
+    from mrm_cosim.protocol.joint_program import joint_microcode
+    from mrm_cosim.protocol.regs import unpack_words
+
+    cfg, kp = {}, None
+    for d, ptype, payload in uploads:
+        if d != dest:
+            continue
+        if ptype == ref.PacketType.CONFIG:
+            for k in range(0, len(payload) - 4, 5):
+                cfg[payload[k]] = int.from_bytes(payload[k + 1:k + 5], "little")
+        elif ptype == ref.PacketType.PARAM and payload[0] == 1:
+            addr = int.from_bytes(payload[1:3], "little")
+            words = unpack_words(payload, (len(payload) - 3) // 3, 3)
+            a = joint_microcode(0).addr("kp")
+            if addr <= a < addr + len(words):
+                kp = words[a - addr]
+    return cfg, kp
+
+
+def test_the_master_uploads_the_timings_and_hold_gains_in_every_mode():
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
+    from mrm_cosim.models.robot import load_robot
+
+    robot = load_robot("mrm3")
+    p = SafeStopParams(stop_s=0.01, brake_s=0.02, hold_hz=20.0)
+    words = safe_stop_config(p)
+    kps = {}
+    for controller in ("vdc", "pid-1khz", "pid-fpga"):
+        cfg, kps[controller] = _cfg_and_kp(node_uploads(robot, controller, Gains(),
+                                                        safe_stop=p), 2)
+        assert cfg[Config.STOP_CYCLES] == words[Config.STOP_CYCLES] == 500_000
+        assert cfg[Config.BRAKE_CYCLES] == words[Config.BRAKE_CYCLES]
+    # VDC and torque nodes read the PID words only while holding: the hold gains; pid-fpga
+    # nodes hold with their tracking gains (15 Hz, not 20)
+    assert kps["vdc"] == kps["pid-1khz"] != 0
+    assert kps["pid-fpga"] != kps["vdc"]
+    assert pid_gains(robot, 20.0)["kp"][1] / pid_gains(robot, 15.0)["kp"][1] == \
+        pytest.approx((20 / 15) ** 2)
+    cfg, _ = _cfg_and_kp(node_uploads(robot, "vdc", Gains()), 1)      # the defaults
+    assert cfg[Config.STOP_CYCLES] == safe_stop_config(SafeStopParams())[Config.STOP_CYCLES]
+    with pytest.raises(InputError) as e:
+        node_uploads(robot, "vdc", Gains(), safe_stop=SafeStopParams(hold_hz=500.0))
+    assert e.value.field == "safe_stop.hold_hz"
+
+
+def _trip_loop(backend_name, controller, cycles, **model_kw):
+    """The paper's quintic on mrm3 with a watchdog timeout shorter than the period: every node
+    trips in period 0 and runs the short safe stop; returns (result, master, backend)."""
+    from mrm_cosim.cosim.closed_loop import ClosedLoop
+    from mrm_cosim.cosim.track import _trajectory, loop_backend
+    from mrm_cosim.master.cycle import Master, MasterTiming
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains, pid_shifts
+    from mrm_cosim.models.plant import Plant
+    from mrm_cosim.models.robot import load_robot
+
+    robot = load_robot("mrm3")
+    gains = Gains()
+    master = Master(robot, controller, _trajectory(robot), robot.counts_per_rev, MasterTiming(),
+                    lam=gains.lam, pid=pid_gains(robot, gains.pid_1khz_hz))
+    master.payloads = []
+    on_packet = master.on_packet
+
+    def record(now, src, ptype, payload):
+        master.payloads.append((master._rec.index, src, ptype, bytes(payload)))
+        on_packet(now, src, ptype, payload)
+
+    master.on_packet = record
+    plant = Plant(robot, seed=0)
+    plant.reset(robot.home)
+    if backend_name == "model":
+        from mrm_cosim.cosim.model import ModelBackend
+
+        backend = ModelBackend(pid_shift=pid_shifts(robot), **model_kw)
+    else:
+        backend = loop_backend(robot, backend_name)
+    uploads = node_uploads(robot, controller, gains, timeout_cycles=TIMEOUT, safe_stop=SHORT)
+    brakes = []
+    advance = backend.advance
+
+    async def watched(n, lines, offset=0):
+        out = await advance(n, lines, offset)
+        brakes.append((backend.cycle if hasattr(backend, "cycle") else 0, backend.brake()))
+        return out
+
+    backend.advance = watched
+    loop = ClosedLoop(robot, backend, master, plant, 50_000, uploads)
+    return loop.run(cycles), master, backend, brakes
+
+
+def _statuses(master):
+    """Comm A's status per (period index, node)."""
+    return {(i, src): parse_comm_a(p)["status"] for i, src, t, p in master.payloads
+            if t == ref.PacketType.COMM_A}
+
+
+@pytest.mark.parametrize("controller", ["vdc", "pid-fpga"])
+def test_model_paths_agree_through_the_safe_stop(controller):
+    """Kernel (numba), pure Python and eager model paths give the same plant trace, torques,
+    replies and brake outputs through trip → hold → brake → STO: the fast paths decline to
+    the reference's event loop while a node's safe stop may act."""
+    cycles = 400_000                                # 8 ms: hold 2 ms, brake 2 ms, STO
+    runs = {name: _trip_loop("model", controller, cycles, **kw) for name, kw in (
+        ("numba", {"kernel": "numba"}), ("python", {"kernel": "python"}),
+        ("eager", {"lazy": False}))}
+    res0, m0, be0, br0 = runs["numba"]
+    for name in ("python", "eager"):
+        res, m, be, br = runs[name]
+        np.testing.assert_array_equal(res.q, res0.q, err_msg=name)
+        np.testing.assert_array_equal(res.tau, res0.tau, err_msg=name)
+        assert m.payloads == m0.payloads, name
+        # (the kernel's fast path runs whole plant steps without a chunk: compare the cycles
+        # both sampled)
+        common = dict(br).keys() & dict(br0).keys()
+        assert len(common) > 50
+        assert all(dict(br)[c].tolist() == dict(br0)[c].tolist() for c in common), name
+    st = _statuses(m0)
+    seen = {s & (Status.HOLD | Status.BRAKE | Status.SAFE) for s in st.values()}
+    assert Status.HOLD in seen and Status.HOLD | Status.BRAKE in seen
+    assert Status.BRAKE | Status.SAFE in seen
+    assert all(b.all() for _, b in br0[-10:]) and not any(b.any() for _, b in br0[:10])
+    assert np.all(res0.tau[-1] == 0)                        # STO: no torque at the end
+
+
+@pytest.mark.parametrize("controller", ["vdc"])
+def test_model_equals_compiled_through_the_safe_stop(controller):
+    """The gateware (compiled) and the model backend through the safe stop: the same plant
+    trace, torques, Comm A statuses and brake outputs. The model's trip is at its modelled
+    packet arrival (a few cycles from the gateware's), the hold's ticks and the STO's ramp on
+    the node's own tick grid: with the trip between the same two ticks on both, bit for
+    bit."""
+    cycles = 400_000
+    compiled, m_c, _, br_c = _trip_loop("compiled", controller, cycles)
+    model, m_m, _, br_m = _trip_loop("model", controller, cycles)
+    np.testing.assert_array_equal(model.q, compiled.q)
+    np.testing.assert_array_equal(model.tau, compiled.tau)
+    assert m_m.payloads == m_c.payloads
+    assert [b.tolist() for _, b in br_m] == [b.tolist() for _, b in br_c]
+    assert any(b.any() for _, b in br_c) and not br_c[0][1].any()
