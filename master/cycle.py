@@ -52,7 +52,7 @@ from mrm_cosim.protocol.fixed import FORCE, VEL
 from mrm_cosim.protocol.regs import (
     LINK_HEALTH, Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c, upload_check,
 )
-from mrm_cosim.master.recovery import ON_TRIP, Blend
+from mrm_cosim.master.recovery import ON_TRIP, Blend, fit_blend
 from mrm_cosim.master.vdc import propagate_forces, propagate_velocities
 from mrm_cosim.models.robot import Robot
 from mrm_cosim.units import CLOCK_HZ
@@ -172,6 +172,7 @@ class Master:
         self.rearms = 0          # re-arm sequences sent (on_trip = "rearm")
         self._blend: Blend | None = None
         self._rearm_period = -1  # the period the last ARM lands in
+        self._waiting = False    # tripped nodes still stopping (re-arm waits)
         if controller not in CONTROLLERS:
             raise ValueError(f"controller must be one of {CONTROLLERS}, not {controller!r}")
         if references not in REFERENCES:
@@ -469,11 +470,20 @@ class Master:
             # (the period the ARM lands in: its snapshot, at the boundary, is from before it)
             return False
         names = ", ".join(map(str, tripped))
-        self.recovery_log.append((now, f"period {rec.index}: node {names} tripped"))
         rec.complete = True                 # nothing more is asked this period
         if self.on_trip == "end":
+            self.recovery_log.append((now, f"period {rec.index}: node {names} tripped"))
             self._end(now, f"node {names} tripped (period {rec.index})")
             return True
+        moving = [k for k in tripped
+                  if not self._a[k]["status"] & (Status.BRAKE | Status.SAFE)]
+        if moving:                          # re-arm only once every stop is complete: the
+            if not self._waiting:           # joint at rest on its brake (no windup of a
+                self._waiting = True        # loop that re-arms against a moving joint)
+                self.recovery_log.append((now, f"period {rec.index}: node {names} tripped; "
+                                          "waiting for their stops to complete (BRAKE)"))
+            return True
+        self._waiting = False
         exp = self.expected_uploads
         bad = [k for k, a in self._a.items()
                if exp is not None and (a["upload_crc"], a["upload_count"]) != exp[k]]
@@ -497,13 +507,26 @@ class Master:
             self.upload_errors = errors
         t0 = (rec.index + 1) * self.dt         # the nodes re-arm at the next boundary
         self._rearm_period = rec.index + 1
-        self._blend = Blend(self.trajectory, q, t0, self.rearm_blend)
+        self._blend = fit_blend(self.trajectory, q, t0, self.rearm_blend,
+                                self._joint_inertia(q), self.robot.peak_torques)
         self._integral = np.zeros(self.n)
         self.rearms += 1
         self.recovery_log.append((now, f"period {rec.index}: uploads read back on every "
                                   f"node; hold, ARM; blend back to the trajectory from "
-                                  f"{t0:.4f} s to {t0 + self.rearm_blend:.4f} s"))
+                                  f"{t0:.4f} s to {self._blend.t1:.4f} s"))
         return True
+
+    def _joint_inertia(self, q) -> np.ndarray:
+        """Each joint's nominal inertia at ``q`` (kg·m²): the mass matrix's diagonal (the
+        robot's nominal bodies) plus the reflected rotor inertia."""
+        import pinocchio as pin
+
+        from mrm_cosim.models.actuators import ACTUATORS
+
+        model = self.robot.pinocchio_model()
+        M = pin.crba(model, model.createData(), np.asarray(q, dtype=float))
+        return np.diag(M) + np.array([ACTUATORS[m.type.actuator].output_inertia
+                                      for m in self.robot.modules])
 
     def _references(self, t: float):
         """The references at ``t``; the trajectory (a function of ``t``; after a re-arm the

@@ -7,8 +7,11 @@ is back, or sees the replies go missing while it is not. ``on_trip`` (:data:`ON_
 what it does then (:class:`master.cycle.Master`, docs/faults.md "Recovery"):
 
 * ``"rearm"``: when every node answers a period's Comm A again, each with the period of this
-  period's time-code (the nodes' timers are on the master's grid) and the upload read-back
-  (CRC and count) of everything uploaded, the master sends every node a Comm D holding the
+  period's time-code (the nodes' timers are on the master's grid), every tripped node has
+  completed its stop (``Status.BRAKE`` or ``SAFE``: at rest on its brake; re-arming a loop
+  against a joint that still moves saturates it and winds its integral up), and the upload
+  read-back (CRC and count) agrees with everything uploaded, the master sends every node a
+  Comm D holding the
   position it reports (zero velocity and acceleration), then CONFIG ARM; the nodes re-arm at
   the next boundary, and from that period the references follow :class:`Blend`, a quintic
   from the held positions at rest to the trajectory's position, velocity and acceleration at
@@ -25,10 +28,17 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ON_TRIP", "Blend", "quintic_blend"]
+__all__ = ["ON_TRIP", "Blend", "quintic_blend", "fit_blend", "BLEND_TORQUE"]
 
 #: What the master does when nodes trip or the link is lost (``[safety] on_trip``).
 ON_TRIP = ("rearm", "end")
+#: The blend's inertial torque (nominal joint inertia × its peak acceleration) may use at most
+#: this fraction of each joint's peak torque; the rest is left for gravity, friction and the
+#: loop's corrections. A blend that asks more is lengthened (:func:`fit_blend`): a joint
+#: driven into saturation winds a node PID's integral up (a 0.2 s blend after a stop at the
+#: quintic's peak speed asked joint 1 of mrm3 for ~3× its peak torque and it overshot by
+#: 0.19 rad with pid-fpga). [ASSUMED 0.5]
+BLEND_TORQUE = 0.5
 
 
 def quintic_blend(q0, v0, a0, q1, v1, a1, T: float) -> np.ndarray:
@@ -79,3 +89,26 @@ class Blend:
         v = c[1] + tau * (2 * c[2] + tau * (3 * c[3] + tau * (4 * c[4] + tau * 5 * c[5])))
         a = 2 * c[2] + tau * (6 * c[3] + tau * (12 * c[4] + tau * 20 * c[5]))
         return q, v, a
+
+
+def fit_blend(trajectory, q_hold, t0: float, duration: float, inertia, peak_torque,
+              budget: float = BLEND_TORQUE, tries: int = 12) -> Blend:
+    """The shortest :class:`Blend` of at least ``duration`` whose inertial torque ``inertia ×
+    max |q̈|`` (per joint, sampled over the blend) stays within ``budget × peak_torque``:
+    ``duration`` lengthened by at least 25 % a try (at most ``tries``; the last is returned).
+
+    ``inertia`` : ndarray, shape (n,), kg·m² (nominal: the diagonal of the mass matrix at
+    ``q_hold`` plus the reflected rotor inertia); ``peak_torque`` : ndarray, shape (n,), N·m.
+    """
+    inertia = np.asarray(inertia, dtype=float)
+    limit = budget * np.asarray(peak_torque, dtype=float)
+    T = float(duration)
+    for _ in range(tries):
+        blend = Blend(trajectory, q_hold, t0, T)
+        acc = np.max(np.abs([blend(t0 + x * T)[2] for x in np.linspace(0.0, 1.0, 41)]),
+                     axis=0)
+        ratio = float(np.max(inertia * acc / limit))
+        if ratio <= 1.0:
+            return blend
+        T *= max(1.25, min(2.0, float(np.sqrt(ratio))))
+    return blend
