@@ -37,6 +37,7 @@ from mrm_cosim.errors import (
 from mrm_cosim.master.cycle import CONTROLLERS, MasterTiming
 from mrm_cosim.master.uploads import PID_DESIGN_HZ, Gains
 from mrm_cosim.models.brake import BrakeConfig
+from mrm_cosim.protocol.safe_stop import SafeStopParams
 from mrm_cosim.models.gear import GearConfig
 from mrm_cosim.models.plant import JOINTS, Perturbation, PlantConfig
 from mrm_cosim.tomlfile import parse_toml, read_toml
@@ -87,12 +88,17 @@ class FaultsConfig:
         and blend back to the trajectory; ``"end"``: stop sending, leave the nodes holding on
         their brakes and end the run (:data:`master.cycle.ON_TRIP`).
     rearm_blend : float, s
-        Duration of the quintic blend from the held position back to the trajectory.
+        Shortest duration of the quintic blend from the held position back to the trajectory
+        (lengthened where it would ask a joint for more than half its peak torque:
+        :func:`master.recovery.fit_blend`).
+    safe_stop : protocol.safe_stop.SafeStopParams
+        The nodes' safe stop, uploaded by the master (``stop_s``, ``brake_s``, ``hold_hz``).
     """
 
     lines: tuple = ()
     on_trip: str = "rearm"
     rearm_blend: float = 0.2
+    safe_stop: SafeStopParams = field(default_factory=SafeStopParams)
     parsed: tuple = field(default=(), compare=False, repr=False)
 
     def __post_init__(self):
@@ -169,7 +175,8 @@ class ExperimentConfig:
             "gains": asdict(self.gains),
             "timing": asdict(self.timing),
             "safety": {"line_faults": list(self.faults.lines),
-                       "on_trip": self.faults.on_trip, "rearm_blend": self.faults.rearm_blend},
+                       "on_trip": self.faults.on_trip, "rearm_blend": self.faults.rearm_blend,
+                       **asdict(self.faults.safe_stop)},
         }
 
     def to_toml(self) -> str:
@@ -398,7 +405,8 @@ def _brake(table) -> BrakeConfig:
 
 
 def _safety(table: dict) -> FaultsConfig:
-    _keys(table, "safety.", {"line_faults", "on_trip", "rearm_blend"})
+    stop_keys = {f.name for f in fields(SafeStopParams)}
+    _keys(table, "safety.", {"line_faults", "on_trip", "rearm_blend"} | stop_keys)
     d = FaultsConfig()
     lines = table.get("line_faults", [])
     if not isinstance(lines, list) or not all(isinstance(x, str) for x in lines):
@@ -410,7 +418,13 @@ def _safety(table: dict) -> FaultsConfig:
     on_trip = table.get("on_trip", d.on_trip)
     blend = require_positive(_number(table.get("rearm_blend", d.rearm_blend),
                                      "safety.rearm_blend"), "safety.rearm_blend")
-    return FaultsConfig(tuple(lines), on_trip, blend, parsed)
+    ds = SafeStopParams()
+    values = {k: _number(table.get(k, getattr(ds, k)), f"safety.{k}") for k in stop_keys}
+    try:
+        stop = SafeStopParams(**values)
+    except InputError as e:
+        raise InputError(e.field.replace("safe_stop.", "safety."), e.message) from None
+    return FaultsConfig(tuple(lines), on_trip, blend, stop, parsed)
 
 
 def _joints(value) -> str:

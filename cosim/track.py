@@ -87,7 +87,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
               vcd: str | None = None, signals: str | None = None, vcd_path=None, faults=(),
               references: str = "full", dmp=None, dmp_step_cycles: int = 50_000,
               commit_cycles: int | None = None, on_trip: str | None = "rearm",
-              rearm_blend: float = 0.2):
+              rearm_blend: float = 0.2, safe_stop=None):
     """Run the quintic test (q_i = i·q_d, 0.1571 rad in 1 s, then hold) in closed loop.
 
     Parameters
@@ -114,8 +114,10 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     commit_cycles : int, optional
         Comm D's commit phase (default: a fifth of the period, :func:`node_uploads`).
     on_trip, rearm_blend : str, float
-        What the master does when nodes trip or stop answering, and the blend back to the
-        trajectory after a re-arm (:mod:`master.recovery`, ``[faults]``).
+        What the master does when nodes trip or stop answering, and the shortest blend back to
+        the trajectory after a re-arm (:mod:`master.recovery`, ``[safety]``).
+    safe_stop : protocol.safe_stop.SafeStopParams, optional
+        The nodes' safe stop the master uploads (default: its defaults).
 
     Returns
     -------
@@ -138,7 +140,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
     profile = profile or paper_test_profile(robot)
     trajectory = _trajectory(robot, profile)
     uploads = node_uploads(robot, controller, gains, period_cycles=timing.period_cycles,
-                           commit_cycles=commit_cycles)
+                           commit_cycles=commit_cycles, safe_stop=safe_stop)
     if references == "dmp":
         from mrm_cosim.master.uploads import dmp_uploads
 

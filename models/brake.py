@@ -32,9 +32,12 @@ from mrm_cosim.errors import InputError
 
 __all__ = ["BrakeConfig", "HOLDING_OVER_PEAK"]
 
-#: Default holding torque over the motor's peak torque (both at the motor shaft): brakes are
-#: sized to hold at least what the motor can produce. [ASSUMED, docs/plant.md "Brake"]
-HOLDING_OVER_PEAK = 1.2
+#: Default holding torque over the motor's peak torque (both at the motor shaft). [ASSUMED,
+#: docs/plant.md "Brake"] Sized so that the brake, even slipping (``slip_ratio`` 0.8: 1.2 ×
+#: peak), beats the motor at its peak torque: the node's hold loop still runs while the brake
+#: engages, and at 1.2 × peak (0.96 × peak slipping) a saturated loop dragged joint 1 of mrm3
+#: 1.3 mrad through an engaged brake after a stop at the quintic's peak speed (0.45 mrad at 1.5).
+HOLDING_OVER_PEAK = 1.5
 
 
 @dataclass(frozen=True)

@@ -311,7 +311,8 @@ def _track(args) -> int:
                                         vcd=wave and wave[1], signals=args.signals,
                                         vcd_path=vcd_path, faults=faults,
                                         on_trip=config.faults.on_trip,
-                                        rearm_blend=config.faults.rearm_blend)
+                                        rearm_blend=config.faults.rearm_blend,
+                                        safe_stop=config.faults.safe_stop)
         summary["version"] = __version__
         _write_track(tmp, args, config, robot, result, summary, profile)
     if args.json:

@@ -1,0 +1,101 @@
+"""Issue 22 end to end on the model backend: the paper's quintic (configs/table2.toml), a cut
+of line 1 at the quintic's fastest point; the nodes stop, hold and brake; the master ends the
+run or re-arms the nodes and blends back to the trajectory."""
+
+import json
+
+import numpy as np
+import pytest
+
+from mrm_cosim.cosim.closed_loop import LineFault
+from mrm_cosim.cosim.experiment_config import load
+from mrm_cosim.cosim.preview import paper_test_profile
+from mrm_cosim.cosim.track import run_faults, run_track
+from mrm_cosim.models.robot import load_robot
+
+CFG = load(None)
+#: The quintic's speed peaks at τ = 1/2 (master/quintic.py): the fastest point of the motion.
+T_FAST = 0.5 * CFG.trajectory.duration
+#: The bound on each joint's motion from the brake's engagement to the end of the window.
+HOLD_BOUND = 1e-3
+#: The window after the engagement, s.
+WINDOW = 0.2
+
+
+def run(controller, spec, on_trip, duration):
+    return run_track(CFG.robot, controller, "model", duration, CFG.seed, gains=CFG.gains,
+                     timing=CFG.timing, plant_config=CFG.plant, faults=[LineFault.parse(spec)],
+                     on_trip=on_trip)
+
+
+def test_the_cut_is_at_the_fastest_part_of_the_motion():
+    profile = paper_test_profile(load_robot(CFG.robot), CFG.trajectory.amplitude,
+                                 CFG.trajectory.duration)
+    t = np.linspace(0.0, CFG.trajectory.duration, 1001)
+    speed = np.abs(profile.evaluate(t)[1]).sum(axis=1)
+    assert abs(t[np.argmax(speed)] - T_FAST) < 1e-3
+
+
+@pytest.mark.parametrize("controller", ["vdc", "pid-fpga"])
+def test_permanent_cut_at_peak_speed_leaves_every_joint_held(controller):
+    """Line 1 cut for good at 0.5 s: the master ends the run; each node stops its joint, holds
+    it, engages its brake, then removes torque; from the brake's engagement on, over at least
+    0.2 s, no joint moves more than 1 mrad; the run is not clean."""
+    res, summary = run(controller, f"cut:down:1@{T_FAST}s+inf", "end", T_FAST + 0.35)
+    assert summary["ended"] is not None and "link lost" in summary["ended"]
+    reasons = run_faults(summary)
+    assert any("ended the run" in r for r in reasons)
+    assert any("no Comm A from node 1, 2, 3" in r for r in reasons)
+    held = res.brake.all(axis=1)
+    assert held.any(), "the brakes never engaged"
+    e = int(np.argmax(held))
+    assert held[e:].all(), "a brake released again"
+    assert res.t[-1] - res.t[e] >= WINDOW
+    motion = np.abs(res.q[e:] - res.q[e]).max(axis=0)
+    assert np.all(motion < HOLD_BOUND), motion
+    assert abs(res.tau[-1]).max() == 0.0         # torque removed (STO) by the end
+    # without the safe stop the arm falls: the joints are far from where the cut found them
+    i_cut = int(round(T_FAST / (res.t[1] - res.t[0])))
+    assert np.abs(res.q[e] - res.q[i_cut]).max() < 0.02
+
+
+@pytest.mark.parametrize("controller", ["vdc", "pid-fpga"])
+def test_short_cut_rearms_and_returns_to_the_trajectory(controller):
+    """A 5 ms cut at 0.5 s: the nodes trip and stop; when the link is back and every stop is
+    complete the master re-arms them (time-code, upload read-back, ARM) and blends back; after
+    the blend the joints track the quintic again within 0.1 mrad; the run is not clean (the
+    trip is named)."""
+    duration = CFG.duration
+    res, summary = run(controller, f"cut:down:1@{T_FAST}s+5ms", "rearm", duration)
+    m = res.master
+    assert m.rearms == 1 and m.ended is None
+    assert summary["tripped_nodes"] == [1, 2, 3]
+    assert any("watchdog tripped on node 1, 2, 3" in r for r in run_faults(summary))
+    assert not res.brake[-1].any()                # released again
+    profile = paper_test_profile(load_robot(CFG.robot), CFG.trajectory.amplitude,
+                                 CFG.trajectory.duration)
+    after = res.t >= m._blend.t1 + 0.1
+    assert after.sum() > 0.1 / (res.t[1] - res.t[0])
+    err = np.abs(profile.evaluate(res.t[after])[0] - res.q[after]).max()
+    assert err < 1e-4, err
+    # the link's health: each end of line 1 counted the disconnect
+    assert summary["link_error_detail"]["master_port"] == 1
+    assert summary["link_error_detail"]["per_node"]["1"]["up_link_errors"] == 1
+
+
+def test_mrm_run_track_exits_not_clean_on_a_cut(tmp_path):
+    """The CLI: ``[safety]`` in the experiment and ``--line-fault`` on the model backend; exit
+    code 3 and summary.json saying why."""
+    from mrm_cosim.mrm.cli import main
+    from mrm_cosim.mrm.commands.run import EXIT_NOT_CLEAN
+
+    config = tmp_path / "c.toml"
+    config.write_text((CFG.to_toml()).replace('on_trip = "rearm"', 'on_trip = "end"'))
+    out = tmp_path / "out"
+    code = main(["run", "track", "-q", "--config", str(config), "--backend", "model",
+                 "--controller", "pid-fpga", "--duration", "0.6", "--out", str(out),
+                 "--line-fault", "cut:down:1@0.5s+inf"])
+    assert code == EXIT_NOT_CLEAN
+    summary = json.loads((out / "summary.json").read_text())
+    assert "link lost" in summary["ended"]
+    assert summary["lost_nodes"] == [1, 2, 3]
