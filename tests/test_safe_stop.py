@@ -174,5 +174,11 @@ def test_model_equals_compiled_through_the_safe_stop(controller):
     np.testing.assert_array_equal(model.q, compiled.q)
     np.testing.assert_array_equal(model.tau, compiled.tau)
     assert m_m.payloads == m_c.payloads
-    assert [b.tolist() for _, b in br_m] == [b.tolist() for _, b in br_c]
-    assert any(b.any() for _, b in br_c) and not br_c[0][1].any()
+    # brake() at the end of every chunk both ran (the model's fast path runs whole plant
+    # steps without one)
+    bm, bc = dict(br_m), dict(br_c)
+    common = sorted(bm.keys() & bc.keys())
+    assert len(common) > 50
+    assert [bm[c].tolist() for c in common] == [bc[c].tolist() for c in common]
+    assert any(bc[c].all() for c in common) and not bc[common[0]].any()
+    assert not any(bc[c].any() for c in common if c < 100_000)
