@@ -15,7 +15,8 @@ from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["plot_tracking", "plot_joint_tracking", "plot_error_comparison", "plot_torques",
            "plot_parameters", "plot_timeline", "timeline_bars", "timeline_markers",
-           "pick_period", "Bar", "Marker", "plot_tool_errors", "plot_tool_path"]
+           "pick_period", "Bar", "Marker", "plot_tool_errors", "plot_tool_path",
+           "plot_safe_stop"]
 
 _COLORS = {"pid-1khz": "tab:red", "pid-fpga": "tab:orange", "vdc": "tab:blue"}
 
@@ -496,3 +497,44 @@ def plot_dmp_errors(path, results: dict, title: str):
     axes[-1].set_xlabel("time from the motion's start (s)")
     axes[0].set_title(title)
     _save(axes[0].figure, path)
+
+
+def plot_safe_stop(path, t, runs: dict, t_cut: float, title: str, bound: float | None = None):
+    """Joint motion through a safe stop (docs/faults.md "Safe stop"): per joint, the angle
+    minus its angle at the cut, mrad, of each run, with the cut and each run's brake
+    engagement marked.
+
+    Parameters
+    ----------
+    t : ndarray, shape (n_samples,), s
+    runs : dict
+        label -> ``(q, engaged)``: angles, ndarray (n_samples, n), rad; the brakes' state,
+        bool ndarray (n_samples, n) (all engaged: the engagement marked).
+    t_cut : float, s
+    bound : float, optional, rad
+        The hold bound, drawn about each run's angle at its engagement.
+    """
+    first = next(iter(runs.values()))[0]
+    n = first.shape[1]
+    fig, axes = _figure(n, height=2.0)
+    i_cut = int(np.searchsorted(t, t_cut))
+    styles = ["-", "--", ":", "-."]
+    for k, ax in enumerate(axes):
+        for j, (label, (q, engaged)) in enumerate(runs.items()):
+            ax.plot(t, 1e3 * (q[:, k] - q[i_cut, k]), styles[j % 4], lw=1.0, label=label)
+            held = engaged.all(axis=1)
+            if held.any():
+                e = int(np.argmax(held))
+                ax.axvline(t[e], color="0.5", lw=0.6, ls=styles[j % 4])
+                if bound is not None:
+                    y = 1e3 * (q[e, k] - q[i_cut, k])
+                    ax.fill_between(t[e:], y - 1e3 * bound, y + 1e3 * bound, color="0.85",
+                                    lw=0)
+        ax.axvline(t_cut, color="tab:red", lw=0.8)
+        ax.set_ylabel(f"q{k + 1} − q{k + 1}(cut)\nmrad")
+        ax.grid(alpha=0.3)
+    axes[-1].legend(fontsize=8, loc="lower right")
+    axes[0].set_title(title, fontsize=10)
+    axes[-1].set_xlabel("t (s from period 0); red: the cut; grey: the brakes engaged")
+    _save(fig, path)
+    return fig

@@ -195,3 +195,18 @@ def test_tool_errors_of_runs_of_different_lengths(tmp_path):
     lines = fig.axes[0].get_lines()
     assert [len(line.get_xdata()) for line in lines] == [300, 200]
     assert (tmp_path / "e.png").stat().st_size > 0
+
+
+def test_safe_stop_plot_shows_each_joint_from_the_cut_and_the_engagement(tmp_path):
+    t = np.arange(100) * 1e-3
+    q = np.outer(t, [1.0, 2.0])
+    engaged = np.zeros((100, 2), dtype=bool)
+    engaged[60:] = True
+    fig = plots.plot_safe_stop(tmp_path / "s.png", t, {"run": (q, engaged)}, 0.05, "stop",
+                               bound=1e-3)
+    assert (tmp_path / "s.png").exists()
+    ax = fig.axes[1]
+    line = ax.get_lines()[0]
+    np.testing.assert_allclose(line.get_ydata(), 1e3 * (q[:, 1] - q[50, 1]))
+    xs = sorted(float(np.atleast_1d(v.get_xdata())[0]) for v in ax.get_lines()[1:])
+    assert xs == [0.05, t[60]]
