@@ -245,8 +245,9 @@ class ModelBackend(GatewareSide):
         return Observed(events, replies)
 
     def _count_cuts(self, end: int) -> None:
-        """The codec errors of line cuts detected before ``end`` into the nodes' link health
-        (what their next Comm A reports) and the master port's count."""
+        """What line cuts made the nodes count before ``end`` (codec errors, router discards)
+        into their link health (what their next Comm A reports), and the master port's codec
+        errors."""
         later = []
         for c, k, side in self._link.errors:
             if c >= end:
@@ -258,8 +259,10 @@ class ModelBackend(GatewareSide):
                 up, down, rx, dropped = node.link_health
                 if side == "up":
                     up = min(up + 1, 0xFFFF)
-                else:
+                elif side == "down":
                     down = min(down + 1, 0xFFFF)
+                else:                           # "router": a packet its router discarded
+                    dropped = min(dropped + 1, 0xFFFF)
                 node.link_health = (up, down, rx, dropped)
         self._link.errors = later
 

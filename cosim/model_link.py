@@ -20,18 +20,25 @@ takes the whole link down (the receiver that loses the line flags a disconnect a
 :data:`DISCONNECT_CYCLES`, resets and goes silent, and its peer flags the silence in turn:
 docs/link.md "Disconnect detection and the exchange of silence"); once the line is whole
 again both ends start over from Error-Reset, :data:`RESTART_CYCLES` to Run (Error-Reset
-6.4 µs, Error-Wait 12.8 µs, the handshake 111 cycles: docs/link.md "Start-up"). Every packet,
-reply or time-code whose characters would cross line ``k`` while it is down is lost; each end
-of the line counts one codec error at ``c +`` :data:`DISCONNECT_CYCLES` (node ``k``'s upstream
-codec, node ``k − 1``'s downstream codec or the master port's).
+6.4 µs, Error-Wait 12.8 µs, the handshake 111 cycles: docs/link.md "Start-up"). Characters on
+the line from ``c`` until the disconnect is flagged, or cut short by it, are lost. Once the
+link is not running: the master port's packets wait in its FIFO and leave when it is back in
+Run (its time-codes are not sent); a packet a node's router would send through it is
+discarded and counted in that node's ``router_dropped`` (hdl/link/router.py: the whole
+packet, even if the link comes back), a reply going up through line ``k`` at node ``k``, one
+addressed down at node ``k − 1`` (a broadcast is taken by the node and not sent on,
+uncounted). Each end of the line counts one codec error at ``c +`` :data:`DISCONNECT_CYCLES`
+(node ``k``'s upstream codec, node ``k − 1``'s downstream codec or the master port's).
+tests/test_safe_stop_loop.py compares it with the gateware (docs/faults.md).
 
 Not modelled (bit level, on the gateware backends only): which error class each end counts
 (a disconnect or a parity error, docs/link.md), the further disconnects each failed restart
-attempt adds during a long cut (the gateware's counters grow by about one per 20–40 µs of
-cut; this model counts one per cut and end), the partial frame a cut truncates (the gateware
-ends it with an EEP and counts it in the depacketizer's ``rx_dropped``), a packet waiting in the
-master's transmit FIFO for the link to come back (here it is lost), and where in its restart
-cycle the link is when the line is whole again (here: at the start of Error-Reset).
+attempt adds during a long cut of the up wires (the gateware's node below counts about one
+per 32 µs of cut; this model one per cut and end), how the nodes answer the burst of requests
+the FIFO held (more late replies here), the partial frame a cut truncates (the gateware
+ends it with an EEP and counts it in the depacketizer's ``rx_dropped``; here it is lost
+uncounted), the FIFO's depth (here it holds everything), and where in its restart cycle the
+link is when the line is whole again (here: at the start of Error-Reset).
 """
 
 from __future__ import annotations
@@ -101,60 +108,93 @@ class LinkTiming:
         self._down_free = 0                     # master → node 1 link free from this cycle
         self._up_free = 0                       # node 1 → master link free from this cycle
         self._rx_free = [0] * n                 # node k's core takes bytes from this cycle
-        #: cuts: (line k 1-based, first cycle down, first cycle back in Run)
-        self.cuts: list[tuple[int, int, int]] = []
-        #: codec errors the cuts make: (cycle, node 1-based or 0 for the master port,
-        #: "up" or "down" codec), not yet taken by the caller
+        #: cuts: (line k 1-based, first cycle down, first cycle its link is not running, first
+        #: cycle back in Run)
+        self.cuts: list[tuple[int, int, int, int]] = []
+        #: what the cuts make the nodes count: (cycle, node 1-based or 0 for the master port,
+        #: "up" or "down" codec error, or "router" discard), not yet taken by the caller
         self.errors: list[tuple[int, int, str]] = []
-        self.lost = 0                           # packets, replies and time-codes lost
+        self.lost = 0                           # packets, replies and time-codes not delivered
 
     def cut(self, line: int, first: int, cycles: int) -> None:
         """Line ``line`` (1-based, above that node) cut from cycle ``first`` for ``cycles``
         cycles (module docstring)."""
         if not 1 <= line <= self.n:
             raise ValueError(f"line {line} is not in a chain of {self.n} nodes")
-        self.cuts.append((line, first, first + cycles + RESTART_CYCLES))
         detect = first + DISCONNECT_CYCLES
+        self.cuts.append((line, first, detect + 1, first + cycles + RESTART_CYCLES))
         self.errors.append((detect, line, "up"))
         self.errors.append((detect, line - 1, "down"))
 
-    def _crosses(self, last: int, length: int, node: int, hop: int, up: bool = False) -> bool:
-        """Whether characters cross a cut line while it is down: ``length`` cycles of them,
-        the last reaching node ``node`` (0-based) at ``last`` on the way down, or, ``up``,
-        leaving node ``node`` towards the master and the last reaching the master at
-        ``last``; ``hop``: cycles per further hop."""
-        for line, lo, hi in self.cuts:
+    def _fate(self, last: int, length: int, node: int, hop: int, up: bool = False):
+        """What becomes of ``length`` cycles of characters whose last one reaches node
+        ``node`` (0-based) at ``last`` on the way down, or, ``up``, leaves node ``node``
+        towards the master and reaches the master at ``last`` (``hop``: cycles per further
+        hop): None (delivered), ``"lost"`` (on a line while it failed, or cut short when its
+        link stopped), or the 1-based node whose router discards it (its port's link not
+        running when it comes)."""
+        for line, lo, off, hi in self.cuts:
             if line > node + 1:
                 continue                    # below the node: not on the way
             # the last character at the line's upper end (up) or its lower end (down)
             t = last - hop * (line - 1) if up else last - hop * (node + 1 - line)
             if t > lo and t - length < hi:
-                return True
-        return False
+                if t - length >= off:       # the router finds the port's link not running
+                    return line if up else line - 1
+                return "lost"
+        return None
+
+    def _drop(self, fate, cycle: int) -> bool:
+        """Count a packet that :meth:`_fate` did not deliver; True if so."""
+        if fate is None:
+            return False
+        self.lost += 1
+        if fate != "lost" and fate >= 1:
+            self.errors.append((cycle, fate, "router"))
+        return True
+
+    def _port_start(self, t: int) -> int:
+        """When the master port's transmitter can start at ``t``: a packet waits in its FIFO
+        while line 1's link is not running."""
+        for line, _, off, hi in self.cuts:
+            if line == 1 and off <= t < hi:
+                t = hi
+        return t
 
     def send(self, action, now: int) -> None:
         """The master hands ``action`` (:class:`master.cycle.Send`) to its port in cycle
         ``now``."""
         if action.kind == "timecode":
+            if self.cuts and self._port_start(now) != now:
+                self.lost += self.n                 # no time-code on a link not running
+                return
             t = max(now, self._down_free)
             for k in range(self.n):
                 at = t + _TC_HOP * (k + 1)
-                if self.cuts and self._crosses(at, _TC_LINE, k, _TC_HOP):
+                if self.cuts and self._fate(at, _TC_LINE, k, _TC_HOP) is not None:
                     self.lost += 1
                     continue
                 self.inbox[k].append((at, 0, "timecode", action.time))
             self._down_free = t + _TC_LINE          # the packets behind it wait for it
             return
-        t = max(now, self._down_free) + frame_cycles(len(action.payload))
+        length = frame_cycles(len(action.payload))
+        start = max(now, self._down_free)
+        if self.cuts:
+            start = self._port_start(start)
+        t = start + length
         self._down_free = t
         dests = range(self.n) if action.dest == ref.BROADCAST else [action.dest - 1]
         for k in dests:
             if 0 <= k < self.n:
-                if self.cuts and self._crosses(t + _FIRST_HOP + _HOP * k,
-                                               frame_cycles(len(action.payload)), k, _HOP):
-                    self.lost += 1
+                arrive = t + _FIRST_HOP + _HOP * k
+                fate = self._fate(arrive, length, k, _HOP) if self.cuts else None
+                if fate is not None:
+                    if action.dest == ref.BROADCAST:
+                        self.lost += 1      # the router keeps its own copy, sends none down
+                    else:
+                        self._drop(fate, arrive)
                     continue
-                taken = max(t + _FIRST_HOP + _HOP * k, self._rx_free[k]) + \
+                taken = max(arrive, self._rx_free[k]) + \
                     delivery_cycles(action.ptype, len(action.payload))
                 self._rx_free[k] = taken + 1
                 self.inbox[k].append((taken, 1, "packet",
@@ -164,10 +204,10 @@ class LinkTiming:
         """Queue a reply leaving node ``k``'s (0-based) reply FSM in cycle ``ready``; like the
         gateware's, its header echoes the request's ``seq``."""
         length = frame_cycles(len(payload))
-        if self.cuts and self._crosses(ready + _REPLY + _FIRST_HOP + _HOP * k + length, length,
-                                       k, _HOP, up=True):
-            self.lost += 1                      # (it never reaches the master's link)
-            return
+        if self.cuts:
+            last = ready + _REPLY + _FIRST_HOP + _HOP * k + length
+            if self._drop(self._fate(last, length, k, _HOP, up=True), ready):
+                return                          # (it never reaches the master's link)
         t = max(ready + _REPLY + _FIRST_HOP + _HOP * k, self._up_free) + length
         self._up_free = t
         self.replies.append((t, k + 1, ptype, payload, seq))

@@ -31,12 +31,31 @@ def test_a_cut_line_loses_what_crosses_it_and_only_that():
     assert delivered(link) == [1, 2, 3]
     link.send(packet(BROADCAST), 10_000)
     assert delivered(link) == [1]
+    assert not [e for e in link.errors if e[2] == "router"]   # (lost on the line)
     back = 10_000 + 500 + RESTART_CYCLES
-    link.send(packet(BROADCAST), back - 30)             # still restarting when it passes
-    assert delivered(link) == [1]
+    link.send(packet(3), back - 400)                    # still restarting when it passes:
+    assert delivered(link) == []                        # node 1 discards it, and counts it
+    assert [e[1:] for e in link.errors if e[2] == "router"] == [(1, "router")]
+    link.send(packet(BROADCAST), back - 30)             # a broadcast: node 1 keeps its copy
+    assert delivered(link) == [1]                       # and sends none down (uncounted)
+    assert len([e for e in link.errors if e[2] == "router"]) == 1
     link.send(packet(BROADCAST), back)
     assert delivered(link) == [1, 2, 3]
-    assert link.lost == 2 * 2                           # two broadcasts, nodes 2 and 3
+    assert link.lost == 2 * 2 + 1                       # two broadcasts (nodes 2, 3), one more
+
+
+def test_the_master_port_holds_its_packets_while_line_1_is_down():
+    """Line 1 not running: the master port's FIFO keeps the packets (in order) and sends them
+    when the link is back in Run; its time-codes are not sent."""
+    link = LinkTiming(2)
+    link.cut(1, 1_000, 2_000)
+    back = 1_000 + 2_000 + RESTART_CYCLES
+    link.send(packet(1), 1_000 + DISCONNECT_CYCLES + 5)
+    link.send(Send("timecode", time=3), 1_500)
+    link.send(packet(2), 1_600)
+    assert [e[0] > back for e in link.inbox[0] + link.inbox[1]] == [True, True]
+    assert [e[2] for e in link.inbox[0] + link.inbox[1]] == ["packet", "packet"]
+    assert link.inbox[0][0][0] < link.inbox[1][0][0]
 
 
 def test_a_packet_in_flight_when_the_line_fails_is_lost():
@@ -54,8 +73,9 @@ def test_replies_and_timecodes_across_a_cut_are_lost():
     link = LinkTiming(3)
     link.cut(1, 2_000, PERMANENT)
     link.reply(2, 1_000, int(PacketType.COMM_A), bytes(40), 1)    # before: reaches the master
-    link.reply(2, 2_100, int(PacketType.COMM_A), bytes(40), 2)    # after: lost
+    link.reply(2, 2_100, int(PacketType.COMM_A), bytes(40), 2)    # after: node 1 drops it
     assert [r[4] for r in link.replies_before(10**9)] == [1]
+    assert (2_100, 1, "router") in link.errors
     link.send(Send("timecode", time=5), 3_000)
     assert delivered(link) == []
 
