@@ -39,7 +39,7 @@ def test_writes_the_node_with_its_ports(node_verilog):
     header = re.search(r"module node\((.*?)\);", text, re.DOTALL).group(1)
     ports = {p.strip() for p in header.split(",")}
     assert ports == {"address", "up__d_out", "up__s_out", "up__d_in", "up__s_in", "down__d_out",
-                     "down__s_out", "down__d_in", "down__s_in", "enc_a", "enc_b", "torque",
+                     "down__s_out", "down__d_in", "down__s_in", "enc_a", "enc_b", "torque", "brake",
                      "status", "count", "events", "clk", "rst"}
     assert "output [23:0] torque;" in text
     assert sorted(p.name for p in node_verilog.parent.iterdir()) == written("node")
