@@ -484,6 +484,10 @@ class Master:
                                           "waiting for their stops to complete (BRAKE)"))
             return True
         self._waiting = False
+        if self.references == "dmp":        # the joints' generators would ignore the blend
+            self._end(now, f"cannot re-arm node {names}: their references come from "
+                      "primitives (re-arm them with a new deploy)")
+            return True
         exp = self.expected_uploads
         bad = [k for k, a in self._a.items()
                if exp is not None and (a["upload_crc"], a["upload_count"]) != exp[k]]

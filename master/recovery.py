@@ -10,7 +10,9 @@ what it does then (:class:`master.cycle.Master`, docs/faults.md "Recovery"):
   period's time-code (the nodes' timers are on the master's grid), every tripped node has
   completed its stop (``Status.BRAKE`` or ``SAFE``: at rest on its brake; re-arming a loop
   against a joint that still moves saturates it and winds its integral up), and the upload
-  read-back (CRC and count) agrees with everything uploaded, the master sends every node a
+  read-back (CRC and count) agrees with everything uploaded (and the references are not
+  primitives', ``references = "dmp"``, whose generators would ignore a blend: the run ends
+  instead), the master sends every node a
   Comm D holding the
   position it reports (zero velocity and acceleration), then CONFIG ARM; the nodes re-arm at
   the next boundary, and from that period the references follow :class:`Blend`, a quintic

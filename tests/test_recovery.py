@@ -88,6 +88,9 @@ def test_rearm_sends_a_hold_then_arm_and_blends_back():
     period(m, 3, 0, answer=())                  # the link is down: nothing comes
     sends = period(m, 4, Status.ARMED | Status.TRIPPED | Status.HOLD)
     assert m.lost == {1, 2, 3} and m.tripped == {1, 2, 3}
+    assert [s.ptype for s in sends if s.kind == "packet"] == [PacketType.COMM_A]
+    assert m.rearms == 0                        # still stopping: the re-arm waits for BRAKE
+    sends = period(m, 5, Status.ARMED | Status.TRIPPED | Status.HOLD | Status.BRAKE)
     arm = config_payloads({Config.ARM: 1})
     kinds = [(s.dest, s.ptype, s.payload) for s in sends
              if s.kind == "packet" and s.ptype != PacketType.COMM_A]
@@ -99,7 +102,7 @@ def test_rearm_sends_a_hold_then_arm_and_blends_back():
     assert m.rearms == 1 and m.ended is None
     # the period the ARM lands in still reports the trip (its snapshot is before the ARM):
     # no second re-arm, the blend's references
-    sends = period(m, 5, Status.ARMED | Status.TRIPPED | Status.HOLD)
+    sends = period(m, 6, Status.ARMED | Status.TRIPPED | Status.HOLD | Status.BRAKE)
     assert m.rearms == 1
     assert any(s.ptype == PacketType.COMM_D for s in sends)
 
@@ -126,3 +129,17 @@ def test_a_trip_reported_in_comm_a_is_acted_on(on_trip):
     assert m.tripped == {1, 2, 3}
     assert (m.ended is not None) == (on_trip == "end")
     assert m.rearms == (on_trip == "rearm")
+
+
+def test_primitive_driven_joints_are_not_rearmed():
+    robot = load_robot("mrm3")
+
+    def traj(t):
+        return np.zeros(3), np.zeros(3), np.zeros(3)
+
+    m = Master(robot, "pid-fpga", traj, robot.counts_per_rev, MasterTiming(), uploads=[],
+               references="dmp", on_trip="rearm")
+    m.begin(0)
+    period(m, 0, Status.ARMED)
+    period(m, 1, Status.ARMED | Status.TRIPPED | Status.BRAKE)
+    assert m.rearms == 0 and "primitives" in m.ended
