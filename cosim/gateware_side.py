@@ -9,19 +9,20 @@ implementations stand behind it:
 * :class:`cosim.backends.CompiledBackend` — the same design built with Verilator;
 * :class:`cosim.model.ModelBackend` — the nodes' bit-exact references with a link timing model.
 
-Level. The interface is at *packet* level: the loop hands the master's packets and time-codes
-to :meth:`GatewareSide.send` and gets back the good frames that reached the master port
-(:class:`Reply`), the nodes' observation-port strobes, the torque words and the link's error
-counters. It is not at line or character level because one of the three backends has no
-characters: the model's link is a timing model (when a packet's last byte reaches a node,
-when a reply reaches the master), and giving it characters would mean encoding every packet
-to characters only to decode them again, in the backend whose whole point is speed. The two
-gateware backends share the character level below the interface in one place,
-:class:`cosim.backends.LineSide` (framing into the master port's FIFO, frame assembly and
-CRC checks, encoder lines as quadrature levels, line faults), over their one cycle-level
-primitive ``run(n, inputs, outputs)``. What the master sees — which packets, which payloads,
-at which cycles they leave and arrive — is the same kind of thing on every backend, so the
-loop (time grid, plant, start-up, records, trace) exists once.
+Level. The interface is at *packet* level: the loop hands the master's packets and
+time-codes to :meth:`GatewareSide.send` and gets back the good frames that reached the
+master port (:class:`Reply`), the nodes' observation-port strobes, the torque words, the
+brake outputs and the link's error counters. It is not at line or character level because
+one of the three backends has no characters: the model's link is a timing model (when a
+packet's last byte reaches a node, when a reply reaches the master), and giving it
+characters would mean encoding every packet to characters only to decode them again, in the
+backend whose whole point is speed. The two gateware backends share the character level
+below the interface in one place, :class:`cosim.backends.LineSide` (framing into the master
+port's FIFO, frame assembly and CRC checks, encoder lines as quadrature levels, line
+faults), over their one cycle-level primitive ``run(n, inputs, outputs)``. What the master
+sees — which packets, which payloads, at which cycles they leave and arrive — is the same
+kind of thing on every backend, so the loop (time grid, plant, start-up, records, trace)
+exists once.
 
 Time. A backend counts cycles from its reset (cycle 0). :meth:`GatewareSide.advance` runs the
 next ``n`` cycles with the encoder lines the plant drives in them (:class:`PlantLines`, one

@@ -192,12 +192,19 @@ def test_friction_comp_uploads_the_nominal_friction_as_vdc_joint_estimates():
     rich = node_uploads(robot, "vdc", Gains(friction_comp=0.5))
     changed = [(a, b) for a, b in zip(plain, rich, strict=True) if a != b]
     assert changed and all(a[0] == b[0] and a[1] == b[1] for a, b in changed)
-    for k, mod in enumerate(robot.modules):   # VDC uploads no PID gains (only pid-fpga does)
+    from mrm_cosim.master.uploads import _joint_inertia, pid_shifts
+    from mrm_cosim.protocol.safe_stop import SafeStopParams, hold_gains
+
+    # VDC's PID words hold the safe stop's hold gains (docs/node.md "Safe stop")
+    hold = hold_gains(SafeStopParams(), _joint_inertia(robot))
+    shifts = pid_shifts(robot)
+    for k, mod in enumerate(robot.modules):
         spec = ACTUATORS[mod.type.actuator]
         expect = JointParams.from_float(
             counts_per_rev=mod.type.counts_per_rev, tick_cycles=50, lam=Gains().lam,
             k_j=Gains().k_j, inertia=spec.output_inertia, viscous=0.5 * spec.viscous_friction,
-            coulomb=0.5 * spec.coulomb_friction, i_max=0.05)
+            coulomb=0.5 * spec.coulomb_friction, k_p=hold["kp"][k], k_i=hold["ki"][k],
+            k_d=hold["kd"][k], i_max=0.05, pid_shift=shifts[k])
         assert expect.th1 > 0 and expect.th2 > 0
         sent = [p for dest, _, p in rich if dest == k + 1]
         assert all(p in sent for p in joint_upload(expect))
