@@ -202,12 +202,14 @@ def test_cli_refuses_bad_line_faults_naming_the_flag(tmp_path, capsys, spec, wor
     assert not out.exists()
 
 
-def test_cli_refuses_line_faults_on_the_model_backend(tmp_path, capsys):
+def test_cli_refuses_bit_level_faults_on_the_model_backend(tmp_path, capsys):
+    """The model backend's link is at packet level: it takes cuts (cosim/model_link.py), not
+    faults of single bits or wires."""
     from mrm_cosim.mrm import cli
 
     code = cli.main(["run", "track", "--backend", "model", "--duration", "0.001",
                      "--line-fault", "bit:up:1@0.5ms", "--out", str(tmp_path / "o"), "--quiet"])
-    assert code == 2 and "ideal" in capsys.readouterr().err
+    assert code == 2 and "'cut' faults only" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
 
 
