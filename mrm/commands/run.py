@@ -391,6 +391,8 @@ def _print_track(args, config, summary) -> None:
           + f"; RTF {summary['rtf']:.0f}")
     if summary["link_errors"]:
         print("link faults counted at: " + link_fault_places(summary["link_error_detail"]))
+    for event in summary.get("recovery", []):
+        print(f"safety, {event['t_s']:.4f} s: {event['event']}")
     print(f"results in {args.out}/ (summary.json, config.toml, timeline.json, tracking.png"
           + (", waves.vcd: the --vcd window" if args.vcd else "")
           + (", waves.fst: the --fst window" if args.fst else "")
