@@ -137,7 +137,6 @@ def test_model_equals_compiled_through_a_cut(spec, on_trip, cycles):
     wires (compiled): the same plant trace and torques bit for bit through the nodes' trip,
     hold, brake, STO and re-arm, the same brakes, the same master decisions and the same link
     counters in every node's Comm A."""
-    pytest.importorskip("mrm_cosim.cosim.compiled")
     model, m_m = _cut_loop("model", spec, cycles, on_trip)
     compiled, m_c = _cut_loop("compiled", spec, cycles, on_trip)
     np.testing.assert_array_equal(model.brake, compiled.brake)
