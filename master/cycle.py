@@ -497,12 +497,15 @@ class Master:
             return True
         from mrm_cosim.protocol.regs import Config, config_payloads
 
-        q = np.array([a["count"] for a in (self._a[k + 1] for k in range(self.n))]) * \
-            (2 * math.pi) / self.counts_per_rev
+        a = [self._a[k + 1] for k in range(self.n)]
+        q = np.array([x["count"] for x in a]) * (2 * math.pi) / self.counts_per_rev
+        # tripped nodes: held at rest; the others keep their reported velocity (no ARM)
+        v = np.array([0.0 if k + 1 in tripped else VEL.decode(a[k]["qd"])
+                      for k in range(self.n)])
         z = np.zeros(self.n)
         arm = [self._packet(k, PacketType.CONFIG, p)
-               for k in range(1, self.n + 1) for p in config_payloads({Config.ARM: 1})]
-        sends = self._comm_d(z, q, q, z, z) + arm
+               for k in tripped for p in config_payloads({Config.ARM: 1})]
+        sends = self._comm_d(z, q, q, v, z) + arm
         self._later(now + self.timing.kinematics_cycles, sends)
         if self._uploads is not None:       # the ARM joins what every Comm A reads back
             self._uploads += [(s.dest, PacketType.CONFIG, s.payload) for s in arm]
@@ -511,12 +514,13 @@ class Master:
             self.upload_errors = errors
         t0 = (rec.index + 1) * self.dt         # the nodes re-arm at the next boundary
         self._rearm_period = rec.index + 1
-        self._blend = fit_blend(self.trajectory, q, t0, self.rearm_blend,
-                                self._joint_inertia(q), self.robot.peak_torques)
+        self._blend = fit_blend(self.trajectory, q + v * self.dt, t0, self.rearm_blend,
+                                self._joint_inertia(q), self.robot.peak_torques, v_hold=v)
         self._integral = np.zeros(self.n)
         self.rearms += 1
         self.recovery_log.append((now, f"period {rec.index}: uploads read back on every "
-                                  f"node; hold, ARM; blend back to the trajectory from "
+                                  f"node; hold, ARM node {names}; blend back to the "
+                                  f"trajectory from "
                                   f"{t0:.4f} s to {self._blend.t1:.4f} s"))
         return True
 

@@ -14,10 +14,14 @@ what it does then (:class:`master.cycle.Master`, docs/faults.md "Recovery"):
   primitives', ``references = "dmp"``, whose generators would ignore a blend: the run ends
   instead), the master sends every node a
   Comm D holding the
-  position it reports (zero velocity and acceleration), then CONFIG ARM; the nodes re-arm at
-  the next boundary, and from that period the references follow :class:`Blend`, a quintic
-  from the held positions at rest to the trajectory's position, velocity and acceleration at
-  the blend's end, ``rearm_blend`` seconds later; then the trajectory. A read-back that
+  position it reports (zero velocity and acceleration), then CONFIG ARM to the tripped nodes;
+  they re-arm at the next boundary. A node that did not trip (above a cut line, it kept
+  receiving requests) gets a Comm D that continues from its reported position at its reported
+  velocity, and no ARM (re-arming a moving joint saturates it: 0.19 rad of overshoot with
+  pid-fpga after a cut of line 2). From the next period the references follow
+  :class:`Blend`, a quintic from those states to the trajectory's position, velocity and
+  acceleration at the blend's end, ``rearm_blend`` seconds later or more; then the
+  trajectory. A read-back that
   disagrees ends the run instead (the nodes may not hold what the master thinks).
 * ``"end"``: at the first sign (a period whose replies are missing, or a node reporting a
   trip) the master stops sending: every node's watchdog trips, and the nodes stop, hold and
@@ -65,20 +69,24 @@ class Blend:
     trajectory : callable
         ``trajectory(t) -> (q, q̇, q̈)``, arrays of shape (n,), t in s from period 0.
     q_hold : ndarray, shape (n,), rad
-        Where the joints are held (at rest) at ``t0``.
+        Where the joints are at ``t0``.
     t0 : float, s
         Start of the blend (the period the nodes re-arm in).
     duration : float, s
         Length of the blend; from ``t0 + duration`` on, the trajectory itself.
+    v_hold : ndarray, shape (n,), rad/s, optional
+        Their velocities at ``t0`` (default: at rest; a joint whose node did not trip keeps
+        moving with the references it was last given).
     """
 
-    def __init__(self, trajectory, q_hold, t0: float, duration: float):
+    def __init__(self, trajectory, q_hold, t0: float, duration: float, v_hold=None):
         self.trajectory = trajectory
         self.t0 = float(t0)
         self.t1 = self.t0 + float(duration)
         z = np.zeros_like(np.asarray(q_hold, dtype=float))
+        v0 = z if v_hold is None else np.asarray(v_hold, dtype=float)
         q1, v1, a1 = (np.asarray(x, dtype=float) for x in trajectory(self.t1))
-        self._c = quintic_blend(q_hold, z, z, q1, v1, a1, float(duration))
+        self._c = quintic_blend(q_hold, v0, z, q1, v1, a1, float(duration))
 
     def __call__(self, t: float):
         """``(q, q̇, q̈)`` at ``t`` (s from period 0): the blend in ``[t0, t1)``, the trajectory
@@ -94,7 +102,7 @@ class Blend:
 
 
 def fit_blend(trajectory, q_hold, t0: float, duration: float, inertia, peak_torque,
-              budget: float = BLEND_TORQUE, tries: int = 12) -> Blend:
+              budget: float = BLEND_TORQUE, tries: int = 12, v_hold=None) -> Blend:
     """The shortest :class:`Blend` of at least ``duration`` whose inertial torque ``inertia ×
     max |q̈|`` (per joint, sampled over the blend) stays within ``budget × peak_torque``:
     ``duration`` lengthened by at least 25 % a try (at most ``tries``; the last is returned).
@@ -106,7 +114,7 @@ def fit_blend(trajectory, q_hold, t0: float, duration: float, inertia, peak_torq
     limit = budget * np.asarray(peak_torque, dtype=float)
     T = float(duration)
     for _ in range(tries):
-        blend = Blend(trajectory, q_hold, t0, T)
+        blend = Blend(trajectory, q_hold, t0, T, v_hold)
         acc = np.max(np.abs([blend(t0 + x * T)[2] for x in np.linspace(0.0, 1.0, 41)]),
                      axis=0)
         ratio = float(np.max(inertia * acc / limit))
