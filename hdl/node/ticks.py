@@ -116,8 +116,7 @@ class ControlTicks(wiring.Component):
         count24  = Signal(signed(WORD))
         j_in     = self.inputs
         entries  = Array(C(jmc.entries[mode], range(len(jmc.instrs))) for mode in MODES)
-        hold_set = Signal()             # the hold's position is taken
-        hold_pos = Signal(signed(WORD))
+        hold_set = Signal()             # the hold's position is in j_in.qd0
         pos_now  = Signal(signed(WORD)) # the count as a POS word (counts · 2^4), saturated
         lim = 1 << (WORD - 1 + POS.lsb)
         m.d.comb += [
@@ -143,13 +142,12 @@ class ControlTicks(wiring.Component):
                 with m.If(self.hold):
                     m.d.sync += [
                         j_in.tauD.eq(0),
-                        j_in.qd0.eq(Mux(hold_set, hold_pos, pos_now)),
                         j_in.vd0.eq(0),
                         j_in.ad0.eq(0),
                         hold_set.eq(1),
                     ]
-                    with m.If(~hold_set):
-                        m.d.sync += hold_pos.eq(pos_now)
+                    with m.If(~hold_set):       # the first hold tick's count, kept after
+                        m.d.sync += j_in.qd0.eq(pos_now)
                     m.d.comb += self.entry.eq(jmc.entries["pid"])
                 with m.Else():
                     m.d.sync += [
