@@ -39,7 +39,7 @@ from pathlib import Path
 from mrm_cosim.errors import InputError
 
 __all__ = ["CampaignSpec", "load_campaign", "expand_campaign", "run_campaign_point",
-           "write_campaign_summary", "KIND"]
+           "write_campaign_summary", "summarize_folder", "KIND"]
 
 KIND = "link-faults"
 LEVELS = ("link", "loop")
@@ -60,8 +60,11 @@ class CampaignSpec:
     def to_toml(self) -> str:
         from mrm_cosim.cosim.experiment_config import _dump_toml
 
+        from mrm_cosim.cosim.loop_campaign import _KEYS
+
+        keys = _LINK_KEYS if self.level == "link" else _KEYS
         return _dump_toml({"sweep": {"name": self.name, "kind": self.kind},
-                           "campaign": self.campaign})
+                           "campaign": {k: v for k, v in self.campaign.items() if k in keys}})
 
 
 def _whole(value, where: str, lo: int, hi: int) -> int:
@@ -168,22 +171,23 @@ def run_campaign_point(point: dict) -> dict:
 
 
 def write_campaign_summary(out: Path, spec: CampaignSpec, rows: list[dict],
-                           plots: bool = True) -> dict:
+                           plots: bool = True, total: int | None = None) -> dict:
     """summary.md, summary.json and the plots of a finished (or partly finished) campaign."""
     if spec.level == "loop":
         from mrm_cosim.cosim.loop_campaign import write_loop_summary
 
-        return write_loop_summary(out, spec, rows, plots)
+        return write_loop_summary(out, spec, rows, plots, total)
     from mrm_cosim.cosim.link_faults import _detector, summarize, table_markdown
     from mrm_cosim.results import write_json
 
     ok = [r for r in rows if r["status"] == "ok"]
     faults = [f for r in ok for f in r["rows"]]
     summary = summarize(faults) if faults else []
-    total = next((s for s in summary if s["kind"] == "all"), None)
+    every = next((s for s in summary if s["kind"] == "all"), None)
     c = spec.campaign
+    n_points = len(rows) if total is None else total
     lines = [f"# Fault campaign {spec.name} (link level)", "",
-             f"{len(ok)} of {len(rows)} points ({len(faults):,} of {c['faults']:,} faults) "
+             f"{len(ok)} of {n_points} points ({len(faults):,} of {c['faults']:,} faults) "
              f"finished; seed {c['seed']}, {c['chunk']} faults a point, FIFO "
              f"{c['rx_fifo_depth']}, credit timeout {c['credit_timeout']} cycles; kinds "
              f"{', '.join(c['kinds'])}.", ""]
@@ -192,9 +196,9 @@ def write_campaign_summary(out: Path, spec: CampaignSpec, rows: list[dict],
         lines += [f"**{len(failed)} point(s) failed** (points.jsonl has the errors).", ""]
     if summary:
         lines += [table_markdown(summary), "",
-                  f"{total['corrupted_accepted']} corrupted frames accepted in "
-                  f"{total['injected']:,} faults: one-sided 95 % upper bound "
-                  f"{total['bound95']:.2g} per fault. {total['unrecovered']} not recovered "
+                  f"{every['corrupted_accepted']} corrupted frames accepted in "
+                  f"{every['injected']:,} faults: one-sided 95 % upper bound "
+                  f"{every['bound95']:.2g} per fault. {every['unrecovered']} not recovered "
                   "within the limit.", ""]
         stall = [f for f in faults if f["kind"] == "master-stall"]
         if stall:
@@ -209,7 +213,7 @@ def write_campaign_summary(out: Path, spec: CampaignSpec, rows: list[dict],
                              f"| {len(outside)} | {sum(f['went_down'] for f in outside)} |")
             lines.append("")
     (out / "summary.md").write_text("\n".join(lines))
-    doc = {"name": spec.name, "level": "link", "campaign": c, "points": len(rows),
+    doc = {"name": spec.name, "level": "link", "campaign": c, "points": n_points,
            "finished": len(ok), "faults": len(faults), "summary": summary,
            "detectors": {k: dict(Counter(_detector(f) for f in faults if f["kind"] == k))
                          for k in c["kinds"]}}
@@ -217,6 +221,19 @@ def write_campaign_summary(out: Path, spec: CampaignSpec, rows: list[dict],
     if plots and faults:
         _link_plots(out, spec, faults)
     return doc
+
+
+def summarize_folder(out) -> dict:
+    """Write summary.md, summary.json and the plots of the campaign in folder ``out`` from
+    what it has finished (a campaign still running or killed: its points.jsonl so far)."""
+    from mrm_cosim.cosim.sweep import _finished, load_spec
+
+    out = Path(out)
+    spec = load_spec(out / "sweep.toml")
+    done = _finished(out / "points.jsonl")
+    points = expand_campaign(spec)
+    rows = [done[p["id"]] for p in points if p["id"] in done]
+    return write_campaign_summary(out, spec, rows, total=len(points))
 
 
 def _link_plots(out: Path, spec: CampaignSpec, faults: list[dict]) -> None:
