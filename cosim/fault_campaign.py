@@ -200,6 +200,16 @@ def write_campaign_summary(out: Path, spec: CampaignSpec, rows: list[dict],
                   f"{every['injected']:,} faults: one-sided 95 % upper bound "
                   f"{every['bound95']:.2g} per fault. {every['unrecovered']} not recovered "
                   "within the limit.", ""]
+        lines += ["## Undetected faults: harmless?", "",
+                  "Faults no counter saw, per kind: how many took a link down or let a corrupted "
+                  "frame through (both must be 0: undetected means harmless, by design).", "",
+                  "| fault | undetected | took a link down | corrupted accepted |",
+                  "|---|---|---|---|"]
+        for kind in c["kinds"]:
+            quiet = [f for f in faults if f["kind"] == kind and not f["moved"]]
+            lines.append(f"| {kind} | {len(quiet)} | {sum(f['went_down'] for f in quiet)} | "
+                         f"{sum(f['corrupted'] for f in quiet)} |")
+        lines.append("")
         stall = [f for f in faults if f["kind"] == "master-stall"]
         if stall:
             lines += ["## Master stall by duration", "",
