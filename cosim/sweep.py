@@ -26,6 +26,10 @@ A sweep of ``kind = "line"`` runs a Cartesian line (``line = "path/to/line.toml"
 (``["trig"]`` by default, ``"ruckig"`` too), and reports the tool's position and orientation
 errors instead of ρ.
 
+A sweep of ``kind = "link-faults"`` is the fault campaign: its own ``[campaign]`` table
+instead of axes, chunks of link-level faults or closed-loop runs as points
+(:mod:`cosim.fault_campaign`, docs/sweeps.md).
+
 The points are the product of the grid axes, the draws, the controllers, the backends and the
 seeds (a seed is the plant's draw: repeated seeds are Monte Carlo over plants). A point is a
 pure function (:func:`run_point`: resolved config + controller → summary figures); it writes
