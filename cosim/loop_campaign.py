@@ -288,6 +288,8 @@ def run_loop_point(point: dict) -> dict:
                      "periods_lost": len(lost), "recovery_ms": recovery, "dev_rad": dev,
                      "dev_before_rad": before_dev})
     return {"rows": rows, "trace_sha256": res.trace_sha256, "ref_sha256": ref.trace_sha256,
+            "tripped_nodes": sorted(int(k) for k in res.master.tripped),
+            "end_dev_rad": float(np.abs(res.q[-1] - ref.q[-1]).max()) if len(res.q) else 0.0,
             "max_dev_rad": float(np.abs(res.q - ref.q).max()) if len(res.q) else 0.0,
             "wall_s": time.perf_counter() - t0}
 
@@ -347,6 +349,15 @@ def write_loop_summary(out: Path, spec, rows: list[dict], plots: bool = True,
     failed = [r for r in rows if r["status"] != "ok"]
     if failed:
         lines += [f"**{len(failed)} run(s) failed** (points.jsonl has the errors).", ""]
+    if ok:
+        lines += ["## Runs", "", "| seed | faults | nodes whose watchdog tripped | "
+                  "largest joint deviation from the reference (µrad) | at the end (µrad) |",
+                  "|---|---|---|---|---|"]
+        for r in ok:
+            lines.append(f"| {r['seed']} | {len(r['rows'])} | "
+                         f"{', '.join(map(str, r.get('tripped_nodes', []))) or 'none'} | "
+                         f"{1e6 * r['max_dev_rad']:.3g} | {1e6 * r.get('end_dev_rad', 0):.3g} |")
+        lines.append("")
     if faults:
         lines += [loop_table(faults), "", "## Every fault", "",
                   "| seed | fault | at (ms) | cycles | counters that moved | corrupted | "
