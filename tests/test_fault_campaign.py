@@ -136,3 +136,29 @@ def test_a_tiny_closed_loop_campaign(tmp_path):
     assert row["ref_sha256"] == s["trace_sha256"]
     assert (out / "summary.md").read_text().count("| 0 |") >= 1
     assert (out / "loop_faults.png").stat().st_size
+
+
+@pytest.mark.xfail(strict=True, reason="the codec reference (cycle-exact with the gateware in "
+                   "tests/test_codec_ref.py; this case not checked there) decodes a time-code "
+                   "sent after NULLs as a data character here: the "
+                   "peer's credit falls one below ours and our next FCT overflows it "
+                   "(docs/faults.md, master stall); hdl/ is the codec owners' to fix")
+def test_a_short_master_stall_never_takes_the_link_down():
+    """Fault 244 of chunk 10 of configs/sweeps/link-faults.toml: host a stalls for 50 cycles
+    (a quarter of the credit timeout) inside a frame; the link must stay up."""
+    import numpy as np
+
+    from mrm_cosim.cosim.link_faults import draw
+
+    rng = np.random.default_rng([10, 1])
+    camp = LinkCampaign(10, rx_fifo_depth=64, credit_timeout=200)
+    camp.bring_up()
+    judged = 0
+    while judged < 244:
+        if not camp.judge(draw(rng, KINDS)).get("skipped"):
+            judged += 1
+    fault = draw(rng, KINDS)
+    assert (fault.kind, fault.line, fault.cycles) == ("master-stall", "ab", 50)
+    row = camp.judge(fault)
+    assert row["corrupted"] == 0
+    assert not row["went_down"], row["moved"]
