@@ -26,7 +26,15 @@ b → a), as masks on the line samples (``(clear, set, flip)`` per slot for D an
   ``stuck-d`` / ``stuck-s``: one line held high or low for 1-80 cycles;
 - ``lost-fct``: the next FCT on the line vanishes: the line holds its levels for the FCT's four
   bits, which removes them and nothing else (four is even, so the data-strobe phase is kept);
-- ``lost-tc``: the same for the next time-code's 14 bits.
+- ``lost-tc``: the same for the next time-code's 14 bits;
+- ``node-reset``: the codec that sends on the line is reset (:meth:`CodecRef.reset`, every
+  register to its power-on value, the link to Error-Reset) and its host drops the frame it was
+  sending and the one it was receiving: the node's power-on, mid-traffic. Its own error
+  counters restart from 0 with it; the campaign keeps their sum across the reset;
+- ``master-stall``: the host that sends on the line stops offering and stops reading for
+  ``cycles`` (``STALL_CYCLES``: shorter and longer than the credit timeout), wherever it is in
+  its frame; its codec carries on (NULLs, FCTs). A stall inside a frame longer than the credit
+  timeout is what the peer's ``credit_timeout`` is built to see (a starved open packet).
 
 Per fault: which counters moved (the codecs' error classes, each host's CRC drops, EEP-ended
 frames and time-code sequence breaks), frames corrupted-accepted, and the recovery time (from
@@ -47,12 +55,16 @@ from mrm_cosim.hdl.link.codec_ref import CodecRef, char_fields, char_value
 from mrm_cosim.protocol.crc import crc16
 from mrm_cosim.protocol.link import ERROR_CLASSES, CharKind
 
-__all__ = ["KINDS", "CUT_CYCLES", "Fault", "LinkCampaign", "run_campaign", "summarize",
-           "upper_bound_95", "table_markdown"]
+__all__ = ["KINDS", "CUT_CYCLES", "STALL_CYCLES", "Fault", "LinkCampaign", "run_campaign",
+           "summarize", "upper_bound_95", "table_markdown"]
 
-KINDS = ("bit", "burst", "cut", "stuck-d", "stuck-s", "lost-fct", "lost-tc")
+KINDS = ("bit", "burst", "cut", "stuck-d", "stuck-s", "lost-fct", "lost-tc", "node-reset",
+         "master-stall")
 #: Cut and stuck durations drawn from, cycles: shorter and longer than the disconnect time.
 CUT_CYCLES = (1, 3, 8, 13, 20, 30, 42, 44, 60, 80)
+#: Master-stall durations drawn from, cycles: shorter and longer than the short credit
+#: timeout (200 cycles, SHORT_TIMERS).
+STALL_CYCLES = (10, 50, 150, 190, 210, 300, 600, 1500)
 SHORT_TIMERS = {"reset_cycles": 60, "wait_cycles": 150, "credit_timeout": 200}
 SETTLE = 40             # both in Run this long before a fault
 TC_PERIOD = 97          # cycles between a's time-codes
@@ -81,6 +93,11 @@ class _Host:
     corrupted: int = 0
     counts: Counter = field(default_factory=Counter)
     last_tc: int | None = None
+    frame_len: int = 0
+
+    def in_frame(self) -> bool:
+        """Part of the frame being sent has gone."""
+        return 0 < len(self.queue) < self.frame_len
 
     def offer(self):
         if not self.queue:
@@ -93,6 +110,7 @@ class _Host:
             self.sent.pop(self.seq - 64, None)
             self.seq = (self.seq + 1) & 0xFFFF
             self.queue = [char_value(_DATA, b) for b in frame] + [char_value(_EOP)]
+            self.frame_len = len(self.queue)
         return self.queue[0]
 
     def receive(self, value, sent):
@@ -110,6 +128,10 @@ class _Host:
             self.accepted += 1
             if sent.get(frame[0] << 8 | frame[1]) != frame:
                 self.corrupted += 1
+
+    def drop(self):
+        """A node reset: the frame being sent and the one being received are gone."""
+        self.queue, self.frame, self.last_tc = [], [], None
 
     def time_code(self, value):
         t = value & 0x3F
@@ -132,20 +154,30 @@ class LinkCampaign:
         self.masks = {}             # cycle -> {"ab"/"ba": ((clear, set, flip) D, ... S)}
         self.rng = np.random.default_rng([seed, 7])
         self.crossed = {"a": 0, "b": 0}     # frames accepted since the last count reset
+        self.resets = {}            # cycle -> codec reset at its start ("a" / "b")
+        self.stall = {}             # host -> first cycle it runs again
+        self.base = {w: Counter() for w in "ab"}    # counts of codecs before their resets
 
     # -- one cycle of both codecs and both hosts ----------------------------------------------
     def step(self):
         out = {w: c.outputs() for w, c in self.codecs.items()}
         fault = self.masks.pop(self.cycle, {})
+        who = self.resets.pop(self.cycle, None)
+        if who is not None:
+            self.base[who].update(self.codecs[who].errors)
+            self.codecs[who].reset()
+            self.hosts[who].drop()
+            out[who] = self.codecs[who].outputs()
         tick = out["a"].running and self.cycle % TC_PERIOD == 0
         if tick:
             self.tc = (self.tc + 1) & 0x3F
         for who, peer, key in (("a", "b", "ba"), ("b", "a", "ab")):
             o, h = out[who], self.hosts[who]
+            live = self.stall.get(who, 0) <= self.cycle
             payload = h.offer()
-            if o.tx_ready:
+            if o.tx_ready and live:
                 h.queue.pop(0)
-            if o.rx_valid:
+            if o.rx_valid and live:
                 before = h.accepted
                 h.receive(o.rx_payload, self.hosts[peer].sent)
                 self.crossed[who] += h.accepted - before
@@ -154,7 +186,8 @@ class LinkCampaign:
             (cd, sd, fd), (cs, ss, fs) = fault.get(key, ((0, 0, 0), (0, 0, 0)))
             d = ((out[peer].d_out & ~cd) | sd) ^ fd
             s = ((out[peer].s_out & ~cs) | ss) ^ fs
-            self.codecs[who].step(d_in=d, s_in=s, tx_valid=1, tx_payload=payload, rx_ready=1,
+            self.codecs[who].step(d_in=d, s_in=s, tx_valid=int(live), tx_payload=payload,
+                                  rx_ready=int(live),
                                   link_start=1, tick_in=int(who == "a" and tick),
                                   time_in=self.tc)
         self.cycle += 1
@@ -171,7 +204,7 @@ class LinkCampaign:
     def counters(self) -> dict:
         out = {}
         for w, c in self.codecs.items():
-            out.update({f"{w}.{k}": v for k, v in c.errors.items()})
+            out.update({f"{w}.{k}": v + self.base[w][k] for k, v in c.errors.items()})
             out.update({f"{w}.{k}": self.hosts[w].counts[k] for k in _HOST})
         return out
 
@@ -216,6 +249,11 @@ class LinkCampaign:
                 for which in (0, 1):
                     if rng.random() < 0.5:
                         put(first + k, which, 2)
+        elif fault.kind == "node-reset":
+            self.resets[start] = "a" if fault.line == "ab" else "b"
+        elif fault.kind == "master-stall":
+            who = "a" if fault.line == "ab" else "b"
+            self.stall[who] = start + fault.cycles
         elif fault.kind in ("cut", "stuck-d", "stuck-s"):
             which = {"cut": (0, 1), "stuck-d": (0,), "stuck-s": (1,)}[fault.kind]
             level = int(rng.integers(0, 2)) if fault.kind != "cut" else 0
@@ -242,9 +280,10 @@ class LinkCampaign:
         before = self.counters()
         corrupted = sum(h.corrupted for h in self.hosts.values())
         t0 = self.cycle
+        in_frame = self.hosts["a" if fault.line == "ab" else "b"].in_frame()
         if not self.inject(fault):
             return {"kind": fault.kind, "skipped": True}
-        end = max(self.masks) if self.masks else t0
+        end = max([t0, *self.masks, *self.resets, *(c - 1 for c in self.stall.values())])
         went_down = False
         self.crossed = {"a": 0, "b": 0}
         while self.cycle - t0 < LIMIT:
@@ -257,12 +296,13 @@ class LinkCampaign:
                     break
                 if not self.running():
                     self.crossed = {"a": 0, "b": 0}
-            elif self.cycle - t0 >= max(QUIET, self.params["credit_timeout"] + 60):
+            elif self.cycle - t0 >= max(QUIET, self.params["credit_timeout"] + 60,
+                                        end - t0 + QUIET):
                 break
         after = self.counters()
         moved = {k: after[k] - before[k] for k in after if after[k] != before[k]}
         return {"kind": fault.kind, "line": fault.line, "cycles": fault.cycles,
-                "moved": moved, "went_down": went_down,
+                "moved": moved, "went_down": went_down, "in_frame": in_frame,
                 "recovered": self.cycle - t0 < LIMIT,
                 "recovery_cycles": self.cycle - t0 if went_down else 0,
                 "corrupted": sum(h.corrupted for h in self.hosts.values()) - corrupted}
@@ -328,7 +368,8 @@ def upper_bound_95(failures: int, trials: int) -> float:
 def draw(rng: np.random.Generator, kinds=KINDS) -> Fault:
     """One fault: kind, line and duration uniform over their choices."""
     kind = str(rng.choice(list(kinds)))
-    cycles = int(rng.choice(CUT_CYCLES)) if kind in ("cut", "stuck-d", "stuck-s") else 1
+    cycles = (int(rng.choice(CUT_CYCLES)) if kind in ("cut", "stuck-d", "stuck-s") else
+              int(rng.choice(STALL_CYCLES)) if kind == "master-stall" else 1)
     return Fault(kind, str(rng.choice(["ab", "ba"])), cycles, int(rng.integers(0, 2**31)))
 
 

@@ -26,6 +26,10 @@ A sweep of ``kind = "line"`` runs a Cartesian line (``line = "path/to/line.toml"
 (``["trig"]`` by default, ``"ruckig"`` too), and reports the tool's position and orientation
 errors instead of ρ.
 
+A sweep of ``kind = "link-faults"`` is the fault campaign: its own ``[campaign]`` table
+instead of axes, chunks of link-level faults or closed-loop runs as points
+(:mod:`cosim.fault_campaign`, docs/sweeps.md).
+
 The points are the product of the grid axes, the draws, the controllers, the backends and the
 seeds (a seed is the plant's draw: repeated seeds are Monte Carlo over plants). A point is a
 pure function (:func:`run_point`: resolved config + controller → summary figures); it writes
@@ -65,7 +69,8 @@ LINE_FIGURES = ("max_position_error_mm", "max_orientation_error_mrad", "max_se3_
 SHOWN = {"track": (("rho_s", "ρ (s)", 1.0), ("max_tip_error_m", "tip error (mm)", 1e3)),
          "line": (("max_position_error_mm", "tool position error (mm)", 1.0),
                   ("max_orientation_error_mrad", "tool orientation error (mrad)", 1.0))}
-KINDS = tuple(SHOWN)
+#: "link-faults": the fault campaign (cosim/fault_campaign.py), its own [campaign] table.
+KINDS = (*SHOWN, "link-faults")
 
 _SPEC_KEYS = {"sweep", "axis", "draws"}
 _SWEEP_KEYS = {"name", "kind", "config", "controllers", "backends", "seeds", "duration", "line",
@@ -212,6 +217,10 @@ def load_spec(path) -> SweepSpec:
 
     path = Path(path)
     data = read_toml(path, "SPEC")
+    if isinstance(data.get("sweep"), dict) and data["sweep"].get("kind") == "link-faults":
+        from mrm_cosim.cosim.fault_campaign import load_campaign
+
+        return load_campaign(data, path)
     for key in data:
         if key not in _SPEC_KEYS:
             raise InputError(key, f"unknown table; known: {', '.join(sorted(_SPEC_KEYS))}")
@@ -364,6 +373,10 @@ def expand(spec: SweepSpec) -> list[dict]:
     "config"}``."""
     from mrm_cosim.cosim.experiment_config import from_dict
 
+    if spec.kind == "link-faults":
+        from mrm_cosim.cosim.fault_campaign import expand_campaign
+
+        return expand_campaign(spec)
     grid = [dict(zip([f for f, _ in spec.axes], combo, strict=True))
             for combo in itertools.product(*(v for _, v in spec.axes))]
     points, seen = [], set()
@@ -398,6 +411,10 @@ def run_point(point: dict, report=None) -> dict:
     """Run one point: a pure function of ``point["config"]`` and ``point["controller"]``
     (and ``point["folder"]``, where it writes ``summary.json`` and ``config.toml`` when
     given). Returns the figures kept in points.jsonl."""
+    if point.get("kind") == "link-faults":
+        from mrm_cosim.cosim.fault_campaign import run_campaign_point
+
+        return run_campaign_point(point)
     from mrm_cosim import __version__
     from mrm_cosim.cosim.experiment_config import from_dict
     from mrm_cosim.cosim.table2 import _run_kwargs
@@ -631,9 +648,14 @@ def run_sweep(spec: SweepSpec, out, executor, *, resume: bool = False, progress=
                 rate = finished / max(time.perf_counter() - t0, 1e-9)
                 progress(finished, len(todo), rate, (len(todo) - finished) / rate)
     ordered = [rows[p["id"]] for p in points if p["id"] in rows]
-    (out / "summary.md").write_text(summary_markdown(spec, ordered))
-    if plots:
-        _plots(out, spec, ordered)
+    if spec.kind == "link-faults":
+        from mrm_cosim.cosim.fault_campaign import write_campaign_summary
+
+        write_campaign_summary(out, spec, ordered, plots)
+    else:
+        (out / "summary.md").write_text(summary_markdown(spec, ordered))
+        if plots:
+            _plots(out, spec, ordered)
     return {"total": len(points), "ran": finished, "skipped": len(points) - len(todo),
             "failed": failed, "rows": ordered}
 

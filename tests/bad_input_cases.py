@@ -349,6 +349,38 @@ for i, (flags, field) in enumerate([(["--workers", "0"], "--workers"),
     case(f"sweep-flag-{i}", ["sweep", "{spec}", "--out", "{out}", *flags], field,
          spec='[sweep]\nduration = 0.01\n')
 case("sweep-missing-spec", ["sweep", "/nonexistent/s.toml", "--out", "{out}"], "SPEC")
+
+# --- fault campaigns, `mrm sweep` of kind "link-faults" (issue 22 item 4) -------------------
+_LF = '[sweep]\nkind = "link-faults"\n'
+_LOOP = _LF + '[campaign]\nlevel = "loop"\n'
+CAMPAIGNS = [
+    (_LF, "campaign"),
+    (_LF + '[campaign]\nlevel = "chip"\n', "campaign.level"),
+    (_LF + '[campaign]\nkinds = ["bit", "emp"]\n', "campaign.kinds"),
+    (_LF + '[campaign]\nkinds = ["bit", "bit"]\n', "campaign.kinds"),
+    (_LF + '[campaign]\nkinds = []\n', "campaign.kinds"),
+    (_LF + '[campaign]\nfaults = -5\n', "campaign.faults"),
+    (_LF + '[campaign]\nfaults = 100\nchunk = 0\n', "campaign.chunk"),
+    (_LF + '[campaign]\ncredit_timeout = -1\n', "campaign.credit_timeout"),
+    (_LF + '[campaign]\nrx_fifo_depth = 8\n', "campaign.rx_fifo_depth"),
+    (_LF + '[campaign]\nduration = 0.01\n', "campaign.duration"),
+    (_LF + 'seeds = [1]\n[campaign]\n', "sweep.seeds"),
+    (_LF + '[campaign]\n[[axis]]\nfield = "gains.lam"\nvalues = [1.0]\n', "axis"),
+    (_LOOP + 'backend = "model"\n', "campaign.backend"),
+    (_LOOP + 'duration = -0.01\n', "campaign.duration"),
+    (_LOOP + 'kinds = ["lost-fct"]\n', "campaign.kinds"),
+    (_LOOP + 'window = [0.008, 0.004]\n', "campaign.window"),
+    (_LOOP + 'faults_per_run = 20\n', "campaign.faults_per_run"),
+    (_LOOP + 'cycles = [0, 100]\n', "campaign.cycles"),
+    (_LOOP + 'cycles = [-10, 100]\n', "campaign.cycles"),
+    (_LOOP + 'seeds = [-1]\n', "campaign.seeds"),
+    (_LOOP + 'controller = "lqr"\n', "campaign.controller"),
+    (_LOOP + 'config = "/nonexistent/e.toml"\n', "campaign.config"),
+    (_LOOP + 'faults = 100\n', "campaign.faults"),
+]
+for i, (text, field) in enumerate(CAMPAIGNS):
+    case(f"sweep-campaign-{i}", ["sweep", "{spec}", "--out", "{out}"], field, spec=text)
+
 case("sweep-out-is-a-file", ["sweep", "{spec}", "--out", "{spec}"], "--out",
      spec='[sweep]\nduration = 0.01\n')
 
