@@ -173,8 +173,8 @@ class Codec(wiring.Component):
             ds_rx.d_in.eq(self.d_in),
             ds_rx.s_in.eq(self.s_in),
             rx.enable.eq(state != LinkState.ERROR_RESET),
-            rx.bit_valid.eq(ds_rx.bit_valid),
-            rx.bit_data.eq(ds_rx.bit_data),
+            rx.bit_valid.eq(ds_rx.packed_valid),
+            rx.bit_data.eq(ds_rx.packed_data),
             rx.activity.eq(ds_rx.activity),
         ]
 

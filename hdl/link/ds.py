@@ -234,6 +234,11 @@ class DSReceiver(wiring.Component):
         (``D xor S`` changed from the slot before it).
     bit_data : Out(slots)
         Registered: the bit value (D) in each of those slots.
+    packed_valid, packed_data : Out(slots)
+        Registered: the same bits packed, the first in bit 0: ``packed_valid`` is a thermometer
+        code of their count (bit ``k`` high: more than ``k`` bits), ``packed_data`` their values
+        (zero above the count). The character receiver decodes these; packing them here,
+        before the register this stage has anyway, takes the sparse slots off its paths.
     activity : Out(1)
         Registered: D or S changed in some slot of the previous cycle (disconnect detection).
     """
@@ -247,6 +252,8 @@ class DSReceiver(wiring.Component):
             "s_in":      In(slots),
             "bit_valid": Out(slots),
             "bit_data":  Out(slots),
+            "packed_valid": Out(slots),
+            "packed_data":  Out(slots),
             "activity":  Out(1),
         })
 
@@ -264,7 +271,16 @@ class DSReceiver(wiring.Component):
             valid.append((d ^ s) ^ (prev_d ^ prev_s))
             changes.append((d ^ prev_d) | (s ^ prev_s))
             prev_d, prev_s = d, s
+        # Packing: the bit of slot i goes to place `before[i]`, the number of bits before it.
+        before, count = [], Const(0, range(self._slots + 1))
+        for i in range(self._slots):
+            before.append(count)
+            count = (count + valid[i])[:len(count)]
+        packed = [Cat(valid[i] & (before[i] == k) & self.d_in[i]
+                      for i in range(k, self._slots)).any() for k in range(self._slots)]
         m.d.sync += [
+            self.packed_valid.eq(Cat(count > k for k in range(self._slots))),
+            self.packed_data.eq(Cat(packed)),
             d_l.eq(self.d_in[-1]),
             s_l.eq(self.s_in[-1]),
             self.bit_valid.eq(Cat(valid)),
