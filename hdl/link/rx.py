@@ -72,10 +72,12 @@ def _reversed_bits(value: int, width: int) -> int:
 
 def _nearest(events, values, default):
     """The value of the latest of ``events`` (a list of 1-bit values, earliest first) that is
-    high, else ``default``."""
-    result = default
-    for event, value in zip(events, values, strict=True):
-        result = Mux(event, value, result)
+    high, else ``default``: an OR of terms, each gated by its event and by no later one (not a
+    chain of multiplexers, whose last select would wait for every earlier one)."""
+    result = Mux(Cat(*events, Const(0)).any(), 0, default)
+    for i, (event, value) in enumerate(zip(events, values, strict=True)):
+        later = Cat(*events[i + 1:], Const(0)).any()
+        result = result | Mux(event & ~later, value, 0)
     return result
 
 
@@ -155,13 +157,13 @@ class CharReceiver(wiring.Component):
 
         # The first NULL: the newest bits equal the pattern (newest in bit 0 of NULL_PATTERN).
         pattern = _reversed_bits(NULL_PATTERN, 7)
+        hit = [newest(j + 1)[1:] == pattern for j in range(n)]
         det = []
         for j in range(n):
-            hit = newest(j + 1)[1:] == pattern
             det_j = Signal(name=f"det_{j}")
-            m.d.comb += det_j.eq(~got_null & hit & ~Cat(*det, Const(0)).any())
+            m.d.comb += det_j.eq(~got_null & hit[j] & ~Cat(*hit[:j], Const(0)).any())
             det.append(det_j)
-        searching_before = [Cat(*det[:j], Const(0)).any() for j in range(n + 1)]
+        searching_before = [~got_null & Cat(*hit[:j], Const(0)).any() for j in range(n + 1)]
 
         # Which bits are flag bits (for a bit count beyond j: bits up to j all valid). Two
         # beyond the cycle, for the ends of characters below.
@@ -199,37 +201,47 @@ class CharReceiver(wiring.Component):
             bits = _nearest(end[:j], [newest(k + 1) for k in range(j)], pend_bits)
             return valid, ctrl, bits
 
-        # Escape state before bit j and, at a flag, the character it commits. A flag commits
-        # the character that ended two bits before it (parity and flag bit between).
-        esc_at, commit = [], []
-        for j in range(n + 1):
-            after = []                       # after the flag at k: ESC sets it, others clear it
-            for k in range(j):
-                cm, pc, code, _, _ = commit[k]
-                after.append(Mux(cm, pc & ~esc_at[k] & (code == ControlCode.ESC), esc_at[k]))
-            e_j = Signal(name=f"esc_at_{j}")
-            m.d.comb += e_j.eq(_nearest(flag[:j], after, Mux(searching_before[j], 0, esc)))
-            esc_at.append(e_j)
-            if j < n:
-                good = Signal(name=f"good_{j}")
-                m.d.comb += good.eq(parity_at(j) ^ c[j])
-                if j >= 2:
-                    p_valid = ~det[j - 2]
-                    p_ctrl = end_ctrl[j - 2]
-                    p_bits = newest(j - 1)
-                else:
-                    p_valid, p_ctrl, p_bits = pend_valid, pend_ctrl, pend_bits
-                cm = Signal(name=f"commit_{j}")
-                m.d.comb += cm.eq(flag[j] & good & p_valid)
-                commit.append((cm, p_ctrl, p_bits[6:8], p_bits, good))
+        # At a flag bit j, the character it commits: the one that ended two bits before it
+        # (parity and flag bit between). The parity restarted after that character's own flag,
+        # j − CONTROL_BITS or j − DATA_BITS, or after the NULL (ending at j − 2), or before the
+        # cycle; the escape state is the one after that flag (0 after the NULL, else the
+        # register's).
+        esc_flag, after, commit = [], [], []   # escape state at / after each flag bit
+        for j in range(n):
+            prev = [j - length for length in (DATA_BITS, CONTROL_BITS) if j >= length]
+            null = [det[j - 2]] if j >= 2 else []
+            e_j = Signal(name=f"esc_flag_{j}")
+            m.d.comb += e_j.eq(_nearest([flag[k] for k in prev] + null,
+                                        [after[k] for k in prev] + [Const(0)] * len(null),
+                                        Mux(searching_before[j], 0, esc)))
+            esc_flag.append(e_j)
+            good = Signal(name=f"good_{j}")
+            m.d.comb += good.eq(_nearest([flag[k] for k in prev] + null,
+                                         [c[k + 1:j + 1].xor() for k in prev + [j - 2] * len(null)],
+                                         par ^ c[:j + 1].xor()))
+            if j >= 2:
+                p_valid = ~det[j - 2]
+                p_ctrl = end_ctrl[j - 2]
+                p_bits = newest(j - 1)
+            else:
+                p_valid, p_ctrl, p_bits = pend_valid, pend_ctrl, pend_bits
+            cm = Signal(name=f"commit_{j}")
+            m.d.comb += cm.eq(flag[j] & good & p_valid)
+            commit.append((cm, p_ctrl, p_bits[6:8], p_bits, good))
+            a_j = Signal(name=f"esc_after_{j}")     # ESC sets it, other commits clear it
+            m.d.comb += a_j.eq(Mux(cm, p_ctrl & ~e_j & (p_bits[6:8] == ControlCode.ESC),
+                                   e_j))
+            after.append(a_j)
+        esc_at = [_nearest(flag[:k], after[:k], Mux(searching_before[k], 0, esc))
+                  for k in range(n + 1)]
 
         # This cycle's events (bits below the count only).
         ev_fct, ev_nchar, ev_time, ev_perr, ev_eerr = [], [], [], [], []
-        nchar_value, time_value = self.nchar.as_value(), self.time
+        nchar_values, time_values = [], []
         for j in range(n):
             cm, pc, code, bits, good = commit[j]
             cm_j = v[j] & cm
-            e = esc_at[j]
+            e = esc_flag[j]
             ev_perr.append(v[j] & flag[j] & ~good)
             ev_eerr.append(cm_j & pc & e & (code != ControlCode.FCT))
             ev_fct.append(cm_j & pc & ~e & (code == ControlCode.FCT))
@@ -240,8 +252,10 @@ class CharReceiver(wiring.Component):
             ev_nchar.append(eop | eep | data)
             ev_time.append(tcode)
             kind = Mux(data, CharKind.DATA, Mux(eop, CharKind.EOP, CharKind.EEP))
-            nchar_value = Mux(eop | eep | data, Cat(kind, Mux(data, bits, 0)), nchar_value)
-            time_value = Mux(tcode, bits, time_value)
+            nchar_values.append(Cat(kind, Mux(data, bits, 0)))
+            time_values.append(bits)
+        nchar_value = _nearest(ev_nchar, nchar_values, self.nchar.as_value())
+        time_value = _nearest(ev_time, time_values, self.time)
 
         # The registers after the cycle: the values before bit `count`.
         exactly = [~v[0]] + [v[k - 1] & ~v[k] for k in range(1, n)] + [v[n - 1]]
