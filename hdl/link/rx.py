@@ -193,12 +193,17 @@ class CharReceiver(wiring.Component):
             return _nearest(resets, since, start)
 
         def pending_at(j):
-            """(valid, ctrl, bits) of the pending character before bit j."""
-            clears = [flag[k] | det[k] for k in range(j)]
-            valid = _nearest([end[k] | clears[k] for k in range(j)],
-                             [end[k] for k in range(j)], pend_valid)
-            ctrl = _nearest(end[:j], end_ctrl[:j], pend_ctrl)
-            bits = _nearest(end[:j], [newest(k + 1) for k in range(j)], pend_bits)
+            """(valid, ctrl, bits) of the pending character before bit j: one that ended at
+            j − 1 or j − 2 (a later end is followed by its flag, which takes it), else the
+            registers' while no flag or NULL came in between (their bits and ctrl are then
+            unused, so they need not be the walk's, only `valid` must)."""
+            valid, ctrl, bits = pend_valid, pend_ctrl, pend_bits
+            if j:
+                valid = pend_valid & ~Cat(flag[k] | det[k] for k in range(j)).any()
+            for k in range(max(j - 2, 0), j):
+                valid = valid | end[k]
+                ctrl = Mux(end[k], end_ctrl[k], ctrl)
+                bits = Mux(end[k], newest(k + 1), bits)
             return valid, ctrl, bits
 
         # At a flag bit j, the character it commits: the one that ended two bits before it
