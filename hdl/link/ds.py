@@ -128,7 +128,7 @@ class DSTransmitter(wiring.Component):
         # decode and `ready` were cut).
         max_take = -(-slots // lo)
         more = [n_starts > t for t in range(max_take + 1)]
-        takes = [((n_starts == t) & (cnt >= t)) | ((cnt == t) & more[t])
+        takes = [((n_starts == t) & (cnt >= t if t else 1)) | ((cnt == t) & more[t])
                  for t in range(max_take + 1)]
 
         # Each slot's line levels in closed form too. The walk of the slots (the reference,
