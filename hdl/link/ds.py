@@ -121,9 +121,15 @@ class DSTransmitter(wiring.Component):
                     ]
         n_starts = Signal(range(slots + 1))
         m.d.comb += n_starts.eq(Mux(self.fast, n_run, n_start))
-        taken_all = Signal(range(slots + 1))
-        m.d.comb += taken_all.eq(Mux(n_starts < cnt, n_starts, cnt))
-        taken = taken_all
+        # The bits taken, min(n_starts, cnt), one-hot: n_starts is at most `max_take`
+        # (ceil(slots / min_div)), and the queue after the cycle is picked among that many
+        # shifts of it, each formed from the registers, rather than shifted by a count that
+        # is itself a minimum after the tables (the node's slowest path after the receiver's
+        # decode and `ready` were cut).
+        max_take = -(-slots // lo)
+        more = [n_starts > t for t in range(max_take + 1)]
+        takes = [((n_starts == t) & (cnt >= t if t else 1)) | ((cnt == t) & more[t])
+                 for t in range(max_take + 1)]
 
         # Each slot's line levels in closed form too. The walk of the slots (the reference,
         # hdl/link/codec_ref.py) starts a bit in a slot where the previous bit is over: in slot
@@ -182,10 +188,16 @@ class DSTransmitter(wiring.Component):
         # Refill when fewer bits remain than a cycle can take at most (`slots` up to 4 slots,
         # 3 at 6 slots): the line never starves (a group is at least 4 bits), and a character
         # is chosen as late as that allows, the same cycle as with one slot per bit.
+        # remain < refill, i.e. cnt − min(n_starts, cnt) < refill, is cnt < n_starts + refill:
+        # with cnt − refill formed from the register, one compare after the tables rather than
+        # a minimum, a difference and a compare (that chain, through the codec's `ready` into
+        # its credit counter, was the node's slowest path once the receiver's decode was cut).
         refill = -(-slots // lo)
+        cnt_less = Signal.like(cnt)
         m.d.comb += [
-            remain.eq(cnt - taken),
-            self.groups.ready.eq(self.enable & (remain < refill)),
+            remain.eq(_pick(takes, [(cnt - t)[:len(cnt)] for t in range(max_take + 1)])),
+            cnt_less.eq(cnt - refill),
+            self.groups.ready.eq(self.enable & ((cnt < refill) | (cnt_less < n_starts))),
         ]
 
         with m.If(~self.enable):
@@ -206,12 +218,14 @@ class DSTransmitter(wiring.Component):
             ]
             with m.If(self.groups.valid & self.groups.ready):
                 m.d.sync += [
-                    buf.eq((buf >> taken) | (self.groups.p.bits << remain)),
-                    cnt.eq(remain + self.groups.p.length),
+                    buf.eq(_pick(takes, [(buf >> t) | (self.groups.p.bits << (cnt - t)[:len(cnt)])
+                                         for t in range(max_take + 1)])),
+                    cnt.eq(_pick(takes, [(cnt + self.groups.p.length - t)[:len(cnt)]
+                                         for t in range(max_take + 1)])),
                 ]
             with m.Else():
                 m.d.sync += [
-                    buf.eq(buf >> taken),
+                    buf.eq(_pick(takes, [buf >> t for t in range(max_take + 1)])),
                     cnt.eq(remain),
                 ]
         return m
@@ -234,6 +248,11 @@ class DSReceiver(wiring.Component):
         (``D xor S`` changed from the slot before it).
     bit_data : Out(slots)
         Registered: the bit value (D) in each of those slots.
+    packed_valid, packed_data : Out(slots)
+        Registered: the same bits packed, the first in bit 0: ``packed_valid`` is a thermometer
+        code of their count (bit ``k`` high: more than ``k`` bits), ``packed_data`` their values
+        (zero above the count). The character receiver decodes these; packing them here,
+        before the register this stage has anyway, takes the sparse slots off its paths.
     activity : Out(1)
         Registered: D or S changed in some slot of the previous cycle (disconnect detection).
     """
@@ -247,6 +266,8 @@ class DSReceiver(wiring.Component):
             "s_in":      In(slots),
             "bit_valid": Out(slots),
             "bit_data":  Out(slots),
+            "packed_valid": Out(slots),
+            "packed_data":  Out(slots),
             "activity":  Out(1),
         })
 
@@ -264,7 +285,16 @@ class DSReceiver(wiring.Component):
             valid.append((d ^ s) ^ (prev_d ^ prev_s))
             changes.append((d ^ prev_d) | (s ^ prev_s))
             prev_d, prev_s = d, s
+        # Packing: the bit of slot i goes to place `before[i]`, the number of bits before it.
+        before, count = [], Const(0, range(self._slots + 1))
+        for i in range(self._slots):
+            before.append(count)
+            count = (count + valid[i])[:len(count)]
+        packed = [Cat(valid[i] & (before[i] == k) & self.d_in[i]
+                      for i in range(k, self._slots)).any() for k in range(self._slots)]
         m.d.sync += [
+            self.packed_valid.eq(Cat(count > k for k in range(self._slots))),
+            self.packed_data.eq(Cat(packed)),
             d_l.eq(self.d_in[-1]),
             s_l.eq(self.s_in[-1]),
             self.bit_valid.eq(Cat(valid)),
@@ -272,3 +302,11 @@ class DSReceiver(wiring.Component):
             self.activity.eq(Cat(changes).any()),
         ]
         return m
+
+
+def _pick(selects, values):
+    """The value whose select is high (``selects`` one-hot), as an OR of gated terms."""
+    result = Mux(selects[0], values[0], 0)
+    for select, value in zip(selects[1:], values[1:], strict=True):
+        result = result | Mux(select, value, 0)
+    return result

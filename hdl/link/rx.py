@@ -12,18 +12,73 @@ arrived and checked good. A character hit by a bit error is therefore never repo
 
 A disconnect error is flagged once the line has shown no transition on D or S for
 ``disconnect_limit`` cycles after the first transition since the receiver was enabled.
+
+The bits arrive packed (:class:`~hdl.link.ds.DSReceiver`: the cycle's bits first, their
+count as a thermometer code), up to ``slots`` of them. The decode is not a walk over them,
+one bit after another (with six slots that walk was the node's slowest path, 21.5 ns on an
+ECP5), but closed forms of what the walk would find, each from the registers and a few of
+the cycle's bits:
+
+* which bits are flags: the first follows from the framing state at the start of the cycle
+  (or two bits after the end of the NULL pattern), each later one 4 or 10 bits after a flag
+  with the control or data flag bit;
+* the parity checked at a flag: the XOR of the bits since the last flag;
+* the character a flag commits: the one that ended two bits earlier, whose payload bits are the
+  newest bits received before the parity bit — of this cycle and of an 8-bit history of the
+  last bits received (which also serves the search for the first NULL);
+* the escape state at a flag: that of the previous flag in the cycle (at most one per four
+  bits), or of the registers.
+
+The registers after the cycle are the same closed forms at the bit count, picked by the
+thermometer code; only the framing state (one-hot) is stepped bit by bit.
 """
 
 from amaranth import *
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from mrm_cosim.protocol.link import NULL_PATTERN, check_cycles, check_slots
+from mrm_cosim.protocol.link import (CONTROL_BITS, DATA_BITS, NULL_PATTERN, check_cycles,
+                                     check_slots)
 
 from ..helpers import rejecting
 from .chars import Char, CharKind, ControlCode
 
 __all__ = ["CharReceiver"]
+
+
+# The framing state of a bit, one-hot: parity bit, flag bit, then the payload bits of a control
+# or a data character (the bit's position within its character, as the walk's `pos` and
+# `ctrl`). A character of n bits has its next flag n bits after its own.
+_PAR, _FLAG = 0, 1
+_CTRL = list(range(2, CONTROL_BITS))                                    # positions 2, 3
+_DATA = list(range(CONTROL_BITS, CONTROL_BITS + DATA_BITS - 2))         # positions 2 … 9
+_N_STATES = CONTROL_BITS + DATA_BITS - 2
+
+
+def _to_flag(state: int) -> int:
+    """Bits from a bit in ``state`` to the next flag bit (0 for a flag bit)."""
+    if state == _FLAG:
+        return 0
+    if state == _PAR:
+        return 1
+    if state in _CTRL:
+        return CONTROL_BITS - (state - _CTRL[0] + 2) + 1
+    return DATA_BITS - (state - _DATA[0] + 2) + 1
+
+
+def _reversed_bits(value: int, width: int) -> int:
+    return int(f"{value:0{width}b}"[::-1], 2)
+
+
+def _nearest(events, values, default):
+    """The value of the latest of ``events`` (a list of 1-bit values, earliest first) that is
+    high, else ``default``: an OR of terms, each gated by its event and by no later one (not a
+    chain of multiplexers, whose last select would wait for every earlier one)."""
+    result = Mux(Cat(*events, Const(0)).any(), 0, default)
+    for i, (event, value) in enumerate(zip(events, values, strict=True)):
+        later = Cat(*events[i + 1:], Const(0)).any()
+        result = result | Mux(event & ~later, value, 0)
+    return result
 
 
 class CharReceiver(wiring.Component):
@@ -32,7 +87,7 @@ class CharReceiver(wiring.Component):
     Parameters
     ----------
     slots : int
-        Line slots per clock cycle (1 to 4).
+        Line slots per clock cycle, so at most that many bits per cycle (1 to 8).
     disconnect_limit : int
         Cycles without a line transition, counted from the first quiet cycle, after which
         ``err_disconnect`` rises.
@@ -42,7 +97,8 @@ class CharReceiver(wiring.Component):
     enable : In(1)
         Low: the receiver is held in reset (every register below cleared).
     bit_valid, bit_data, activity : In
-        From :class:`~hdl.link.ds.DSReceiver`.
+        From :class:`~hdl.link.ds.DSReceiver` (``packed_valid``, ``packed_data``): the cycle's
+        bits, the first in bit 0, and a thermometer code of how many there are.
     got_null : Out(1)
         A NULL has been received since the receiver was enabled (level).
     got_fct, got_nchar, got_time : Out(1)
@@ -81,117 +137,168 @@ class CharReceiver(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
+        n = self._slots
+        c, v = self.bit_data, self.bit_valid
 
-        # Framing state, carried from slot to slot within a cycle.
-        state = {
-            "got_null":   self.got_null,
-            "search":     Signal(7),        # last bits before the first NULL, newest in bit 0
-            "pos":        Signal(range(10)),  # bit position within the character (0 = parity)
-            "ctrl":       Signal(),         # the character being received is a control char
-            "par":        Signal(),         # running parity over the bits since the last flag
-            "shift":      Signal(8),        # payload bits, shifted in at bit 7
-            "pend_valid": Signal(),         # a complete character waits for the next parity
-            "pend_ctrl":  Signal(),
-            "pend_bits":  Signal(8),
-            "esc":        Signal(),         # the last committed character was ESC
-        }
-        registers = dict(state)
+        # Registers: the state before the cycle's first bit.
+        got_null   = self.got_null
+        frame      = Signal(_N_STATES)   # framing state of the next bit, one-hot (0: searching)
+        hist       = Signal(8)           # the last bits received, newest in bit 7
+        par        = Signal()            # parity of the bits since the last flag
+        pend_valid = Signal()            # a complete character waits for the next parity
+        pend_ctrl  = Signal()
+        pend_bits  = Signal(8)           # its payload bits (the newest in bit 7)
+        esc        = Signal()            # the last committed character was ESC
+        registers = [got_null, frame, hist, par, pend_valid, pend_ctrl, pend_bits, esc]
 
+        def newest(k):
+            """The last 8 bits received up to (not including) bit ``k`` of this cycle."""
+            return Cat(hist, c[:k])[k:k + 8]
+
+        # The first NULL: the newest bits equal the pattern (newest in bit 0 of NULL_PATTERN).
+        pattern = _reversed_bits(NULL_PATTERN, 7)
+        hit = [newest(j + 1)[1:] == pattern for j in range(n)]
+        det = []
+        for j in range(n):
+            det_j = Signal(name=f"det_{j}")
+            m.d.comb += det_j.eq(~got_null & hit[j] & ~Cat(*hit[:j], Const(0)).any())
+            det.append(det_j)
+        searching_before = [~got_null & Cat(*hit[:j], Const(0)).any() for j in range(n + 1)]
+
+        # Which bits are flag bits (for a bit count beyond j: bits up to j all valid). Two
+        # beyond the cycle, for the ends of characters below.
+        flag = []
+        for j in range(n + 2):
+            terms = [frame[s] for s in range(_N_STATES) if _to_flag(s) == j]
+            if j >= 2:
+                terms.append(det[j - 2])            # the NULL's FCT ends at j - 2
+            if j >= CONTROL_BITS:
+                terms.append(flag[j - CONTROL_BITS] & c[j - CONTROL_BITS])
+            if j >= DATA_BITS:
+                terms.append(flag[j - DATA_BITS] & ~c[j - DATA_BITS])
+            f_j = Signal(name=f"flag_{j}")
+            m.d.comb += f_j.eq(Cat(*terms, Const(0)).any())
+            flag.append(f_j)
+        # The last payload bit of a character (two bits before the next flag, not the NULL).
+        end = [flag[k + 2] & ~det[k] for k in range(n)]
+        ctrl0 = Cat(frame[s] for s in _CTRL).any()
+        # The character ending at bit k is a control character.
+        end_ctrl = [flag[k - 2] if k >= 2 else ctrl0 for k in range(n)]
+
+        def parity_at(j):
+            """Parity before bit j: XOR of the bits since the last flag (or the NULL)."""
+            resets = [flag[k] | det[k] for k in range(j)]
+            since = [c[k + 1:j].xor() if k + 1 < j else Const(0) for k in range(j)]
+            start = Mux(got_null, par ^ c[:j].xor(), par) if j else par
+            return _nearest(resets, since, start)
+
+        def pending_at(j):
+            """(valid, ctrl, bits) of the pending character before bit j: one that ended at
+            j − 1 or j − 2 (a later end is followed by its flag, which takes it), else the
+            registers' while no flag or NULL came in between (their bits and ctrl are then
+            unused, so they need not be the walk's, only `valid` must)."""
+            valid, ctrl, bits = pend_valid, pend_ctrl, pend_bits
+            if j:
+                valid = pend_valid & ~Cat(flag[k] | det[k] for k in range(j)).any()
+            for k in range(max(j - 2, 0), j):
+                valid = valid | end[k]
+                ctrl = Mux(end[k], end_ctrl[k], ctrl)
+                bits = Mux(end[k], newest(k + 1), bits)
+            return valid, ctrl, bits
+
+        # At a flag bit j, the character it commits: the one that ended two bits before it
+        # (parity and flag bit between). The parity restarted after that character's own flag,
+        # j − CONTROL_BITS or j − DATA_BITS, or after the NULL (ending at j − 2), or before the
+        # cycle; the escape state is the one after that flag (0 after the NULL, else the
+        # register's).
+        esc_flag, after, commit = [], [], []   # escape state at / after each flag bit
+        for j in range(n):
+            prev = [j - length for length in (DATA_BITS, CONTROL_BITS) if j >= length]
+            null = [det[j - 2]] if j >= 2 else []
+            e_j = Signal(name=f"esc_flag_{j}")
+            m.d.comb += e_j.eq(_nearest([flag[k] for k in prev] + null,
+                                        [after[k] for k in prev] + [Const(0)] * len(null),
+                                        Mux(searching_before[j], 0, esc)))
+            esc_flag.append(e_j)
+            good = Signal(name=f"good_{j}")
+            m.d.comb += good.eq(_nearest([flag[k] for k in prev] + null,
+                                         [c[k + 1:j + 1].xor() for k in prev + [j - 2] * len(null)],
+                                         par ^ c[:j + 1].xor()))
+            if j >= 2:
+                p_valid = ~det[j - 2]
+                p_ctrl = end_ctrl[j - 2]
+                p_bits = newest(j - 1)
+            else:
+                p_valid, p_ctrl, p_bits = pend_valid, pend_ctrl, pend_bits
+            cm = Signal(name=f"commit_{j}")
+            m.d.comb += cm.eq(flag[j] & good & p_valid)
+            commit.append((cm, p_ctrl, p_bits[6:8], p_bits, good))
+            a_j = Signal(name=f"esc_after_{j}")     # ESC sets it, other commits clear it
+            m.d.comb += a_j.eq(Mux(cm, p_ctrl & ~e_j & (p_bits[6:8] == ControlCode.ESC),
+                                   e_j))
+            after.append(a_j)
+        esc_at = [_nearest(flag[:k], after[:k], Mux(searching_before[k], 0, esc))
+                  for k in range(n + 1)]
+
+        # This cycle's events (bits below the count only).
         ev_fct, ev_nchar, ev_time, ev_perr, ev_eerr = [], [], [], [], []
-        ev_kind, ev_bits = [], []
-        for i in range(self._slots):
-            cur = state
-            nxt = {k: Signal.like(v, name=f"{k}_{i}") for k, v in cur.items()}
-            m.d.comb += [nxt[k].eq(cur[k]) for k in cur]
-
-            b      = self.bit_data[i]
-            fct    = Signal(name=f"ev_fct_{i}")
-            nchar  = Signal(name=f"ev_nchar_{i}")
-            kind   = Signal(CharKind, name=f"ev_kind_{i}")
-            tcode  = Signal(name=f"ev_time_{i}")
-            perr   = Signal(name=f"ev_perr_{i}")
-            eerr   = Signal(name=f"ev_eerr_{i}")
-            code   = cur["pend_bits"][6:8]
-
-            with m.If(self.bit_valid[i]):
-                with m.If(~cur["got_null"]):
-                    search = Cat(b, cur["search"][:6])
-                    m.d.comb += nxt["search"].eq(search)
-                    with m.If(search == NULL_PATTERN):
-                        m.d.comb += [
-                            nxt["got_null"].eq(1),
-                            nxt["pos"].eq(0),
-                            nxt["par"].eq(0),       # the FCT's control bits are 0 0
-                            nxt["pend_valid"].eq(0),
-                            nxt["esc"].eq(0),
-                        ]
-                with m.Elif(cur["pos"] == 0):           # parity bit
-                    m.d.comb += [
-                        nxt["par"].eq(cur["par"] ^ b),
-                        nxt["pos"].eq(1),
-                    ]
-                with m.Elif(cur["pos"] == 1):           # flag bit: check parity, commit
-                    with m.If(~(cur["par"] ^ b)):
-                        m.d.comb += perr.eq(1)
-                    with m.Elif(cur["pend_valid"]):
-                        with m.If(cur["pend_ctrl"]):
-                            with m.If(cur["esc"]):
-                                m.d.comb += nxt["esc"].eq(0)
-                                with m.If(code != ControlCode.FCT):  # ESC ESC/EOP/EEP
-                                    m.d.comb += eerr.eq(1)
-                            with m.Else():
-                                with m.Switch(code):
-                                    with m.Case(ControlCode.FCT):
-                                        m.d.comb += fct.eq(1)
-                                    with m.Case(ControlCode.EOP):
-                                        m.d.comb += [nchar.eq(1), kind.eq(CharKind.EOP)]
-                                    with m.Case(ControlCode.EEP):
-                                        m.d.comb += [nchar.eq(1), kind.eq(CharKind.EEP)]
-                                    with m.Case(ControlCode.ESC):
-                                        m.d.comb += nxt["esc"].eq(1)
-                        with m.Else():
-                            with m.If(cur["esc"]):
-                                m.d.comb += [tcode.eq(1), nxt["esc"].eq(0)]
-                            with m.Else():
-                                m.d.comb += [nchar.eq(1), kind.eq(CharKind.DATA)]
-                    m.d.comb += [
-                        nxt["ctrl"].eq(b),
-                        nxt["par"].eq(0),
-                        nxt["pos"].eq(2),
-                        nxt["pend_valid"].eq(0),
-                    ]
-                with m.Else():                          # payload bits
-                    shift = Cat(cur["shift"][1:], b)
-                    last = Mux(cur["ctrl"], cur["pos"] == 3, cur["pos"] == 9)
-                    m.d.comb += [
-                        nxt["shift"].eq(shift),
-                        nxt["par"].eq(cur["par"] ^ b),
-                        nxt["pos"].eq(Mux(last, 0, cur["pos"] + 1)),
-                    ]
-                    with m.If(last):
-                        m.d.comb += [
-                            nxt["pend_valid"].eq(1),
-                            nxt["pend_ctrl"].eq(cur["ctrl"]),
-                            nxt["pend_bits"].eq(shift),
-                        ]
-
-            ev_fct.append(fct)
-            ev_nchar.append(nchar)
-            ev_kind.append(kind)
-            ev_bits.append(cur["pend_bits"])
+        nchar_values, time_values = [], []
+        for j in range(n):
+            cm, pc, code, bits, good = commit[j]
+            cm_j = v[j] & cm
+            e = esc_flag[j]
+            ev_perr.append(v[j] & flag[j] & ~good)
+            ev_eerr.append(cm_j & pc & e & (code != ControlCode.FCT))
+            ev_fct.append(cm_j & pc & ~e & (code == ControlCode.FCT))
+            eop = cm_j & pc & ~e & (code == ControlCode.EOP)
+            eep = cm_j & pc & ~e & (code == ControlCode.EEP)
+            data = cm_j & ~pc & ~e
+            tcode = cm_j & ~pc & e
+            ev_nchar.append(eop | eep | data)
             ev_time.append(tcode)
-            ev_perr.append(perr)
-            ev_eerr.append(eerr)
-            state = nxt
+            kind = Mux(data, CharKind.DATA, Mux(eop, CharKind.EOP, CharKind.EEP))
+            nchar_values.append(Cat(kind, Mux(data, bits, 0)))
+            time_values.append(bits)
+        nchar_value = _nearest(ev_nchar, nchar_values, self.nchar.as_value())
+        time_value = _nearest(ev_time, time_values, self.time)
 
-        # At most one character is committed per cycle (slots <= 4 < the shortest character),
-        # so the slot events can simply be merged.
+        # The registers after the cycle: the values before bit `count`.
+        exactly = [~v[0]] + [v[k - 1] & ~v[k] for k in range(1, n)] + [v[n - 1]]
+
+        def at_count(values):
+            return _or([Mux(exactly[k], values[k], 0) for k in range(n + 1)])
+
+        steps = [frame]
+        for j in range(n):
+            s, nxt = steps[-1], Signal(_N_STATES, name=f"frame_{j + 1}")
+            m.d.comb += [
+                nxt[_FLAG].eq(s[_PAR]),
+                nxt[_CTRL[0]].eq(s[_FLAG] & c[j]),
+                nxt[_DATA[0]].eq(s[_FLAG] & ~c[j]),
+                nxt[_PAR].eq(s[_CTRL[-1]] | s[_DATA[-1]] | det[j]),
+            ]
+            for states in (_CTRL, _DATA):
+                for a, b in zip(states[:-1], states[1:], strict=True):
+                    m.d.comb += nxt[b].eq(s[a])
+            steps.append(nxt)
+        pendings = [pending_at(k) for k in range(n + 1)]
+        after_cycle = [
+            got_null | Cat(v[j] & det[j] for j in range(n)).any(),
+            at_count(steps),
+            at_count([newest(k) for k in range(n + 1)]),
+            at_count([parity_at(k) for k in range(n + 1)]),
+            at_count([p[0] for p in pendings]),
+            at_count([p[1] for p in pendings]),
+            at_count([p[2] for p in pendings]),
+            at_count(esc_at),
+        ]
+
         armed = Signal()
         quiet = Signal(range(self._limit + 1))
         m.d.comb += self.err_disconnect.eq(armed & (quiet == self._limit))
 
         with m.If(~self.enable):
-            m.d.sync += [reg.eq(0) for reg in registers.values()]
+            m.d.sync += [reg.eq(0) for reg in registers]
             m.d.sync += [
                 self.got_fct.eq(0),
                 self.got_nchar.eq(0),
@@ -204,26 +311,26 @@ class CharReceiver(wiring.Component):
                 quiet.eq(0),
             ]
         with m.Else():
-            m.d.sync += [reg.eq(state[name]) for name, reg in registers.items()]
+            m.d.sync += [reg.eq(value) for reg, value in zip(registers, after_cycle, strict=True)]
             m.d.sync += [
                 self.got_fct.eq(Cat(ev_fct).any()),
                 self.got_nchar.eq(Cat(ev_nchar).any()),
                 self.got_time.eq(Cat(ev_time).any()),
                 self.err_parity.eq(self.err_parity | Cat(ev_perr).any()),
                 self.err_escape.eq(self.err_escape | Cat(ev_eerr).any()),
+                self.nchar.eq(nchar_value),
+                self.time.eq(time_value),
                 armed.eq(armed | self.activity),
             ]
-            for nchar, kind, bits in zip(ev_nchar, ev_kind, ev_bits, strict=True):
-                with m.If(nchar):
-                    m.d.sync += [
-                        self.nchar.kind.eq(kind),
-                        self.nchar.data.eq(Mux(kind == CharKind.DATA, bits, 0)),
-                    ]
-            for tcode, bits in zip(ev_time, ev_bits, strict=True):
-                with m.If(tcode):
-                    m.d.sync += self.time.eq(bits)
             with m.If(self.activity):
                 m.d.sync += quiet.eq(0)
             with m.Elif(armed & (quiet != self._limit)):
                 m.d.sync += quiet.eq(quiet + 1)
         return m
+
+
+def _or(values):
+    result = values[0]
+    for value in values[1:]:
+        result = result | value
+    return result
