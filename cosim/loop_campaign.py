@@ -197,7 +197,9 @@ def run_probe(config, controller: str, backend: str, duration: float, seed: int,
     robot = load_robot(config.robot)
     gains, timing = config.gains, config.timing
     profile = _run_kwargs(run_track, config, robot).get("profile") or paper_test_profile(robot)
-    uploads = node_uploads(robot, controller, gains, period_cycles=timing.period_cycles)
+    safety = config.faults          # [safety]: the nodes' safe stop and the master's recovery
+    uploads = node_uploads(robot, controller, gains, period_cycles=timing.period_cycles,
+                           safe_stop=safety.safe_stop)
     packets, snaps = [], []
     holder = {}
 
@@ -211,7 +213,7 @@ def run_probe(config, controller: str, backend: str, duration: float, seed: int,
 
     master = Probe(robot, controller, _trajectory(robot, profile), robot.counts_per_rev,
                    timing, lam=gains.lam, pid=pid_gains(robot, gains.pid_1khz_hz),
-                   uploads=uploads)
+                   uploads=uploads, on_trip=safety.on_trip, rearm_blend=safety.rearm_blend)
     plant = make_plant(robot, config.plant, seed=seed)
     plant.reset(robot.home)
     start = -(-START_CYCLE // timing.period_cycles) * timing.period_cycles

@@ -128,17 +128,42 @@ def _hms(seconds: float) -> str:
 def _run_kwargs(runner, config: ExperimentConfig, robot) -> dict:
     """Keyword arguments for ``runner`` beyond the common ones; refuses what it cannot run."""
     params = inspect.signature(runner).parameters
+    kw = _safety_kwargs(params, config, robot)
     tr = config.trajectory
     paper = tr.amplitude == PAPER_AMPLITUDE and tr.duration == PAPER_DURATION
     if paper:
-        return {}
+        return kw
     if "profile" not in params:
         raise InputError("trajectory", "this tree's run_track runs only the paper's quintic "
                          f"({PAPER_AMPLITUDE} rad in {PAPER_DURATION} s); amplitude "
                          f"{tr.amplitude!r} rad in {tr.duration!r} s needs its profile argument")
     from mrm_cosim.cosim.preview import paper_test_profile
 
-    return {"profile": paper_test_profile(robot, tr.amplitude, tr.duration)}
+    return {**kw, "profile": paper_test_profile(robot, tr.amplitude, tr.duration)}
+
+
+def _safety_kwargs(params, config: ExperimentConfig, robot) -> dict:
+    """The config's ``[safety]`` for ``runner``: its line faults, what the master does on a
+    trip and the nodes' safe stop — refused by field where the runner cannot take them, never
+    dropped."""
+    safety = config.faults
+    kw = {}
+    if "on_trip" in params:
+        kw.update(on_trip=safety.on_trip, rearm_blend=safety.rearm_blend,
+                  safe_stop=safety.safe_stop)
+    if safety.parsed:
+        if "faults" not in params:
+            raise InputError("safety.line_faults", "this runner takes no line faults")
+        for f in safety.parsed:
+            if config.backend == "model" and f.kind != "cut":
+                raise InputError("safety.line_faults", "the model backend's link has no bits: "
+                                 "it takes 'cut' faults only; inject the others on compiled "
+                                 "or pysim")
+            if f.node > robot.n:
+                raise InputError("safety.line_faults",
+                                 f"the robot has {robot.n} nodes, not {f.node}")
+        kw["faults"] = list(safety.parsed)
+    return kw
 
 
 def run_table2(config: ExperimentConfig, out, *, progress: Progress | None = None,
