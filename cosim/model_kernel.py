@@ -489,6 +489,7 @@ class KernelNode(FastNode):
         if N[src.N_TRIPPED] and not self.tripped:        # the kernel tripped it
             self.trip_cycle = N[src.N_LAST_PACKET] + 2 + N[src.N_TIMEOUT]
             self.hold_pos = None
+            self.still_cycle, self.still_run = None, 0     # as NodeModel._watch's trip
         self.tripped = bool(N[src.N_TRIPPED])
         self.prime = bool(N[src.N_PRIME])
         self._prime_due = N[src.N_PRIME_DUE] if N[src.N_PRIME_SET] else None

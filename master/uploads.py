@@ -110,11 +110,12 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
     """``(dest, type, payload)`` packets that configure every node before the run.
 
     Safe stop (docs/node.md "Safe stop", :mod:`~mrm_cosim.protocol.safe_stop`): every node
-    gets STOP_CYCLES and BRAKE_CYCLES from ``safe_stop`` (None: :class:`SafeStopParams`'
-    defaults), and, unless ``controller`` is ``pid-fpga`` (whose nodes hold with their
-    tracking PID), PID words holding the hold gains (:func:`hold_gains` at
-    ``safe_stop.hold_hz`` for each joint's nominal inertia): VDC and torque-mode nodes read
-    them only while they hold.
+    gets STOP_CYCLES, BRAKE_CYCLES and, with the standstill rule on, STANDSTILL and
+    STANDSTILL_TICKS from ``safe_stop`` (None: :class:`SafeStopParams`' defaults;
+    :func:`safe_stop_config` at ``tick_cycles``), and, unless ``controller`` is ``pid-fpga``
+    (whose nodes hold with their tracking PID), PID words holding the hold gains
+    (:func:`hold_gains` at ``safe_stop.hold_hz`` for each joint's nominal inertia): VDC and
+    torque-mode nodes read them only while they hold.
 
     Homing: the arm rests at ``robot.home`` until period 0 (the brakes hold it), and a node's
     incremental encoder counts from 0 at its reset, so each node's count is preset (CONFIG
@@ -147,7 +148,7 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
     if safe_stop.hold_hz > PID_DESIGN_HZ:
         raise InputError("safe_stop.hold_hz", f"{safe_stop.hold_hz!r} Hz is above the "
                          f"{PID_DESIGN_HZ:g} Hz the nodes' PID words are sized for")
-    stop_cfg = safe_stop_config(safe_stop)
+    stop_cfg = safe_stop_config(safe_stop, tick_cycles=tick_cycles)
     out = [(k + 1, ref.PacketType.CONFIG, p) for k in range(robot.n) for p in config_payloads(
         {Config.PERIOD: period_cycles, Config.COMMIT: commit_cycles,
          Config.SYNC_WINDOW: sync_window})]

@@ -88,14 +88,18 @@ class Config(enum.IntEnum):
     COMMIT     = 12  # phase at which an armed node commits the last Comm D
     DMP        = 13  # joint-side motion primitive (:class:`DmpControl`): off, start, stop
     DMP_STEP   = 14  # cycles per step of the primitive generator (PERIOD a multiple of it)
-    STOP_CYCLES  = 15  # safe stop: cycles of stop-and-hold after a trip before the brake
-    BRAKE_CYCLES = 16  # safe stop: cycles of hold with the brake engaged before STO
+    STOP_CYCLES  = 15  # safe stop: time limit (cycles after a trip) of the hold before the brake
+    BRAKE_CYCLES = 16  # safe stop: cycles of hold from the brake's engagement before STO
+    STANDSTILL   = 17  # safe stop: standstill threshold, VEL word (|q̇| ≤ it; 0: no standstill
+    #                    rule, the brake at STOP_CYCLES)
+    STANDSTILL_TICKS = 18  # safe stop: consecutive ticks at standstill that engage the brake
 
 
 CONFIG_DEFAULTS = {Config.MODE: 0, Config.TICK: 50, Config.TIMEOUT: 100_000, Config.RAMP: 0,
                    Config.TAU_MIN: 0, Config.TAU_MAX: 0, Config.PERIOD: 50_000,
                    Config.SYNC_WINDOW: 2_500, Config.COMMIT: 10_000, Config.DMP: 0,
-                   Config.DMP_STEP: 50_000, Config.STOP_CYCLES: 0, Config.BRAKE_CYCLES: 0}
+                   Config.DMP_STEP: 50_000, Config.STOP_CYCLES: 0, Config.BRAKE_CYCLES: 0,
+                   Config.STANDSTILL: 0, Config.STANDSTILL_TICKS: 0}
 # (STOP_CYCLES = BRAKE_CYCLES = 0: a trip goes straight to STO, the torque ramp of a node that
 # has no safe-stop upload; protocol/safe_stop.py gives the master's values.)
 
@@ -134,6 +138,7 @@ class Status(enum.IntFlag):
     DMP     = 1 << 7   # the joint takes its references from the primitive generator
     HOLD    = 1 << 8   # safe stop: tripped, the joint engine holds the trip position (SS1/SS2)
     BRAKE   = 1 << 9   # safe stop: the node's brake output is asserted (brake engaged)
+    STOP_LIMIT = 1 << 10  # safe stop: the brake engaged at STOP_CYCLES, no standstill seen
 
 
 class NodeEvent(enum.IntFlag):

@@ -14,7 +14,7 @@ from mrm_cosim.protocol.packet import Header, PacketType
 from mrm_cosim.hdl.node.core import NodeCore
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.protocol.encoder import EncoderParams
-from mrm_cosim.protocol.fixed import FORCE
+from mrm_cosim.protocol.fixed import FORCE, VEL
 from mrm_cosim.protocol.joint_program import JointParams
 from mrm_cosim.protocol.regs import (
     Config, NodeEvent, Status, config_payloads, joint_upload, pack_comm_b, pack_comm_d,
@@ -51,6 +51,8 @@ def uploads(mode=0, safe=None):
            Config.TAU_MAX: FORCE.encode(8.0)}
     if safe is not None:
         cfg.update({Config.STOP_CYCLES: safe[0], Config.BRAKE_CYCLES: safe[1]})
+        if len(safe) > 3:
+            cfg.update({Config.STANDSTILL: safe[3], Config.STANDSTILL_TICKS: safe[4]})
     packets = [(PacketType.CONFIG, p) for p in config_payloads(cfg)]
     packets += [(PacketType.PARAM, p) for p in vdc_upload(theta, K, rho, lower, upper)]
     packets += [(PacketType.PARAM, p) for p in joint_upload(jp)]
@@ -79,7 +81,12 @@ def timing_config():
     # the safe stop (STOP_CYCLES, BRAKE_CYCLES, re-arm cycle): hold, brake, STO, re-armed
     (0, 1, 13_000, (700, 500, 11_000)), (1, 1, 13_000, (400, 900, 11_000)),
     # re-armed while still holding (a VDC node holds on the PID words)
-    (0, 1, 12_000, (3000, 2000, 9_400))])
+    (0, 1, 12_000, (3000, 2000, 9_400)),
+    # with the standstill rule (+ STANDSTILL word, STANDSTILL_TICKS): the joint turns at
+    # ~0.3 rad/s, within ±0.5 rad/s (a standstill: the brake after 5 ticks, long before
+    # STOP_CYCLES), not within ±0.1 rad/s (the brake at the time limit, STOP_LIMIT)
+    (1, 1, 13_000, (1500, 500, 11_000, VEL.encode(0.5), 5)),
+    (0, 1, 13_000, (700, 500, 11_000, VEL.encode(0.1), 5))])
 def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end, safe):
     """mode 0 VDC, 1 PID, 2 torque-only. Periods of 2000 cycles on the node's own timer; the
     time-codes arrive inside the window, the last period has a late Comm D and an
@@ -275,16 +282,28 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end, s
 
 
 def check_safe_stop(trace, safe, end):
-    """The safe stop's sequence in a gateware trace: HOLD for STOP + BRAKE cycles from the
-    trip with the commands still landing, BRAKE from STOP cycles on, then STO (SAFE once the
-    torque is zero) until the ARM's boundary releases it all."""
-    stop, brake, _ = safe
+    """The safe stop's sequence in a gateware trace: HOLD from the trip with the commands
+    still landing, BRAKE from STOP cycles on (or, with a standstill threshold the joint's
+    speed is within, from the cycle after STANDSTILL_TICKS ticks of the hold, and STOP_LIMIT
+    never), HOLD until BRAKE cycles after the brake, then STO (SAFE once the torque is zero)
+    until the ARM's boundary releases it all."""
+    stop, brake = safe[:2]
     trip = min(c for c in trace if trace[c][3] & Status.TRIPPED)
     rearmed = min(c for c in range(trip, end) if not trace[c][3] & Status.TRIPPED)
     hold = [c for c in range(trip, rearmed) if trace[c][3] & Status.HOLD]
     braked = [c for c in range(trip, rearmed) if trace[c][4]]
-    assert hold == list(range(trip, min(trip + stop + brake, rearmed)))
-    assert braked == list(range(trip + stop, rearmed))
+    limit = [c for c in range(trip, rearmed) if trace[c][3] & Status.STOP_LIMIT]
+    engage = trip + stop
+    if len(safe) > 3 and abs(VEL.decode(trace[trip][1])) <= VEL.decode(safe[3]):
+        engage = braked[0]                              # standstill: ticks of the hold
+        assert trip + (safe[4] - 1) * TICK < engage <= trip + safe[4] * TICK + 1
+        assert not limit
+    elif len(safe) > 3:
+        assert limit == list(range(engage, rearmed))
+    else:
+        assert not limit
+    assert hold == list(range(trip, min(engage + brake, rearmed)))
+    assert braked == list(range(engage, rearmed))
     assert all(bool(trace[c][3] & Status.BRAKE) == bool(trace[c][4]) for c in trace)
     torques = {trace[c][2] for c in hold}
     assert len(torques) > 2                             # the hold loop acts, tick by tick

@@ -15,8 +15,10 @@ from mrm_cosim.testbench import run_simulation
 PULSES = ("packet", "tick", "cmd_valid", "arm", "disarm")
 
 
-def run_both(events, timeout, ramp, tau_min, tau_max, stop_cycles=0, brake_cycles=0):
-    """events: list of dicts of pulses (and cmd) per cycle."""
+def run_both(events, timeout, ramp, tau_min, tau_max, stop_cycles=0, brake_cycles=0,
+             standstill=0, standstill_ticks=0):
+    """events: list of dicts of pulses (and cmd, velocity) per cycle. Outputs per cycle:
+    torque, armed, tripped, safe, holding, brake, limit."""
     dut = Watchdog()
     ref = WatchdogModel()
     rtl_out, ref_out = [], []
@@ -28,17 +30,22 @@ def run_both(events, timeout, ramp, tau_min, tau_max, stop_cycles=0, brake_cycle
         ctx.set(dut.tau_max, tau_max)
         ctx.set(dut.stop_cycles, stop_cycles)
         ctx.set(dut.brake_cycles, brake_cycles)
+        ctx.set(dut.standstill, standstill)
+        ctx.set(dut.standstill_ticks, standstill_ticks)
         for ev in events:
             for name in PULSES:
                 ctx.set(getattr(dut, name), int(ev.get(name, False)))
             ctx.set(dut.cmd, ev.get("cmd", 0))
+            ctx.set(dut.velocity, ev.get("velocity", 0))
             await ctx.tick()
             rtl_out.append((ctx.get(dut.torque), ctx.get(dut.armed), ctx.get(dut.tripped),
-                            ctx.get(dut.safe), ctx.get(dut.holding), ctx.get(dut.brake)))
+                            ctx.get(dut.safe), ctx.get(dut.holding), ctx.get(dut.brake),
+                            ctx.get(dut.limit)))
             ref.cycle(timeout=timeout, ramp=ramp, tau_min=tau_min, tau_max=tau_max,
-                      stop_cycles=stop_cycles, brake_cycles=brake_cycles, **ev)
+                      stop_cycles=stop_cycles, brake_cycles=brake_cycles,
+                      standstill=standstill, standstill_ticks=standstill_ticks, **ev)
             ref_out.append((ref.torque, int(ref.armed), int(ref.tripped), int(ref.safe),
-                            int(ref.holding), int(ref.brake)))
+                            int(ref.holding), int(ref.brake), int(ref.limit)))
 
     sim = Simulator(dut)
     sim.add_clock(20e-9)
@@ -60,7 +67,7 @@ def test_trips_after_two_periods_of_silence_and_ramps_to_zero():
     trip = next(k for k, o in enumerate(rtl) if o[2])
     last_packet = 1 + 250                              # event index of the last packet
     assert trip == last_packet + 1 + timeout
-    assert rtl[-1] == (0, 1, 1, 1, 0, 1)               # safe: tripped, torque zero, braked
+    assert rtl[-1] == (0, 1, 1, 1, 0, 1, 0)            # safe: tripped, torque zero, braked
     torques = [o[0] for o in rtl[trip:]]
     assert all(a - b in (0, ramp) or b == 0 for a, b in zip(torques, torques[1:], strict=False))
 
@@ -79,16 +86,22 @@ pulse = st.booleans()
 event = st.fixed_dictionaries({"packet": pulse, "tick": pulse, "cmd_valid": pulse,
                                "arm": st.sampled_from([False] * 5 + [True]),
                                "disarm": st.sampled_from([False] * 9 + [True]),
-                               "cmd": st.integers(WORD_MIN, WORD_MAX)})
+                               "cmd": st.integers(WORD_MIN, WORD_MAX),
+                               "velocity": st.sampled_from([0, 1, -1, 3, -3, 4, -4, 100,
+                                                            WORD_MIN, WORD_MAX])})
 
 
 @settings(max_examples=30, deadline=None)
 @given(events=st.lists(event, min_size=1, max_size=80), timeout=st.integers(0, 40),
        ramp=st.integers(0, 2**22), lim=st.tuples(st.integers(WORD_MIN, WORD_MAX),
                                                  st.integers(WORD_MIN, WORD_MAX)),
-       stop=st.integers(0, 12), brake=st.integers(0, 12))
-def test_rtl_equals_reference_on_random_pulses(events, timeout, ramp, lim, stop, brake):
-    rtl, ref = run_both(events, timeout, ramp, min(lim), max(lim), stop, brake)
+       stop=st.integers(0, 40), brake=st.integers(0, 12),
+       standstill=st.sampled_from([0, 1, 3, 4, 2**23, 2**24 - 1]),
+       ticks=st.integers(0, 4))
+def test_rtl_equals_reference_on_random_pulses(events, timeout, ramp, lim, stop, brake,
+                                               standstill, ticks):
+    rtl, ref = run_both(events, timeout, ramp, min(lim), max(lim), stop, brake, standstill,
+                        ticks)
     assert rtl == ref
 
 
@@ -111,7 +124,7 @@ def test_safe_stop_holds_then_brakes_then_ramps_and_arm_releases():
     assert len(set(hold_cmds)) > 1 and all(t > 3000 for t in hold_cmds)   # commands applied
     sto = rtl[trip + stop + brake:-4]
     assert not any(o[4] for o in sto) and sto[-1][0] == 0 and sto[-1][3] == 1
-    assert rtl[-1][:6] == (10, 1, 0, 0, 0, 0)          # re-armed: brake off, commands apply
+    assert rtl[-1] == (10, 1, 0, 0, 0, 0, 0)          # re-armed: brake off, commands apply
 
 
 def test_disarm_while_holding_engages_the_brake_at_once():
@@ -121,4 +134,61 @@ def test_disarm_while_holding_engages_the_brake_at_once():
     rtl, ref = run_both(events, timeout, 1, -1000, 1000, stop, brake)
     assert rtl == ref
     assert rtl[12][4] == 1 and rtl[12][5] == 0          # holding, brake released
-    assert rtl[-1] == (0, 0, 1, 1, 0, 1)                # disarmed: no torque, brake engaged
+    assert rtl[-1] == (0, 0, 1, 1, 0, 1, 0)             # disarmed: no torque, brake engaged
+
+
+def _stopping(speeds, tick=10):
+    """Silence after an arm and five packets; the velocity word at the k-th tick after the
+    last packet is ``speeds(k)`` (between ticks: a value far outside any threshold, which
+    must not count)."""
+    events = [{"arm": True}] + [{"packet": True, "cmd_valid": True, "cmd": 4000}] * 5
+    events += [{"tick": k % tick == 0, "cmd_valid": k % tick == 5, "cmd": 3000 + k,
+                "velocity": speeds(k // tick) if k % tick == 0 else 10**6}
+               for k in range(400)]
+    return events
+
+
+def test_standstill_engages_the_brake_before_the_time_limit():
+    """SS1 with monitored standstill: the velocity within ±standstill at ``ticks``
+    consecutive ticks engages the brake from the next cycle; a tick outside restarts the
+    count; BRAKE_CYCLES count from the brake's first cycle; the time limit is not reached."""
+    timeout, stop, brake, thr, n = 20, 300, 40, 4, 3
+    # ticks 0..6 moving; 7, 8 still; 9 moving (restarts); 10, 11, 12 still → brake after 12
+    speeds = lambda k: 5 if k < 7 or k == 9 else (-4 if k % 2 else 4)   # noqa: E731
+    rtl, ref = run_both(_stopping(speeds), timeout, 1000, -5000, 5000, stop, brake, thr, n)
+    assert rtl == ref
+    trip = next(k for k, o in enumerate(rtl) if o[2])
+    engage = next(k for k, o in enumerate(rtl) if o[5])
+    assert engage == 6 + 12 * 10                       # seen after tick 12 (its index)
+    assert engage < trip + stop
+    assert all(o[4] for o in rtl[trip:engage + brake])           # holding to brake cycles on
+    assert not any(o[4] for o in rtl[engage + brake:])
+    assert all(o[5] and not o[6] for o in rtl[engage:])          # braked, not at the limit
+
+
+def test_standstill_ignored_would_fail():
+    """The same stop without the standstill rule (threshold 0) brakes at the time limit:
+    the test above tells the two apart."""
+    timeout, stop, brake = 20, 300, 40
+    speeds = lambda k: 0                                            # noqa: E731
+    off, ref = run_both(_stopping(speeds), timeout, 1000, -5000, 5000, stop, brake, 0, 3)
+    assert off == ref
+    on, ref = run_both(_stopping(speeds), timeout, 1000, -5000, 5000, stop, brake, 4, 3)
+    assert on == ref
+    trip = next(k for k, o in enumerate(off) if o[2])
+    assert next(k for k, o in enumerate(off) if o[5]) == trip + stop
+    assert next(k for k, o in enumerate(on) if o[5]) < trip + 40
+
+
+def test_no_standstill_brakes_at_the_time_limit_and_says_so():
+    """A joint never seen at standstill: the brake at STOP_CYCLES into the trip (SS1-t as a
+    fallback), ``limit`` set from then on; BRAKE_CYCLES from there."""
+    timeout, stop, brake = 20, 100, 40
+    speeds = lambda k: 5 if k % 3 == 0 else 0                       # noqa: E731
+    rtl, ref = run_both(_stopping(speeds), timeout, 1000, -5000, 5000, stop, brake, 4, 3)
+    assert rtl == ref
+    trip = next(k for k, o in enumerate(rtl) if o[2])
+    assert not any(o[5] or o[6] for o in rtl[:trip + stop])
+    assert all(o[5] and o[6] for o in rtl[trip + stop:])
+    assert all(o[4] for o in rtl[trip:trip + stop + brake])
+    assert not any(o[4] for o in rtl[trip + stop + brake:])

@@ -18,6 +18,10 @@ from mrm_cosim.units import CLOCK_HZ
 #: out after 0.6 ms) and a short safe stop, so a run of a few periods sees all of it.
 TIMEOUT = 30_000
 SHORT = SafeStopParams(stop_s=0.002, brake_s=0.002)
+#: The same with the standstill rule: the arm trips near rest (period 0); joints 1 and 2 are
+#: at standstill (0.5 ms within ±2 mrad/s) and brake within 0.1 ms of the trip, joint 3 still
+#: moves (~30 mrad/s at most) and brakes at the 4 ms time limit (STOP_LIMIT).
+STILL = SafeStopParams(stop_s=0.004, brake_s=0.002, standstill=2e-3, standstill_s=0.0005)
 
 
 def test_safe_stop_words_follow_the_durations_and_bad_values_name_their_field():
@@ -30,10 +34,31 @@ def test_safe_stop_words_follow_the_durations_and_bad_values_name_their_field():
     for kw, field in (({"stop_s": -1e-3}, "safe_stop.stop_s"),
                       ({"brake_s": float("nan")}, "safe_stop.brake_s"),
                       ({"stop_s": 100.0}, "safe_stop.stop_s"),
-                      ({"hold_hz": 0.0}, "safe_stop.hold_hz")):
+                      ({"hold_hz": 0.0}, "safe_stop.hold_hz"),
+                      ({"standstill": -1e-3}, "safe_stop.standstill"),
+                      ({"standstill": 20.0}, "safe_stop.standstill"),
+                      ({"standstill": 1e-7}, "safe_stop.standstill"),
+                      ({"standstill_s": float("inf")}, "safe_stop.standstill_s"),
+                      ({"standstill_s": -1.0}, "safe_stop.standstill_s")):
         with pytest.raises(InputError) as e:
             SafeStopParams(**kw)
         assert e.value.field == field
+
+
+def test_standstill_words_follow_the_threshold_and_the_tick():
+    """The standstill rule: the threshold as a VEL word (2^-19 rad/s), the duration in ticks;
+    off (0, the default) nothing is sent (the reset values: the fixed timer)."""
+    p = SafeStopParams(stop_s=0.3, standstill=2e-3, standstill_s=0.01)
+    w = safe_stop_config(p, tick_cycles=50)
+    assert w[Config.STANDSTILL] == round(2e-3 * 2**19) == 1049
+    assert w[Config.STANDSTILL_TICKS] == 10_000                  # 10 ms of 1 µs ticks
+    assert safe_stop_config(p, tick_cycles=500)[Config.STANDSTILL_TICKS] == 1_000
+    assert safe_stop_config(SafeStopParams(standstill=1e-3, standstill_s=0.0))[
+        Config.STANDSTILL_TICKS] == 1
+    assert Config.STANDSTILL not in safe_stop_config(SafeStopParams())
+    with pytest.raises(InputError) as e:
+        safe_stop_config(SafeStopParams(standstill=1e-3, standstill_s=0.1), tick_cycles=50)
+    assert e.value.field == "safe_stop.standstill_s"
 
 
 def _cfg_and_kp(uploads, dest):
@@ -78,12 +103,16 @@ def test_the_master_uploads_the_timings_and_hold_gains_in_every_mode():
         pytest.approx((20 / 15) ** 2)
     cfg, _ = _cfg_and_kp(node_uploads(robot, "vdc", Gains()), 1)      # the defaults
     assert cfg[Config.STOP_CYCLES] == safe_stop_config(SafeStopParams())[Config.STOP_CYCLES]
+    assert Config.STANDSTILL not in cfg                  # the rule off: the fixed timer
+    p = SafeStopParams(stop_s=0.3, standstill=2e-3, standstill_s=0.01)
+    cfg, _ = _cfg_and_kp(node_uploads(robot, "vdc", Gains(), tick_cycles=100, safe_stop=p), 3)
+    assert cfg[Config.STANDSTILL] == 1049 and cfg[Config.STANDSTILL_TICKS] == 5_000
     with pytest.raises(InputError) as e:
         node_uploads(robot, "vdc", Gains(), safe_stop=SafeStopParams(hold_hz=500.0))
     assert e.value.field == "safe_stop.hold_hz"
 
 
-def _trip_loop(backend_name, controller, cycles, **model_kw):
+def _trip_loop(backend_name, controller, cycles, safe=SHORT, **model_kw):
     """The paper's quintic on mrm3 with a watchdog timeout shorter than the period: every node
     trips in period 0 and runs the short safe stop; returns (result, master, backend)."""
     from mrm_cosim.cosim.closed_loop import ClosedLoop
@@ -113,7 +142,7 @@ def _trip_loop(backend_name, controller, cycles, **model_kw):
         backend = ModelBackend(pid_shift=pid_shifts(robot), **model_kw)
     else:
         backend = loop_backend(robot, backend_name)
-    uploads = node_uploads(robot, controller, gains, timeout_cycles=TIMEOUT, safe_stop=SHORT)
+    uploads = node_uploads(robot, controller, gains, timeout_cycles=TIMEOUT, safe_stop=safe)
     brakes = []
     advance = backend.advance
 
@@ -133,13 +162,15 @@ def _statuses(master):
             if t == ref.PacketType.COMM_A}
 
 
-@pytest.mark.parametrize("controller", ["vdc", "pid-fpga"])
-def test_model_paths_agree_through_the_safe_stop(controller):
+@pytest.mark.parametrize("controller, safe", [("vdc", SHORT), ("pid-fpga", SHORT),
+                                              ("vdc", STILL)])
+def test_model_paths_agree_through_the_safe_stop(controller, safe):
     """Kernel (numba), pure Python and eager model paths give the same plant trace, torques,
     replies and brake outputs through trip → hold → brake → STO: the fast paths decline to
-    the reference's event loop while a node's safe stop may act."""
+    the reference's event loop while a node's safe stop may act (with the standstill rule
+    too: its brakes at standstill, before the time limit)."""
     cycles = 400_000                                # 8 ms: hold 2 ms, brake 2 ms, STO
-    runs = {name: _trip_loop("model", controller, cycles, **kw) for name, kw in (
+    runs = {name: _trip_loop("model", controller, cycles, safe, **kw) for name, kw in (
         ("numba", {"kernel": "numba"}), ("python", {"kernel": "python"}),
         ("eager", {"lazy": False}))}
     res0, m0, be0, br0 = runs["numba"]
@@ -159,18 +190,25 @@ def test_model_paths_agree_through_the_safe_stop(controller):
     assert Status.BRAKE | Status.SAFE in seen
     assert all(b.all() for _, b in br0[-10:]) and not any(b.any() for _, b in br0[:10])
     assert np.all(res0.tau[-1] == 0)                        # STO: no torque at the end
+    limit = {k for (_, k), s in st.items() if s & Status.STOP_LIMIT}
+    if safe is STILL:       # joints 1, 2 at standstill, joint 3 at the time limit 4 ms later
+        assert limit == {3}
+        on = [next(c for c, b in br0 if b[k]) for k in range(3)]
+        assert on[0] == on[1] and on[2] - on[0] > 0.9 * 0.004 * 50e6 - 0.0005 * 50e6
+    else:
+        assert not limit
 
 
-@pytest.mark.parametrize("controller", ["vdc"])
-def test_model_equals_compiled_through_the_safe_stop(controller):
+@pytest.mark.parametrize("controller, safe", [("vdc", SHORT), ("vdc", STILL)])
+def test_model_equals_compiled_through_the_safe_stop(controller, safe):
     """The gateware (compiled) and the model backend through the safe stop: the same plant
     trace, torques, Comm A statuses and brake outputs. The model's trip is at its modelled
     packet arrival (a few cycles from the gateware's), the hold's ticks and the STO's ramp on
     the node's own tick grid: with the trip between the same two ticks on both, bit for
     bit."""
     cycles = 400_000
-    compiled, m_c, _, br_c = _trip_loop("compiled", controller, cycles)
-    model, m_m, _, br_m = _trip_loop("model", controller, cycles)
+    compiled, m_c, _, br_c = _trip_loop("compiled", controller, cycles, safe)
+    model, m_m, _, br_m = _trip_loop("model", controller, cycles, safe)
     np.testing.assert_array_equal(model.q, compiled.q)
     np.testing.assert_array_equal(model.tau, compiled.tau)
     assert m_m.payloads == m_c.payloads

@@ -2,11 +2,11 @@
 
 A CONFIG record (:class:`~protocol.regs.Config` id, int32 value; docs/node.md "Packets")
 writes one register at its last byte; a value out of a register's range is ignored (MODE
-≥ 3, TICK 0 or ≥ 2^16, PERIOD and DMP_STEP < 2 or ≥ 2^24, SYNC_WINDOW and COMMIT ≥ 2^24,
-DMP not a :class:`~protocol.regs.DmpControl` value). PRESET and PRIME are strobes to the
-encoder and the VDC sequencer; DMP is one of three strobes to the primitive generator's
-timing (:class:`~hdl.node.dmp_seq.DmpTiming`). Every register starts at
-:data:`~protocol.regs.CONFIG_DEFAULTS`.
+≥ 3, TICK 0 or ≥ 2^16, PERIOD and DMP_STEP < 2 or ≥ 2^24, SYNC_WINDOW, COMMIT and STANDSTILL
+≥ 2^24, STANDSTILL_TICKS ≥ 2^16, DMP not a :class:`~protocol.regs.DmpControl` value).
+PRESET and PRIME are strobes to the encoder and the VDC sequencer; DMP is one of three
+strobes to the primitive generator's timing (:class:`~hdl.node.dmp_seq.DmpTiming`). Every
+register starts at :data:`~protocol.regs.CONFIG_DEFAULTS`.
 
 ARM = 0 disarms at once (safety first). ARM ≠ 0 takes effect at the next period boundary, so
 the state at that boundary does not depend on when the CONFIG arrived, and it clears the joint
@@ -59,8 +59,10 @@ class NodeConfig(wiring.Component):
     dmp_off, dmp_start, dmp_stop : Out(1)
         Strobes: CONFIG DMP = OFF, START, STOP (:class:`~protocol.regs.DmpControl`).
     stop_cycles, brake_cycles : Out(32)
-        The watchdog's safe stop: hold before the brake, hold with the brake engaged
-        (:mod:`~protocol.safe_stop`).
+        The watchdog's safe stop: time limit of the hold before the brake, hold with the brake
+        engaged (:mod:`~protocol.safe_stop`).
+    standstill, standstill_ticks : Out(24), Out(16)
+        The watchdog's standstill rule: threshold (VEL word) and consecutive ticks.
     """
 
     config:       In(stream.Signature(ConfigRecord, always_ready=True))
@@ -89,6 +91,8 @@ class NodeConfig(wiring.Component):
     dmp_stop:     Out(1)
     stop_cycles:  Out(32, init=CONFIG_DEFAULTS[Config.STOP_CYCLES])
     brake_cycles: Out(32, init=CONFIG_DEFAULTS[Config.BRAKE_CYCLES])
+    standstill:   Out(WORD, init=CONFIG_DEFAULTS[Config.STANDSTILL])
+    standstill_ticks: Out(16, init=CONFIG_DEFAULTS[Config.STANDSTILL_TICKS])
 
     def elaborate(self, platform):
         m = Module()
@@ -146,6 +150,12 @@ class NodeConfig(wiring.Component):
                     m.d.sync += self.stop_cycles.eq(value)
                 with m.Case(Config.BRAKE_CYCLES):
                     m.d.sync += self.brake_cycles.eq(value)
+                with m.Case(Config.STANDSTILL):
+                    with m.If(value < (1 << WORD)):
+                        m.d.sync += self.standstill.eq(value)
+                with m.Case(Config.STANDSTILL_TICKS):
+                    with m.If(value < (1 << 16)):
+                        m.d.sync += self.standstill_ticks.eq(value)
 
         # ARM at the next boundary, the integral cleared in its cycle and the one before;
         # disarming wins over both.

@@ -48,10 +48,12 @@ cycle a packet or time-code arrived (docs/node.md "Timing"):
   runs with the latched count, velocity, Comm D values and ``t_next`` (from the boundary); its
   torque goes through the :class:`~hdl.node.watchdog.Watchdog`. A tick that finds the joint
   engine busy is skipped and counted (``overruns``).
-* Safe stop (IEC 61800-5-2 SS1-t, docs/node.md "Safe stop"): after a watchdog trip the ticks
-  run the PID entry on node-local references (hold the count of the first hold tick) for
-  STOP_CYCLES + BRAKE_CYCLES, the ``brake`` output from STOP_CYCLES on, then the torque ramps
-  to zero (STO); status bits HOLD and BRAKE.
+* Safe stop (IEC 61800-5-2 SS1 at monitored standstill, SS1-t as the time limit; docs/node.md
+  "Safe stop"): after a watchdog trip the ticks run the PID entry on node-local references
+  (hold the count of the first hold tick); the ``brake`` output once the ticks' velocity
+  word has been within ±STANDSTILL for STANDSTILL_TICKS consecutive ticks, at the latest
+  STOP_CYCLES after the trip; the hold goes on for BRAKE_CYCLES from the brake, then the
+  torque ramps to zero (STO); status bits HOLD, BRAKE and STOP_LIMIT.
 * Words arrive over the byte stream; a word for a busy engine waits (``rx.ready`` low).
 * Every payload byte of a CONFIG or PARAM packet goes, in arrival order, into a running
   CRC-16/CCITT-FALSE (the link's, :mod:`hdl.link.crc`, from 0xFFFF at reset) and every such
@@ -281,6 +283,9 @@ class NodeCore(wiring.Component):
             wd.tau_max.eq(cfg.tau_max),
             wd.stop_cycles.eq(cfg.stop_cycles),
             wd.brake_cycles.eq(cfg.brake_cycles),
+            wd.standstill.eq(cfg.standstill),
+            wd.standstill_ticks.eq(cfg.standstill_ticks),
+            wd.velocity.eq(enc.velocity),
             wd.arm.eq(cfg.arm),
             wd.disarm.eq(cfg.disarm),
             wd.packet.eq(dec.ends.valid),
@@ -296,7 +301,7 @@ class NodeCore(wiring.Component):
         # --- status and replies ---------------------------------------------------------------
         m.d.comb += [
             status.eq(Cat(wd.armed, wd.tripped, wd.safe, vseq.fresh, vseq.primed, cfg.mode,
-                          dmp_select, wd.holding, wd.brake)),
+                          dmp_select, wd.holding, wd.brake, wd.limit)),
             self.status.eq(status),
             reply.snapshot.eq(timer.snapshot),
             reply.sync_errors.eq(timer.sync_errors),

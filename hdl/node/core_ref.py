@@ -18,11 +18,13 @@ Internal events follow the node's period timer (free-running from reset, phase 0
   limits and the watchdog apply;
 * commit point (phase ``COMMIT``): an armed node's last full Comm D becomes the joint
   engine's input (disarmed: at its last byte);
-* the safe stop after a watchdog trip (IEC 61800-5-2 SS1-t, docs/node.md "Safe stop",
-  :mod:`~hdl.node.watchdog_ref`): for STOP_CYCLES + BRAKE_CYCLES from the trip the ticks run
+* the safe stop after a watchdog trip (IEC 61800-5-2 SS1 at monitored standstill, SS1-t as
+  the time limit; docs/node.md "Safe stop", :mod:`~hdl.node.watchdog_ref`): the ticks run
   the PID entry on node-local references (the count of the hold's first tick, zero velocity,
-  acceleration and ``τ_D``) and their commands land; the brake from STOP_CYCLES on; then the
-  ramp to zero (STO);
+  acceleration and ``τ_D``) and their commands land; the brake from the cycle after the tick
+  that completes STANDSTILL_TICKS consecutive ticks with the velocity within ±STANDSTILL
+  (≠ 0), at the latest STOP_CYCLES after the trip; the hold for BRAKE_CYCLES from the
+  brake's first cycle; then the ramp to zero (STO);
 * steps of the primitive generator (:class:`~hdl.node.dmp_ref.DmpGeneratorModel`, CONFIG DMP,
   :mod:`~hdl.node.dmp_seq`): at every boundary and every DMP_STEP cycles after one while it
   runs; while it is selected its references replace Comm D's (``τ_D`` stays Comm D's) and
@@ -134,6 +136,11 @@ class NodeModel:
         First cycle of the last watchdog trip (``tripped`` visible).
     hold_pos : int or None
         The safe stop's hold position (POS word), taken at the hold's first tick; None before.
+    still_cycle : int or None
+        The brake's first cycle when the standstill rule engaged it in the last trip (the cycle
+        after the tick that completed the standstill); None otherwise.
+    still_run : int
+        Consecutive ticks at standstill so far in the last trip.
     encoder_preset : callable or None
         ``encoder_preset(cycle, count)``, called for each PRESET: the caller's encoder
         interface (``cosim.model`` attaches its own). None: the caller applies
@@ -169,6 +176,8 @@ class NodeModel:
     tripped: bool = False
     trip_cycle: int = 0
     hold_pos: int | None = None
+    still_cycle: int | None = None
+    still_run: int = 0
     _now: int = 0                         # the cycle of the last _watch (for status)
     arm_pending: bool = False
     arming: bool = False
@@ -313,31 +322,58 @@ class NodeModel:
         self.torque = 0 if abs(self.torque) <= ramp else \
             self.torque - ramp if self.torque > 0 else self.torque + ramp
 
+    def engage_cycle(self, trip: int | None = None) -> int:
+        """The brake's first cycle in the trip at ``trip`` (None: the last trip): the
+        standstill's, or the time limit, STOP_CYCLES after the trip, whichever comes first."""
+        limit = (self.trip_cycle if trip is None else trip) + self.config[Config.STOP_CYCLES]
+        if trip is None and self.still_cycle is not None and self.still_cycle <= limit:
+            return self.still_cycle
+        return limit
+
     def holding_at(self, c: int) -> bool:
-        """The safe stop holds the joint in cycle ``c`` (armed, tripped, fewer than STOP_CYCLES
-        + BRAKE_CYCLES cycles into the trip; :meth:`_watch` up to ``c`` done)."""
-        cfg = self.config
+        """The safe stop holds the joint in cycle ``c`` (armed, tripped, fewer than
+        BRAKE_CYCLES cycles after the brake's first cycle; :meth:`_watch` up to ``c`` done)."""
         return (self.armed and self.tripped
-                and c < self.trip_cycle + cfg[Config.STOP_CYCLES] + cfg[Config.BRAKE_CYCLES])
+                and c < self.engage_cycle() + self.config[Config.BRAKE_CYCLES])
 
     def brake_at(self, c: int) -> bool:
-        """The ``brake`` output in cycle ``c``: tripped and STOP_CYCLES into the trip, or
-        tripped and disarmed (:meth:`_watch` up to ``c`` done)."""
-        return self.tripped and (c >= self.trip_cycle + self.config[Config.STOP_CYCLES]
-                                 or not self.armed)
+        """The ``brake`` output in cycle ``c``: tripped and the brake engaged (standstill, or
+        STOP_CYCLES into the trip), or tripped and disarmed (:meth:`_watch` up to ``c``
+        done)."""
+        return self.tripped and (c >= self.engage_cycle() or not self.armed)
+
+    def stop_limit_at(self, c: int) -> bool:
+        """Status STOP_LIMIT in cycle ``c``: tripped, the brake engaged at the time limit (no
+        standstill seen before it), the standstill rule on."""
+        return (self.tripped and self.config[Config.STANDSTILL] != 0 and self.still_cycle is None
+                and c >= self.engage_cycle())
+
+    def _standstill(self, now: int, qd: int) -> None:
+        """The tick at ``now`` with the velocity word ``qd``: the standstill count of a trip
+        whose brake has not engaged (the time limit not reached)."""
+        if not self.tripped or self.still_cycle is not None or now >= self.engage_cycle():
+            return
+        thr = self.config[Config.STANDSTILL]
+        if thr != 0 and abs(qd) <= thr:
+            if self.still_run + 1 >= self.config[Config.STANDSTILL_TICKS]:
+                self.still_cycle = now + 1
+            else:
+                self.still_run += 1
+        else:
+            self.still_run = 0
 
     def _sto_at(self, c: int) -> bool:
         """Tripped by cycle ``c`` (the trip predicted if not seen yet) and not holding: the
         watchdog ignores the engine's commands (STO's ramp)."""
         cfg = self.config
         if self.tripped:
-            trip = self.trip_cycle
+            engage = self.engage_cycle()
         else:
             trip = self.last_packet + 2 + cfg[Config.TIMEOUT]
             if not (self.armed and c >= trip):
                 return False
-        return not (self.armed
-                    and c < trip + cfg[Config.STOP_CYCLES] + cfg[Config.BRAKE_CYCLES])
+            engage = self.engage_cycle(trip)
+        return not (self.armed and c < engage + cfg[Config.BRAKE_CYCLES])
 
     def _tick(self, now: int, sample, tt: int, ramped: bool = False,
               hold: bool | None = None) -> None:
@@ -352,6 +388,7 @@ class NodeModel:
         if self.armed and self.tripped and not ramped and not hold:
             self._ramp()
         count, qd, _ = sample(now)              # every tick strobes the velocity estimator
+        self._standstill(now, qd)
         if now < self._busy_until:
             self.overruns = min(self.overruns + 1, 0xFFFF)
             return
@@ -506,6 +543,7 @@ class NodeModel:
                 self.tripped = True
                 self.trip_cycle = trip
                 self.hold_pos = None
+                self.still_cycle, self.still_run = None, 0
                 self._prime_due = trip + 1
         prime_due = self._prime_due
         if prime_due is not None and now >= prime_due:
@@ -525,6 +563,8 @@ class NodeModel:
                 s |= Status.SAFE
             if self.brake_at(self._now):
                 s |= Status.BRAKE
+            if self.stop_limit_at(self._now):
+                s |= Status.STOP_LIMIT
         if self.fresh:
             s |= Status.FRESH
         if self.prime:
@@ -599,6 +639,10 @@ class NodeModel:
             self.prime = True
         elif reg in (Config.STOP_CYCLES, Config.BRAKE_CYCLES):
             self.config[Config(reg)] = value
+        elif reg == Config.STANDSTILL and value < (1 << 24):
+            self.config[Config.STANDSTILL] = value
+        elif reg == Config.STANDSTILL_TICKS and value < (1 << 16):
+            self.config[Config.STANDSTILL_TICKS] = value
         elif reg == Config.DMP_STEP and 2 <= value < (1 << 24):
             self.config[Config.DMP_STEP] = value
         elif reg == Config.DMP and value in (DmpControl.OFF, DmpControl.START, DmpControl.STOP):

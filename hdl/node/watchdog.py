@@ -1,17 +1,22 @@
 """Torque output stage: command limits, arming, the watchdog and its safe stop.
 
-# Ref: IEC 61800-5-2:2016 §4.2.2: SS1-t (stop, then STO after a time), SS2 (stop, then
-# standstill held by the drive), STO (safe torque off).
+# Ref: IEC 61800-5-2:2016 §4.2.2: SS1 (stop, then STO; here the brake at monitored
+# standstill, SS1-t's time limit as a fallback), SS2 (stop, then standstill held by the
+# drive), STO (safe torque off).
 
 Behaviour, cycle by cycle, is specified by :mod:`.watchdog_ref` (the gateware equals it bit
 for bit): a joint starts disarmed with zero torque; once armed it applies the joint
 controller's commands clamped to the uploaded limits; when no valid packet has arrived for
-``timeout`` cycles it trips, says so in its status, and runs the safe stop: for
-``stop_cycles`` + ``brake_cycles`` cycles it still applies the joint engine's commands, which
-then hold the joint still (``holding``: the core runs the engine's PID on node-local
-references), from ``stop_cycles`` on it asserts ``brake``, and after both it ramps the torque
-to zero by ``ramp`` per control tick (STO). Only a new ``arm`` (CONFIG) leaves the tripped
-state and releases the brake; a disarm while tripped engages the brake at once.
+``timeout`` cycles it trips, says so in its status, and runs the safe stop: it still applies
+the joint engine's commands, which then hold the joint still (``holding``: the core runs the
+engine's PID on node-local references); it asserts ``brake`` once the joint is at standstill
+(the encoder velocity within ±``standstill`` at ``standstill_ticks`` consecutive ticks; the
+brake from the cycle after the last of them) or at the latest ``stop_cycles`` into the trip
+(the stop's time limit, SS1-t as a fallback, flagged by ``limit``); it keeps holding for
+``brake_cycles`` cycles from the brake's first cycle, then ramps the torque to zero by
+``ramp`` per control tick (STO). ``standstill`` = 0 turns the standstill rule off: the brake
+``stop_cycles`` into the trip, exactly the fixed timer. Only a new ``arm`` (CONFIG) leaves
+the tripped state and releases the brake; a disarm while tripped engages the brake at once.
 """
 
 from amaranth import *
@@ -39,15 +44,25 @@ class Watchdog(wiring.Component):
     tau_min, tau_max : In(signed(24))
         Command limits (FORCE).
     stop_cycles, brake_cycles : In(32)
-        The safe stop's hold before the brake, and hold with the brake engaged, cycles.
+        The safe stop's time limit before the brake, and hold with the brake engaged, cycles.
+    velocity : In(signed(24))
+        The encoder's velocity word, read at each ``tick`` (the joint engine's sample).
+    standstill : In(24)
+        Standstill threshold (VEL LSBs, unsigned; 0: no standstill rule).
+    standstill_ticks : In(16)
+        Consecutive ticks within the threshold that make a standstill (0 counts as 1).
     torque : Out(signed(24))
     armed, tripped, safe : Out(1)
         ``safe``: tripped, past the hold (STO) and the torque zero.
     holding : Out(1)
-        Armed, tripped and within the hold (the first ``stop_cycles`` + ``brake_cycles``
-        cycles of the trip): the joint engine holds the joint.
+        Armed, tripped and within the hold (until ``brake_cycles`` cycles after the brake's
+        first cycle): the joint engine holds the joint.
     brake : Out(1)
-        Tripped and either ``stop_cycles`` into the trip or disarmed: engage the brake.
+        Tripped and either the brake engaged (standstill or ``stop_cycles`` into the trip) or
+        disarmed: engage the brake.
+    limit : Out(1)
+        Tripped, the brake engaged at the time limit and the standstill rule on: the joint
+        was not seen at standstill within ``stop_cycles`` (status bit STOP_LIMIT).
     """
 
     packet:    In(1)
@@ -62,17 +77,26 @@ class Watchdog(wiring.Component):
     tau_max:   In(signed(WORD))
     stop_cycles:  In(32)
     brake_cycles: In(32)
+    velocity:  In(signed(WORD))
+    standstill: In(WORD)
+    standstill_ticks: In(16)
     torque:    Out(signed(WORD))
     armed:     Out(1)
     tripped:   Out(1)
     safe:      Out(1)
     holding:   Out(1)
     brake:     Out(1)
+    limit:     Out(1)
 
     def elaborate(self, platform):
         m = Module()
         silence = Signal(32)
-        since   = Signal(32)            # cycles since the trip (0 in the first tripped cycle)
+        # cycles since the trip (0 in the first tripped cycle) until the brake engages, then
+        # cycles since the brake's first cycle (one counter for both phases)
+        since   = Signal(32)
+        braked  = Signal()              # the brake engaged in this trip
+        by_limit = Signal()             # ... at the time limit
+        run     = Signal(16)            # consecutive ticks at standstill so far
 
         with m.If(self.disarm):
             m.d.sync += self.armed.eq(0)
@@ -85,18 +109,48 @@ class Watchdog(wiring.Component):
             m.d.sync += silence.eq(0)
         with m.Elif(silence != (1 << 32) - 1):
             m.d.sync += silence.eq(silence + 1)
+
+        # |v| ≤ standstill, as for the torque below (v ≤ T when positive, v ≥ −T otherwise)
+        v, thr = self.velocity, self.standstill
+        still = Signal()
+        at_limit = Signal()             # the stop's time limit, in its first cycle
+        m.d.comb += [
+            still.eq((thr != 0) & Mux(v > 0, v <= thr, v >= -thr)),
+            at_limit.eq(~braked & (since >= self.stop_cycles)),
+        ]
         with m.If(self.armed & ~self.tripped & ~self.arm & ~self.disarm &
                   (silence >= self.timeout)):
             m.d.sync += [
                 self.tripped.eq(1),
                 since.eq(0),
+                braked.eq(0),
+                by_limit.eq(0),
+                run.eq(0),
             ]
-        with m.Elif(self.tripped & (since != (1 << 32) - 1)):
-            m.d.sync += since.eq(since + 1)
+        with m.Elif(self.tripped):
+            with m.If(at_limit):                        # SS1-t: the brake from this cycle
+                m.d.sync += [
+                    braked.eq(1),
+                    by_limit.eq(1),
+                    since.eq(1),
+                ]
+            with m.Elif(~braked & self.tick & still &
+                        (run + 1 >= self.standstill_ticks)):   # standstill: from the next
+                m.d.sync += [
+                    braked.eq(1),
+                    since.eq(0),
+                ]
+            with m.Else():
+                with m.If(since != (1 << 32) - 1):
+                    m.d.sync += since.eq(since + 1)
+                with m.If(~braked & self.tick):
+                    m.d.sync += run.eq(Mux(still, run + 1, 0))
         m.d.comb += [
             self.holding.eq(self.armed & self.tripped &
-                            (since < self.stop_cycles + self.brake_cycles)),
-            self.brake.eq(self.tripped & ((since >= self.stop_cycles) | ~self.armed)),
+                            Mux(braked, since < self.brake_cycles,
+                                ~at_limit | (self.brake_cycles != 0))),
+            self.brake.eq(self.tripped & (braked | at_limit | ~self.armed)),
+            self.limit.eq(self.tripped & (by_limit | at_limit) & (thr != 0)),
         ]
 
         tau = self.torque
