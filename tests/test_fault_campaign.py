@@ -157,10 +157,10 @@ def test_a_short_master_stall_pays_for_an_earlier_bit_flip():
     """Fault 245 of chunk 10 of configs/sweeps/link-faults.toml (a 50-cycle stall of host a
     inside a frame, a quarter of the credit timeout) took the link down with a credit error.
     The stall is not the cause: fault 241, D flipped for one bit period on a → b, made b
-    decode one N-char more than a sent with no parity error (only b's CRC check dropped frames), so b's credit
-    count stood one below a's from then on, unflagged, until b's next FCT overflowed a's 56
-    (the standard's credit error, §8.5.2): a latent credit skew a fault can leave behind,
-    like a lost FCT (docs/faults.md)."""
+    decode one N-char more than a sent with no parity error (only b's CRC check dropped
+    frames), so b's credit count stood one below a's from then on, unflagged, until b's next
+    FCT overflowed a's 56 (the standard's credit error, §8.5.2): a latent credit skew a fault
+    can leave behind, like a lost FCT (docs/faults.md)."""
     import numpy as np
 
     from mrm_cosim.cosim.link_faults import draw
