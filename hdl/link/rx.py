@@ -167,18 +167,7 @@ class CharReceiver(wiring.Component):
 
         # Which bits are flag bits (for a bit count beyond j: bits up to j all valid). Two
         # beyond the cycle, for the ends of characters below.
-        flag = []
-        for j in range(n + 2):
-            terms = [frame[s] for s in range(_N_STATES) if _to_flag(s) == j]
-            if j >= 2:
-                terms.append(det[j - 2])            # the NULL's FCT ends at j - 2
-            if j >= CONTROL_BITS:
-                terms.append(flag[j - CONTROL_BITS] & c[j - CONTROL_BITS])
-            if j >= DATA_BITS:
-                terms.append(flag[j - DATA_BITS] & ~c[j - DATA_BITS])
-            f_j = Signal(name=f"flag_{j}")
-            m.d.comb += f_j.eq(Cat(*terms, Const(0)).any())
-            flag.append(f_j)
+        flag = _flags(m, frame, c, det, n)
         # The last payload bit of a character (two bits before the next flag, not the NULL).
         end = [flag[k + 2] & ~det[k] for k in range(n)]
         ctrl0 = Cat(frame[s] for s in _CTRL).any()
@@ -241,24 +230,8 @@ class CharReceiver(wiring.Component):
                   for k in range(n + 1)]
 
         # This cycle's events (bits below the count only).
-        ev_fct, ev_nchar, ev_time, ev_perr, ev_eerr = [], [], [], [], []
-        nchar_values, time_values = [], []
-        for j in range(n):
-            cm, pc, code, bits, good = commit[j]
-            cm_j = v[j] & cm
-            e = esc_flag[j]
-            ev_perr.append(v[j] & flag[j] & ~good)
-            ev_eerr.append(cm_j & pc & e & (code != ControlCode.FCT))
-            ev_fct.append(cm_j & pc & ~e & (code == ControlCode.FCT))
-            eop = cm_j & pc & ~e & (code == ControlCode.EOP)
-            eep = cm_j & pc & ~e & (code == ControlCode.EEP)
-            data = cm_j & ~pc & ~e
-            tcode = cm_j & ~pc & e
-            ev_nchar.append(eop | eep | data)
-            ev_time.append(tcode)
-            kind = Mux(data, CharKind.DATA, Mux(eop, CharKind.EOP, CharKind.EEP))
-            nchar_values.append(Cat(kind, Mux(data, bits, 0)))
-            time_values.append(bits)
+        (ev_fct, ev_nchar, ev_time, ev_perr, ev_eerr, nchar_values,
+         time_values) = _events(v, commit, esc_flag, flag, n)
         nchar_value = _nearest(ev_nchar, nchar_values, self.nchar.as_value())
         time_value = _nearest(ev_time, time_values, self.time)
 
@@ -268,19 +241,7 @@ class CharReceiver(wiring.Component):
         def at_count(values):
             return _or([Mux(exactly[k], values[k], 0) for k in range(n + 1)])
 
-        steps = [frame]
-        for j in range(n):
-            s, nxt = steps[-1], Signal(_N_STATES, name=f"frame_{j + 1}")
-            m.d.comb += [
-                nxt[_FLAG].eq(s[_PAR]),
-                nxt[_CTRL[0]].eq(s[_FLAG] & c[j]),
-                nxt[_DATA[0]].eq(s[_FLAG] & ~c[j]),
-                nxt[_PAR].eq(s[_CTRL[-1]] | s[_DATA[-1]] | det[j]),
-            ]
-            for states in (_CTRL, _DATA):
-                for a, b in zip(states[:-1], states[1:], strict=True):
-                    m.d.comb += nxt[b].eq(s[a])
-            steps.append(nxt)
+        steps = _frame_steps(m, frame, c, det, n)
         pendings = [pending_at(k) for k in range(n + 1)]
         after_cycle = [
             got_null | Cat(v[j] & det[j] for j in range(n)).any(),
@@ -293,6 +254,14 @@ class CharReceiver(wiring.Component):
             at_count(esc_at),
         ]
 
+        self._update(m, registers, after_cycle, ev_fct, ev_nchar, ev_time, ev_perr, ev_eerr,
+                     nchar_value, time_value)
+        return m
+
+    def _update(self, m, registers, after_cycle, ev_fct, ev_nchar, ev_time, ev_perr, ev_eerr,
+                nchar_value, time_value):
+        """The registers and outputs after the cycle, and the disconnect timer
+        (``disconnect_limit`` cycles of silence after the first transition)."""
         armed = Signal()
         quiet = Signal(range(self._limit + 1))
         m.d.comb += self.err_disconnect.eq(armed & (quiet == self._limit))
@@ -326,7 +295,66 @@ class CharReceiver(wiring.Component):
                 m.d.sync += quiet.eq(0)
             with m.Elif(armed & (quiet != self._limit)):
                 m.d.sync += quiet.eq(quiet + 1)
-        return m
+
+
+def _flags(m, frame, c, det, n):
+    """Which bits are flag bits (for a bit count beyond j: bits up to j all valid), two beyond
+    the cycle for the ends of characters."""
+    flag = []
+    for j in range(n + 2):
+        terms = [frame[s] for s in range(_N_STATES) if _to_flag(s) == j]
+        if j >= 2:
+            terms.append(det[j - 2])            # the NULL's FCT ends at j - 2
+        if j >= CONTROL_BITS:
+            terms.append(flag[j - CONTROL_BITS] & c[j - CONTROL_BITS])
+        if j >= DATA_BITS:
+            terms.append(flag[j - DATA_BITS] & ~c[j - DATA_BITS])
+        f_j = Signal(name=f"flag_{j}")
+        m.d.comb += f_j.eq(Cat(*terms, Const(0)).any())
+        flag.append(f_j)
+    return flag
+
+
+def _events(v, commit, esc_flag, flag, n):
+    """The cycle's events per bit (bits below the count only): FCT, N-char, time-code, parity
+    and escape errors, and the N-char and time-code values."""
+    ev_fct, ev_nchar, ev_time, ev_perr, ev_eerr = [], [], [], [], []
+    nchar_values, time_values = [], []
+    for j in range(n):
+        cm, pc, code, bits, good = commit[j]
+        cm_j = v[j] & cm
+        e = esc_flag[j]
+        ev_perr.append(v[j] & flag[j] & ~good)
+        ev_eerr.append(cm_j & pc & e & (code != ControlCode.FCT))
+        ev_fct.append(cm_j & pc & ~e & (code == ControlCode.FCT))
+        eop = cm_j & pc & ~e & (code == ControlCode.EOP)
+        eep = cm_j & pc & ~e & (code == ControlCode.EEP)
+        data = cm_j & ~pc & ~e
+        tcode = cm_j & ~pc & e
+        ev_nchar.append(eop | eep | data)
+        ev_time.append(tcode)
+        kind = Mux(data, CharKind.DATA, Mux(eop, CharKind.EOP, CharKind.EEP))
+        nchar_values.append(Cat(kind, Mux(data, bits, 0)))
+        time_values.append(bits)
+    return ev_fct, ev_nchar, ev_time, ev_perr, ev_eerr, nchar_values, time_values
+
+
+def _frame_steps(m, frame, c, det, n):
+    """The one-hot framing state before each bit of the cycle (``frame`` before the first)."""
+    steps = [frame]
+    for j in range(n):
+        s, nxt = steps[-1], Signal(_N_STATES, name=f"frame_{j + 1}")
+        m.d.comb += [
+            nxt[_FLAG].eq(s[_PAR]),
+            nxt[_CTRL[0]].eq(s[_FLAG] & c[j]),
+            nxt[_DATA[0]].eq(s[_FLAG] & ~c[j]),
+            nxt[_PAR].eq(s[_CTRL[-1]] | s[_DATA[-1]] | det[j]),
+        ]
+        for states in (_CTRL, _DATA):
+            for a, b in zip(states[:-1], states[1:], strict=True):
+                m.d.comb += nxt[b].eq(s[a])
+        steps.append(nxt)
+    return steps
 
 
 def _or(values):

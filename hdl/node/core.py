@@ -308,22 +308,29 @@ class NodeCore(wiring.Component):
             reply.period.eq(self.period),
             reply.upload_crc.eq(dec.upload_crc),
             reply.upload_count.eq(dec.upload_count),
-            reply.link.up_link_errors.eq(
-                saturating_sum(self.up_errors[f] for f in ERROR_CLASSES)),
-            reply.link.down_link_errors.eq(
-                saturating_sum(self.down_errors[f] for f in ERROR_CLASSES)),
-            reply.link.rx_dropped.eq(saturating_sum(self.rx_stats[f] for f in RX_DROPS)),
-            reply.link.router_dropped.eq(self.dropped),
             reply.dmp_overruns.eq(dmp_overruns),
             reply.status.eq(status),
             reply.vdc_pending.eq(vseq.pending),
         ]
+        self._link_health(m, reply)
         forces = [vdc.outputs[vmc.addr(f"F{L}{k}") - IO_BASE] for L in "AB" for k in range(6)]
         m.d.comb += [reply.forces[i].eq(f) for i, f in enumerate(forces)]
         wiring.connect(m, reply=reply.tx, tx=wiring.flipped(self.tx))
 
         self._events(m, dec.ends, timer, vdc, reply, refs, dmp_step)
         return m
+
+    def _link_health(self, m, reply):
+        """Comm A's link health: the two codecs' error classes and the drops, each summed
+        saturating."""
+        m.d.comb += [
+            reply.link.up_link_errors.eq(
+                saturating_sum(self.up_errors[f] for f in ERROR_CLASSES)),
+            reply.link.down_link_errors.eq(
+                saturating_sum(self.down_errors[f] for f in ERROR_CLASSES)),
+            reply.link.rx_dropped.eq(saturating_sum(self.rx_stats[f] for f in RX_DROPS)),
+            reply.link.router_dropped.eq(self.dropped),
+        ]
 
     def _dmp(self, m, dec, cfg, timer, refs):
         """The joint-side motion primitive: the generator (its bank's words, CONFIG DMP's
