@@ -392,16 +392,19 @@ def _plant(table: dict) -> PlantConfig:
 
 
 def _brake(table) -> BrakeConfig:
+    return _section(table, "plant.brake", BrakeConfig,
+                    lambda v, name: None if v is None else require_finite(_number(v, name), name))
+
+
+def _section(table, prefix: str, cls, value):
+    """A TOML table of ``cls``'s fields (a dataclass): unknown keys refused, each given value
+    through ``value(v, field)``, the class's defaults for the others."""
     if not isinstance(table, dict):
-        raise InputError("plant.brake", f"must be a table, not {table!r}")
-    _keys(table, "plant.brake.", {f.name for f in fields(BrakeConfig)})
-    d = BrakeConfig()
-    values = {}
-    for f in fields(BrakeConfig):
-        name = f"plant.brake.{f.name}"
-        v = table.get(f.name, getattr(d, f.name))
-        values[f.name] = None if v is None else require_finite(_number(v, name), name)
-    return BrakeConfig(**values)
+        raise InputError(prefix, f"must be a table, not {table!r}")
+    _keys(table, f"{prefix}.", {f.name for f in fields(cls)})
+    d = cls()
+    return cls(**{f.name: value(table.get(f.name, getattr(d, f.name)), f"{prefix}.{f.name}")
+                  for f in fields(cls)})
 
 
 def _safety(table: dict) -> FaultsConfig:
@@ -435,17 +438,9 @@ def _joints(value) -> str:
 
 
 def _gear(table) -> GearConfig:
-    if not isinstance(table, dict):
-        raise InputError("plant.gear", f"must be a table, not {table!r}")
-    _keys(table, "plant.gear.", {f.name for f in fields(GearConfig)})
-    d = GearConfig()
-    values = {}
-    for f in fields(GearConfig):
-        name = f"plant.gear.{f.name}"
-        v = table.get(f.name, getattr(d, f.name))
-        values[f.name] = _bool(v, name) if f.name == "hysteresis" else \
-            require_finite(_number(v, name), name)
-    return GearConfig(**values)
+    return _section(table, "plant.gear", GearConfig,
+                    lambda v, name: _bool(v, name) if name == "plant.gear.hysteresis" else
+                    require_finite(_number(v, name), name))
 
 
 def _current_bandwidth(value) -> float:
