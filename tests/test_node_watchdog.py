@@ -18,7 +18,7 @@ PULSES = ("packet", "tick", "cmd_valid", "arm", "disarm")
 def run_both(events, timeout, ramp, tau_min, tau_max, stop_cycles=0, brake_cycles=0,
              standstill=0, standstill_ticks=0):
     """events: list of dicts of pulses (and cmd, velocity) per cycle. Outputs per cycle:
-    torque, armed, tripped, safe, holding, brake, limit."""
+    torque, armed, tripped, safe, holding, brake, limit, rest."""
     dut = Watchdog()
     ref = WatchdogModel()
     rtl_out, ref_out = [], []
@@ -40,12 +40,13 @@ def run_both(events, timeout, ramp, tau_min, tau_max, stop_cycles=0, brake_cycle
             await ctx.tick()
             rtl_out.append((ctx.get(dut.torque), ctx.get(dut.armed), ctx.get(dut.tripped),
                             ctx.get(dut.safe), ctx.get(dut.holding), ctx.get(dut.brake),
-                            ctx.get(dut.limit)))
+                            ctx.get(dut.limit), ctx.get(dut.rest)))
             ref.cycle(timeout=timeout, ramp=ramp, tau_min=tau_min, tau_max=tau_max,
                       stop_cycles=stop_cycles, brake_cycles=brake_cycles,
                       standstill=standstill, standstill_ticks=standstill_ticks, **ev)
             ref_out.append((ref.torque, int(ref.armed), int(ref.tripped), int(ref.safe),
-                            int(ref.holding), int(ref.brake), int(ref.limit)))
+                            int(ref.holding), int(ref.brake), int(ref.limit),
+                            int(ref.rest(ev.get("velocity", 0)))))
 
     sim = Simulator(dut)
     sim.add_clock(20e-9)
@@ -67,7 +68,7 @@ def test_trips_after_two_periods_of_silence_and_ramps_to_zero():
     trip = next(k for k, o in enumerate(rtl) if o[2])
     last_packet = 1 + 250                              # event index of the last packet
     assert trip == last_packet + 1 + timeout
-    assert rtl[-1] == (0, 1, 1, 1, 0, 1, 0)            # safe: tripped, torque zero, braked
+    assert rtl[-1][:7] == (0, 1, 1, 1, 0, 1, 0)        # safe: tripped, torque zero, braked
     torques = [o[0] for o in rtl[trip:]]
     assert all(a - b in (0, ramp) or b == 0 for a, b in zip(torques, torques[1:], strict=False))
 
@@ -124,7 +125,7 @@ def test_safe_stop_holds_then_brakes_then_ramps_and_arm_releases():
     assert len(set(hold_cmds)) > 1 and all(t > 3000 for t in hold_cmds)   # commands applied
     sto = rtl[trip + stop + brake:-4]
     assert not any(o[4] for o in sto) and sto[-1][0] == 0 and sto[-1][3] == 1
-    assert rtl[-1] == (10, 1, 0, 0, 0, 0, 0)          # re-armed: brake off, commands apply
+    assert rtl[-1][:7] == (10, 1, 0, 0, 0, 0, 0)      # re-armed: brake off, commands apply
 
 
 def test_disarm_while_holding_engages_the_brake_at_once():
@@ -134,7 +135,7 @@ def test_disarm_while_holding_engages_the_brake_at_once():
     rtl, ref = run_both(events, timeout, 1, -1000, 1000, stop, brake)
     assert rtl == ref
     assert rtl[12][4] == 1 and rtl[12][5] == 0          # holding, brake released
-    assert rtl[-1] == (0, 0, 1, 1, 0, 1, 0)             # disarmed: no torque, brake engaged
+    assert rtl[-1][:7] == (0, 0, 1, 1, 0, 1, 0)         # disarmed: no torque, brake engaged
 
 
 def _stopping(speeds, tick=10):
@@ -164,6 +165,15 @@ def test_standstill_engages_the_brake_before_the_time_limit():
     assert all(o[4] for o in rtl[trip:engage + brake])           # holding to brake cycles on
     assert not any(o[4] for o in rtl[engage + brake:])
     assert all(o[5] and not o[6] for o in rtl[engage:])          # braked, not at the limit
+    # rest: at the first tick within ±standstill (tick 7), not at a moving one, and from the
+    # brake on whatever the velocity; with the rule off, always (the hold's target frozen at
+    # its first tick, the step of the fixed timer)
+    first_still = 6 + 7 * 10
+    assert rtl[first_still][7] == 1 and rtl[first_still - 10][7] == 0
+    assert rtl[6 + 9 * 10][7] == 0
+    assert all(o[7] for o in rtl[engage:])
+    off, _ = run_both(_stopping(speeds), timeout, 1000, -5000, 5000, stop, brake, 0, n)
+    assert all(o[7] for o in off)
 
 
 def test_standstill_ignored_would_fail():

@@ -48,12 +48,14 @@ cycle a packet or time-code arrived (docs/node.md "Timing"):
   runs with the latched count, velocity, Comm D values and ``t_next`` (from the boundary); its
   torque goes through the :class:`~hdl.node.watchdog.Watchdog`. A tick that finds the joint
   engine busy is skipped and counted (``overruns``).
-* Safe stop (IEC 61800-5-2 SS1 at monitored standstill, SS1-t as the time limit; docs/node.md
-  "Safe stop"): after a watchdog trip the ticks run the PID entry on node-local references
-  (hold the count of the first hold tick); the ``brake`` output once the ticks' velocity
-  word has been within ±STANDSTILL for STANDSTILL_TICKS consecutive ticks, at the latest
-  STOP_CYCLES after the trip; the hold goes on for BRAKE_CYCLES from the brake, then the
-  torque ramps to zero (STO); status bits HOLD, BRAKE and STOP_LIMIT.
+* Safe stop (IEC 61800-5-2 SS1 at monitored standstill, SS1-t as the time limit;
+  docs/node.md "Safe stop"): after a watchdog trip the ticks run the PID entry on node-local
+  references (their target the tick's count while the joint stops, frozen at the first hold
+  tick with the joint at rest: velocity within ±STANDSTILL, the brake on, or the rule off);
+  the ``brake`` output once the ticks' velocity word has been within ±STANDSTILL for
+  STANDSTILL_TICKS consecutive ticks, at the latest STOP_CYCLES after the trip; the hold goes
+  on for BRAKE_CYCLES from the brake, then the torque ramps to zero (STO); status bits HOLD,
+  BRAKE and STOP_LIMIT.
 * Words arrive over the byte stream; a word for a busy engine waits (``rx.ready`` low).
 * Every payload byte of a CONFIG or PARAM packet goes, in arrival order, into a running
   CRC-16/CCITT-FALSE (the link's, :mod:`hdl.link.crc`, from 0xFFFF at reset) and every such
@@ -272,6 +274,7 @@ class NodeCore(wiring.Component):
             ticks.clear_lo.eq(cfg.clear_lo),
             ticks.clear_hi.eq(cfg.clear_hi),
             ticks.hold.eq(wd.holding),
+            ticks.rest.eq(wd.rest),
             joint.start.eq(ticks.start),
             joint.entry.eq(ticks.entry),
             joint.host_addr.eq(ticks.host_addr),

@@ -20,7 +20,8 @@ Internal events follow the node's period timer (free-running from reset, phase 0
   engine's input (disarmed: at its last byte);
 * the safe stop after a watchdog trip (IEC 61800-5-2 SS1 at monitored standstill, SS1-t as
   the time limit; docs/node.md "Safe stop", :mod:`~hdl.node.watchdog_ref`): the ticks run
-  the PID entry on node-local references (the count of the hold's first tick, zero velocity,
+  the PID entry on node-local references (the tick's count while the joint stops, frozen at
+  the first hold tick with the joint at rest, :meth:`NodeModel._at_rest`; zero velocity,
   acceleration and ``τ_D``) and their commands land; the brake from the cycle after the tick
   that completes STANDSTILL_TICKS consecutive ticks with the velocity within ±STANDSTILL
   (≠ 0), at the latest STOP_CYCLES after the trip; the hold for BRAKE_CYCLES from the
@@ -135,7 +136,8 @@ class NodeModel:
     trip_cycle : int
         First cycle of the last watchdog trip (``tripped`` visible).
     hold_pos : int or None
-        The safe stop's hold position (POS word), taken at the hold's first tick; None before.
+        The safe stop's hold position (POS word): each hold tick's count until one finds the
+        joint at rest (``hold_fixed``), then frozen; None before the first hold tick.
     still_cycle : int or None
         The brake's first cycle when the standstill rule engaged it in the last trip (the cycle
         after the tick that completed the standstill); None otherwise.
@@ -176,6 +178,7 @@ class NodeModel:
     tripped: bool = False
     trip_cycle: int = 0
     hold_pos: int | None = None
+    hold_fixed: bool = False
     still_cycle: int | None = None
     still_run: int = 0
     _now: int = 0                         # the cycle of the last _watch (for status)
@@ -362,6 +365,14 @@ class NodeModel:
         else:
             self.still_run = 0
 
+    def _at_rest(self, now: int, qd: int) -> bool:
+        """The hold tick at ``now`` with the velocity word ``qd`` freezes the hold's target
+        (the count it takes): the standstill rule off (the first hold tick, a step to the
+        count there), the velocity within ±STANDSTILL (the joint at rest), or the brake on
+        in this cycle (standstill reached or the stop's time limit)."""
+        thr = self.config[Config.STANDSTILL]
+        return thr == 0 or abs(qd) <= thr or now >= self.engage_cycle()
+
     def _sto_at(self, c: int) -> bool:
         """Tripped by cycle ``c`` (the trip predicted if not seen yet) and not holding: the
         watchdog ignores the engine's commands (STO's ramp)."""
@@ -394,8 +405,9 @@ class NodeModel:
             return
         tt = min(tt, _TIME_MAX)
         if hold:                                # the safe stop's PID on node-local references
-            if self.hold_pos is None:
+            if not self.hold_fixed:             # stopping: the target follows the count
                 self.hold_pos = saturate(count << -POS.lsb)
+                self.hold_fixed = self._at_rest(now, qd)
             mode = "pid"
             refs = (0, self.hold_pos, 0, 0)
         else:
@@ -542,7 +554,7 @@ class NodeModel:
             if now >= trip:
                 self.tripped = True
                 self.trip_cycle = trip
-                self.hold_pos = None
+                self.hold_pos, self.hold_fixed = None, False
                 self.still_cycle, self.still_run = None, 0
                 self._prime_due = trip + 1
         prime_due = self._prime_due

@@ -9,9 +9,14 @@ skipped and counted (``overruns`` in Comm A).
 
 While the watchdog holds the joint (``hold``: the safe stop's SS1/SS2 stage after a trip,
 :class:`~hdl.node.watchdog.Watchdog`, docs/node.md "Safe stop") every tick runs the PID entry
-whatever the mode, on node-local references: ``q_d0`` the encoder count of the hold's first
-tick (as a POS word, saturated), ``q̇_d0 = q̈_d0 = 0`` and ``τ_D = 0`` (no feed-forward); the
-PID words ``kp, ki, kd`` are the hold gains.
+whatever the mode, on node-local references: ``q_d0`` the encoder count of the hold tick (as a
+POS word, saturated) until a hold tick finds the joint at rest (``rest``, the watchdog's: its
+velocity within ±STANDSTILL, the brake on, or the standstill rule off), that tick's count
+from then on, ``q̇_d0 = q̈_d0 = 0`` and ``τ_D = 0`` (no feed-forward); the PID words ``kp, ki,
+kd`` are the hold gains. While the target follows the count the position error is the last
+tick's step (≈ 0) and the velocity term ``k_d (0 − q̇)`` stops the joint, at most at the
+torque limit; the frozen target then holds it where it came to rest (SS1's stop, then SS2's
+standstill), not where it was at the trip.
 
 Between runs the joint engine's host port takes, in priority order, the PID integral clears
 of an ARM (:class:`~hdl.node.config.NodeConfig`) and the PARAM words for the joint bank.
@@ -65,6 +70,9 @@ class ControlTicks(wiring.Component):
         Strobes: write zero into ``ilo_s`` / ``ihi_s``.
     hold : In(1)
         The safe stop holds the joint (PID entry, node-local references).
+    rest : In(1)
+        The joint is at rest for the hold (the watchdog's ``rest``): the hold tick that finds
+        it set takes the last count into ``q_d0``; the ticks before it take each their own.
     words : In(stream.Signature(HostWrite))
         PARAM words for the joint bank (the bank field is not looked at).
     tick : Out(1)
@@ -96,6 +104,7 @@ class ControlTicks(wiring.Component):
             "clear_lo":   In(1),
             "clear_hi":   In(1),
             "hold":       In(1),
+            "rest":       In(1),
             "words":      In(stream.Signature(HostWrite)),
             "tick":       Out(1),
             "overruns":   Out(16),
@@ -144,10 +153,12 @@ class ControlTicks(wiring.Component):
                         j_in.tauD.eq(0),
                         j_in.vd0.eq(0),
                         j_in.ad0.eq(0),
-                        hold_set.eq(1),
                     ]
-                    with m.If(~hold_set):       # the first hold tick's count, kept after
-                        m.d.sync += j_in.qd0.eq(pos_now)
+                    with m.If(~hold_set):       # stopping: this tick's count; kept from rest
+                        m.d.sync += [
+                            j_in.qd0.eq(pos_now),
+                            hold_set.eq(self.rest),
+                        ]
                     m.d.comb += self.entry.eq(jmc.entries["pid"])
                 with m.Else():
                     m.d.sync += [

@@ -8,15 +8,17 @@ Behaviour, cycle by cycle, is specified by :mod:`.watchdog_ref` (the gateware eq
 for bit): a joint starts disarmed with zero torque; once armed it applies the joint
 controller's commands clamped to the uploaded limits; when no valid packet has arrived for
 ``timeout`` cycles it trips, says so in its status, and runs the safe stop: it still applies
-the joint engine's commands, which then hold the joint still (``holding``: the core runs the
-engine's PID on node-local references); it asserts ``brake`` once the joint is at standstill
-(the encoder velocity within ±``standstill`` at ``standstill_ticks`` consecutive ticks; the
-brake from the cycle after the last of them) or at the latest ``stop_cycles`` into the trip
-(the stop's time limit, SS1-t as a fallback, flagged by ``limit``); it keeps holding for
-``brake_cycles`` cycles from the brake's first cycle, then ramps the torque to zero by
-``ramp`` per control tick (STO). ``standstill`` = 0 turns the standstill rule off: the brake
-``stop_cycles`` into the trip, exactly the fixed timer. Only a new ``arm`` (CONFIG) leaves
-the tripped state and releases the brake; a disarm while tripped engages the brake at once.
+the joint engine's commands, which first stop the joint and then hold it still (``holding``:
+the core runs the engine's PID on node-local references, their target following the count
+until ``rest``, then frozen: the joint is held where it came to rest); it asserts ``brake``
+once the joint is at standstill (the encoder velocity within ±``standstill`` at
+``standstill_ticks`` consecutive ticks; the brake from the cycle after the last of them) or
+at the latest ``stop_cycles`` into the trip (the stop's time limit, SS1-t as a fallback,
+flagged by ``limit``); it keeps holding for ``brake_cycles`` cycles from the brake's first
+cycle, then ramps the torque to zero by ``ramp`` per control tick (STO). ``standstill`` = 0
+turns the standstill rule off: the brake ``stop_cycles`` into the trip, exactly the fixed
+timer. Only a new ``arm`` (CONFIG) leaves the tripped state and releases the brake; a disarm
+while tripped engages the brake at once.
 """
 
 from amaranth import *
@@ -63,6 +65,11 @@ class Watchdog(wiring.Component):
     limit : Out(1)
         Tripped, the brake engaged at the time limit and the standstill rule on: the joint
         was not seen at standstill within ``stop_cycles`` (status bit STOP_LIMIT).
+    rest : Out(1)
+        The joint is at rest for the hold (combinational, read by the control ticks at a
+        hold tick): the standstill rule off, ``velocity`` within ±``standstill``, or the
+        brake engaged (or at the time limit). Until a hold tick finds it set, the hold's
+        target follows the encoder count (the stop); from then on it is frozen.
     """
 
     packet:    In(1)
@@ -87,6 +94,7 @@ class Watchdog(wiring.Component):
     holding:   Out(1)
     brake:     Out(1)
     limit:     Out(1)
+    rest:      Out(1)
 
     def elaborate(self, platform):
         m = Module()
@@ -151,6 +159,7 @@ class Watchdog(wiring.Component):
                                 ~at_limit | (self.brake_cycles != 0))),
             self.brake.eq(self.tripped & (braked | at_limit | ~self.armed)),
             self.limit.eq(self.tripped & (by_limit | at_limit) & (thr != 0)),
+            self.rest.eq((thr == 0) | still | braked | at_limit),
         ]
 
         tau = self.torque

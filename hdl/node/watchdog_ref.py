@@ -25,7 +25,10 @@ Per cycle, with the inputs of that cycle (all pulses one cycle wide), in this or
    ``braked`` not at a limit with ``brake_cycles`` = 0, after it ``since < brake_cycles``:
    the joint engine holds the joint, SS1/SS2's stop and standstill), ``brake`` (tripped and
    ``braked``, at the limit or disarmed) and ``limit`` (tripped, braked at the time limit,
-   ``standstill`` ≠ 0).
+   ``standstill`` ≠ 0); ``rest`` (combinational with this cycle's ``velocity``: the
+   standstill rule off, the velocity within ±``standstill``, or the brake engaged or at the
+   limit): the control ticks freeze the hold's target at a hold tick that sees it, and until
+   then give it the tick's count (the joint stops, then is held where it came to rest).
 6. Torque: disarmed → 0; tripped and not holding (STO) → on each ``tick`` the torque moves
    ``ramp`` towards zero (no torque, reached smoothly); armed otherwise (normal, or holding)
    → on ``cmd_valid`` the command clamped to ``[tau_min, tau_max]``.
@@ -131,6 +134,14 @@ class WatchdogModel:
         """Tripped, the brake engaged at the time limit, the standstill rule on."""
         return (self.tripped and (self.by_limit or self._at_limit)
                 and self.standstill != 0)
+
+    def rest(self, velocity: int) -> bool:
+        """The ``rest`` output in the next cycle with the velocity word ``velocity`` there:
+        the hold's target is frozen at a hold tick that finds it (the standstill rule off,
+        ``velocity`` within ±``standstill``, or the brake engaged or at the time limit);
+        until then it follows the count."""
+        thr = self.standstill
+        return thr == 0 or abs(velocity) <= thr or self.braked or self._at_limit
 
     @property
     def safe(self) -> bool:
