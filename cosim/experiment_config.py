@@ -37,7 +37,7 @@ from mrm_cosim.errors import (
 from mrm_cosim.master.cycle import CONTROLLERS, MasterTiming
 from mrm_cosim.master.uploads import PID_DESIGN_HZ, Gains
 from mrm_cosim.models.brake import BrakeConfig
-from mrm_cosim.protocol.safe_stop import SafeStopParams
+from mrm_cosim.protocol.safe_stop import SafeStopParams, safe_stop_config
 from mrm_cosim.models.gear import GearConfig
 from mrm_cosim.models.plant import JOINTS, Perturbation, PlantConfig
 from mrm_cosim.tomlfile import parse_toml, read_toml
@@ -92,7 +92,8 @@ class FaultsConfig:
         (lengthened where it would ask a joint for more than half its peak torque:
         :func:`master.recovery.fit_blend`).
     safe_stop : protocol.safe_stop.SafeStopParams
-        The nodes' safe stop, uploaded by the master (``stop_s``, ``brake_s``, ``hold_hz``).
+        The nodes' safe stop, uploaded by the master (``stop_s``, ``brake_s``, ``hold_hz``,
+        ``standstill``, ``standstill_s``; docs/node.md "Safe stop").
     """
 
     lines: tuple = ()
@@ -425,6 +426,7 @@ def _safety(table: dict) -> FaultsConfig:
     values = {k: _number(table.get(k, getattr(ds, k)), f"safety.{k}") for k in stop_keys}
     try:
         stop = SafeStopParams(**values)
+        safe_stop_config(stop)          # the words fit the nodes' registers (50-cycle tick)
     except InputError as e:
         raise InputError(e.field.replace("safe_stop.", "safety."), e.message) from None
     return FaultsConfig(tuple(lines), on_trip, blend, stop, parsed)

@@ -9,6 +9,7 @@ sends once the link is up. The loop (``cosim.closed_loop``) only carries them.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,12 +23,11 @@ from mrm_cosim.protocol import packet as ref
 from mrm_cosim.protocol.fixed import FORCE
 from mrm_cosim.protocol.joint_program import PID_SHIFT_MAX, JointParams, pid_formats
 from mrm_cosim.protocol.regs import MODES, Config, config_payloads, joint_upload, vdc_upload
-from mrm_cosim.protocol.safe_stop import SafeStopParams, hold_gains, safe_stop_config
-from mrm_cosim.protocol.safe_stop import triple_pole_gains
+from mrm_cosim.protocol.safe_stop import SafeStopParams, safe_stop_config
 from mrm_cosim.units import CLOCK_HZ
 
-__all__ = ["Gains", "pid_gains", "node_uploads", "check_node_period", "startup_sends",
-           "dmp_uploads", "dmp_retarget"]
+__all__ = ["Gains", "pid_gains", "triple_pole_gains", "hold_gains", "node_uploads",
+           "check_node_period", "startup_sends", "dmp_uploads", "dmp_retarget"]
 
 
 @dataclass(frozen=True)
@@ -68,6 +68,21 @@ def _joint_inertia(robot: Robot) -> np.ndarray:
     M = pin.crba(model, model.createData(), robot.home)
     return np.diag(M) + np.array([ACTUATORS[m.type.actuator].output_inertia
                                   for m in robot.modules])
+
+
+def triple_pole_gains(inertia, hz: float) -> dict:
+    """PID gains placing a triple pole at ``−2π·hz`` for the inertia ``inertia`` (kg·m², a
+    float or an array): ``kp`` N·m/rad, ``ki`` N·m/(rad·s), ``kd`` N·m·s/rad."""
+    w = 2 * math.pi * hz
+    return {"kp": 3 * inertia * w * w, "ki": inertia * w**3, "kd": 3 * inertia * w}
+
+
+def hold_gains(params: SafeStopParams, inertia) -> dict:
+    """The safe stop's hold gains (SI, :func:`triple_pole_gains` at ``params.hold_hz``) for a
+    joint of nominal inertia ``inertia`` (kg·m²): what a VDC or torque-mode node's PID words
+    hold (docs/node.md "Safe stop"). While the joint stops only ``kd`` acts (the reference
+    follows the count), saturating at the torque limit; at rest the triple pole holds it."""
+    return triple_pole_gains(inertia, params.hold_hz)
 
 
 def pid_gains(robot: Robot, hz: float) -> dict:

@@ -9,27 +9,30 @@ not drop its torque at once, which lets an arm fall under gravity; it runs an SS
 whose brake waits for monitored standstill, with SS1-t's time limit as a fallback
 (docs/node.md "Safe stop"):
 
-1. **Stop and hold** (SS2's standstill, held by the node's own loop): the joint engine runs
-   its PID program at every control tick on node-local references — the encoder count at
-   the trip, zero velocity and acceleration, no feed-forward — with the PID gain words
-   (``kp, ki, kd`` of the JOINT bank) as hold gains.
-2. **Brake**: once the encoder's velocity word has been within ±STANDSTILL at STANDSTILL_TICKS
-   consecutive ticks (the joint at standstill), at the latest STOP_CYCLES after the trip
-   (status STOP_LIMIT then), the node asserts its ``brake`` output and keeps holding for
-   BRAKE_CYCLES (the brake's engage time plus a margin). A brake engaged while the joint
-   still moves has to stop it by slipping (joint 1 of the mrm3 slipped 9–13 mrad with a fixed
-   80–100 ms stop).
-3. **STO**: then the torque ramps to zero by RAMP per control tick; the brake stays engaged.
+1. **Stop** (SS1's controlled stop, by the node's own loop): the joint engine runs its PID
+   program at every control tick on node-local references — zero velocity and acceleration,
+   no feed-forward, and as position each tick's own encoder count, so only the damping
+   ``k_d (0 − q̇)`` acts: the joint decelerates, at most at the torque limit — until a tick
+   finds the velocity word within ±STANDSTILL (the joint at rest).
+2. **Hold** (SS2's standstill): from that tick the position reference is frozen at that
+   tick's count and the PID (``kp, ki, kd`` of the JOINT bank: hold gains) holds the joint
+   where it came to rest — not where it was at the trip, which a torque-limited joint
+   overshoots and a stiff hold pulled it back through (joint 1 of the mrm3: a growing limit
+   cycle, never a standstill).
+3. **Brake**: once the velocity word has been within ±STANDSTILL at STANDSTILL_TICKS
+   consecutive ticks, at the latest STOP_CYCLES after the trip (status STOP_LIMIT then, and
+   the reference frozen there), the node asserts its ``brake`` output and keeps holding for
+   BRAKE_CYCLES (the brake's engage time plus a margin).
+4. **STO**: then the torque ramps to zero by RAMP per control tick; the brake stays engaged.
 
-The hold gains are the PID words because a node in VDC or torque mode never reads them:
-the master uploads hold gains there (:func:`hold_gains` at :attr:`SafeStopParams.hold_hz`);
-a node in PID mode holds with its tracking gains. This module is pure Python: the master
-(:func:`mrm_cosim.master.uploads.node_uploads`) converts the physical parameters with it.
+With STANDSTILL = 0 (the rule off) the reference is the first hold tick's count and the brake
+comes at STOP_CYCLES: the fixed timer of the first version. The gains are the master's
+(:func:`mrm_cosim.master.uploads.hold_gains`); this module holds the parameters and their
+register words only.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 from mrm_cosim.errors import InputError, require_nonnegative, require_positive
@@ -38,8 +41,7 @@ from mrm_cosim.units import CLOCK_HZ
 from .fixed import VEL
 from .regs import Config
 
-__all__ = ["SafeStopParams", "SAFE_STOP_CYCLES_MAX", "triple_pole_gains", "hold_gains",
-           "safe_stop_config"]
+__all__ = ["SafeStopParams", "SAFE_STOP_CYCLES_MAX", "safe_stop_config"]
 
 #: Largest STOP_CYCLES / BRAKE_CYCLES value (the registers are 32 bits, unsigned).
 SAFE_STOP_CYCLES_MAX = (1 << 32) - 1
@@ -53,26 +55,36 @@ class SafeStopParams:
     ----------
     stop_s : float, s
         The time limit of the stop and hold before the brake is engaged (STOP_CYCLES): with
-        the standstill rule on (``standstill`` > 0) the brake engages at standstill, at the
-        latest this long after the trip (SS1-t as a fallback); off, exactly this long after
-        the trip (SS1-t). Assumption: 50 ms, about the time the hold loop at 15 Hz takes to
-        bring joint 1 of the mrm3 to rest from the quintic's peak speed (its first turning
-        point, 8.8 mrad on, comes 61 ms after the cut).
+        the standstill rule on the brake engages at standstill, at the latest this long after
+        the trip (SS1-t as a fallback); off (``standstill`` = 0), exactly this long after the
+        trip. Assumption: 0.2 s, about 2.5 times the 83 ms joint 1 of the mrm3 takes from
+        the quintic's peak speed to its brake at standstill (docs/faults.md "Safe stop in
+        the closed loop").
     brake_s : float, s
         The brake's engage time plus a margin, during which the node still holds
         (BRAKE_CYCLES). Assumption: 50 ms (spring-applied holding brakes of this size engage
         in 10–40 ms; the plant's brake model states its own).
     hold_hz : float, Hz
         Triple pole of the hold loop for the joints whose node does not run its PID (VDC and
-        torque modes): the PID words ``kp, ki, kd`` take :func:`hold_gains` for the joint's
-        nominal inertia. A node in PID mode holds with its tracking gains. 15 Hz is the
-        node PID's default bandwidth (``Gains.pid_fpga_hz``), stable on the compliant plant.
+        torque modes): the PID words ``kp, ki, kd`` take the master's hold gains for the
+        joint's nominal inertia. A node in PID mode holds with its tracking gains. 15 Hz is
+        the node PID's default bandwidth (``Gains.pid_fpga_hz``), stable on the compliant
+        plant.
+    standstill : float, rad/s
+        The standstill threshold (STANDSTILL, a VEL word): the stop ends (the reference
+        freezes) at the first tick within ±this, the brake after ``standstill_s`` of
+        consecutive such ticks; 0 turns the rule off (the fixed timer). Assumption: 10 mrad/s:
+        the 15 Hz hold at rest dithers by one encoder count, which the M/T estimate reports
+        as a few mrad/s, so a 2 mrad/s band was never held for 10 ms by joint 1 of the mrm3.
+    standstill_s : float, s
+        How long the velocity must stay within the band (STANDSTILL_TICKS, in control
+        ticks). Assumption: 10 ms.
     """
 
-    stop_s: float = 0.05
+    stop_s: float = 0.2
     brake_s: float = 0.05
     hold_hz: float = 15.0
-    standstill: float = 0.0
+    standstill: float = 0.01
     standstill_s: float = 0.01
 
     def __post_init__(self):
@@ -87,19 +99,6 @@ class SafeStopParams:
             raise InputError("safe_stop.standstill", f"{x!r} rad/s is below half the node's "
                              f"velocity LSB ({VEL.resolution:.3g} rad/s): 0 turns the rule off")
         require_nonnegative(self.standstill_s, "safe_stop.standstill_s")
-
-
-def triple_pole_gains(inertia, hz: float) -> dict:
-    """PID gains placing a triple pole at ``−2π·hz`` for the inertia ``inertia`` (kg·m², a
-    float or an array): ``kp`` N·m/rad, ``ki`` N·m/(rad·s), ``kd`` N·m·s/rad."""
-    w = 2 * math.pi * hz
-    return {"kp": 3 * inertia * w * w, "ki": inertia * w**3, "kd": 3 * inertia * w}
-
-
-def hold_gains(params: SafeStopParams, inertia) -> dict:
-    """The hold loop's PID gains (SI, :func:`triple_pole_gains` at ``params.hold_hz``) for a
-    joint of nominal inertia ``inertia`` (kg·m²)."""
-    return triple_pole_gains(inertia, params.hold_hz)
 
 
 def safe_stop_config(params: SafeStopParams, clock_hz: float = float(CLOCK_HZ),

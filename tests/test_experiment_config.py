@@ -193,7 +193,8 @@ def test_friction_comp_uploads_the_nominal_friction_as_vdc_joint_estimates():
     changed = [(a, b) for a, b in zip(plain, rich, strict=True) if a != b]
     assert changed and all(a[0] == b[0] and a[1] == b[1] for a, b in changed)
     from mrm_cosim.master.uploads import _joint_inertia, pid_shifts
-    from mrm_cosim.protocol.safe_stop import SafeStopParams, hold_gains
+    from mrm_cosim.master.uploads import hold_gains
+    from mrm_cosim.protocol.safe_stop import SafeStopParams
 
     # VDC's PID words hold the safe stop's hold gains (docs/node.md "Safe stop")
     hold = hold_gains(SafeStopParams(), _joint_inertia(robot))

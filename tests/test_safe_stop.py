@@ -1,4 +1,4 @@
-"""The node's safe stop (IEC 61800-5-2 SS1-t: hold, brake, STO) through the master's uploads
+"""The node's safe stop (IEC 61800-5-2 SS1: stop, hold, brake, STO) through the master's uploads
 and every backend: its parameters' words, the model backend's paths (kernel, Python, eager)
 against each other, and the model against the gateware (compiled) around a trip.
 
@@ -11,21 +11,24 @@ import pytest
 from mrm_cosim.errors import InputError
 from mrm_cosim.protocol import packet as ref
 from mrm_cosim.protocol.regs import Config, Status, parse_comm_a
-from mrm_cosim.protocol.safe_stop import SafeStopParams, hold_gains, safe_stop_config
+from mrm_cosim.master.uploads import hold_gains
+from mrm_cosim.protocol.safe_stop import SafeStopParams, safe_stop_config
 from mrm_cosim.units import CLOCK_HZ
 
 #: A trip in every period (the master talks for ~0.1 ms of each 1 ms period, the nodes time
-#: out after 0.6 ms) and a short safe stop, so a run of a few periods sees all of it.
+#: out after 0.6 ms) and a short safe stop, so a run of a few periods sees all of it: the
+#: fixed timer (the standstill rule off; the hold's reference the first hold tick's count).
 TIMEOUT = 30_000
-SHORT = SafeStopParams(stop_s=0.002, brake_s=0.002)
+SHORT = SafeStopParams(stop_s=0.002, brake_s=0.002, standstill=0.0)
 #: The same with the standstill rule: the arm trips near rest (period 0); joints 1 and 2 are
-#: at standstill (0.5 ms within ±2 mrad/s) and brake within 0.1 ms of the trip, joint 3 still
-#: moves (~30 mrad/s at most) and brakes at the 4 ms time limit (STOP_LIMIT).
+#: at standstill (0.5 ms within ±2 mrad/s) and brake within 0.1 ms of the trip (the hold's
+#: reference frozen at the first hold tick), joint 3 still moves (~30 mrad/s at most): the
+#: reference follows its count to the 4 ms time limit, where it brakes (STOP_LIMIT).
 STILL = SafeStopParams(stop_s=0.004, brake_s=0.002, standstill=2e-3, standstill_s=0.0005)
 
 
 def test_safe_stop_words_follow_the_durations_and_bad_values_name_their_field():
-    p = SafeStopParams(stop_s=0.05, brake_s=0.03, hold_hz=10.0)
+    p = SafeStopParams(stop_s=0.05, brake_s=0.03, hold_hz=10.0, standstill=0.0)
     assert safe_stop_config(p) == {Config.STOP_CYCLES: round(0.05 * CLOCK_HZ),
                                    Config.BRAKE_CYCLES: round(0.03 * CLOCK_HZ)}
     g = hold_gains(p, 2.0)
@@ -55,7 +58,7 @@ def test_standstill_words_follow_the_threshold_and_the_tick():
     assert safe_stop_config(p, tick_cycles=500)[Config.STANDSTILL_TICKS] == 1_000
     assert safe_stop_config(SafeStopParams(standstill=1e-3, standstill_s=0.0))[
         Config.STANDSTILL_TICKS] == 1
-    assert Config.STANDSTILL not in safe_stop_config(SafeStopParams())
+    assert Config.STANDSTILL not in safe_stop_config(SafeStopParams(standstill=0.0))
     with pytest.raises(InputError) as e:
         safe_stop_config(SafeStopParams(standstill=1e-3, standstill_s=0.1), tick_cycles=50)
     assert e.value.field == "safe_stop.standstill_s"
@@ -103,6 +106,11 @@ def test_the_master_uploads_the_timings_and_hold_gains_in_every_mode():
         pytest.approx((20 / 15) ** 2)
     cfg, _ = _cfg_and_kp(node_uploads(robot, "vdc", Gains()), 1)      # the defaults
     assert cfg[Config.STOP_CYCLES] == safe_stop_config(SafeStopParams())[Config.STOP_CYCLES]
+    # the rule on by default: 10 mrad/s for 10 ms (10,000 ticks of 1 µs), limit 0.2 s
+    assert cfg[Config.STANDSTILL] == round(0.01 * 2**19)
+    assert cfg[Config.STANDSTILL_TICKS] == 10_000
+    assert cfg[Config.STOP_CYCLES] == round(0.2 * CLOCK_HZ)
+    cfg, _ = _cfg_and_kp(node_uploads(robot, "vdc", Gains(), safe_stop=SHORT), 1)
     assert Config.STANDSTILL not in cfg                  # the rule off: the fixed timer
     p = SafeStopParams(stop_s=0.3, standstill=2e-3, standstill_s=0.01)
     cfg, _ = _cfg_and_kp(node_uploads(robot, "vdc", Gains(), tick_cycles=100, safe_stop=p), 3)
