@@ -509,7 +509,8 @@ def plot_safe_stop(path, t, runs: dict, t_cut: float, title: str, bound: float |
     t : ndarray, shape (n_samples,), s
     runs : dict
         label -> ``(q, engaged)``: angles, ndarray (n_samples, n), rad; the brakes' state,
-        bool ndarray (n_samples, n) (all engaged: the engagement marked).
+        bool ndarray (n_samples, n) (each joint's engagement marked on its own axes: with
+        the brake at standstill the joints' brakes engage at different times).
     t_cut : float, s
     bound : float, optional, rad
         The hold bound, drawn about each run's angle at its engagement.
@@ -522,7 +523,7 @@ def plot_safe_stop(path, t, runs: dict, t_cut: float, title: str, bound: float |
     for k, ax in enumerate(axes):
         for j, (label, (q, engaged)) in enumerate(runs.items()):
             ax.plot(t, 1e3 * (q[:, k] - q[i_cut, k]), styles[j % 4], lw=1.0, label=label)
-            held = engaged.all(axis=1)
+            held = engaged[:, k]
             if held.any():
                 e = int(np.argmax(held))
                 ax.axvline(t[e], color="0.5", lw=0.6, ls=styles[j % 4])
