@@ -3,6 +3,7 @@
 transaction-level reference (NodeModel) fed with the same events at the same cycles."""
 
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -88,6 +89,37 @@ def timing_config():
     (1, 1, 13_000, (1500, 500, 11_000, VEL.encode(0.5), 5)),
     (0, 1, 13_000, (700, 500, 11_000, VEL.encode(0.1), 5))])
 def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end, safe):
+    _exchange(mode, n_periods, end, safe)
+
+
+def decelerating_angle(cycle):
+    """3 rad/s to cycle 10,000 (the watchdog trips before it), then a constant deceleration to
+    rest at cycle 12,000 (rad)."""
+    t, t0, t1 = cycle * 20e-9, 10_000 * 20e-9, 12_000 * 20e-9
+    if t <= t0:
+        return 0.2 + 3.0 * t
+    dt = min(t, t1) - t0
+    return 0.2 + 3.0 * t0 + 3.0 * dt - 0.5 * 3.0 / (t1 - t0) * dt * dt
+
+
+def test_the_hold_follows_the_joint_to_rest_then_holds_where_it_stopped(monkeypatch):
+    """The safe stop's stop (docs/node.md "Safe stop"): the joint still moves at 3 rad/s when
+    the watchdog trips and slows to rest 40 µs later; until a hold tick sees the velocity
+    within ±1 rad/s the hold's reference is each tick's count, then it is frozen, and the
+    brake engages at standstill, not at the time limit. The core's torque, status and brake
+    equal the reference's in every cycle."""
+    monkeypatch.setattr(sys.modules[__name__], "joint_angle", decelerating_angle)
+    trace, model = _exchange(1, 1, 16_000, (4000, 500, 15_000, VEL.encode(1.0), 5))
+    trip = min(c for c in trace if trace[c][3] & Status.TRIPPED)
+    assert abs(VEL.decode(trace[trip][1])) > 2.0          # moving at the trip
+    # the reference held the count it stopped at, counts past the first hold tick's
+    assert model.hold_fixed and model.hold_pos >> 4 > trace[trip][0] + 5
+    engage = min(c for c in trace if trace[c][4])
+    assert trip + 500 < engage < trip + 4000                # at standstill, after a stop
+    assert not any(trace[c][3] & Status.STOP_LIMIT for c in trace)
+
+
+def _exchange(mode, n_periods, end, safe):
     """mode 0 VDC, 1 PID, 2 torque-only. Periods of 2000 cycles on the node's own timer; the
     time-codes arrive inside the window, the last period has a late Comm D and an
     out-of-window time-code (a resynchronisation), then the master falls silent. With
@@ -272,7 +304,7 @@ def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end, s
         assert trace[land][2] == tau_d != trace[land - 1][2]
     if safe is not None:
         check_safe_stop(trace, safe, end)
-        return
+        return trace, model
     # Master silent after the last period: the watchdog trips and the torque ramps to zero.
     st_end = trace[end - 1][3]
     assert st_end & Status.TRIPPED and st_end & Status.SAFE
@@ -294,9 +326,11 @@ def check_safe_stop(trace, safe, end):
     braked = [c for c in range(trip, rearmed) if trace[c][4]]
     limit = [c for c in range(trip, rearmed) if trace[c][3] & Status.STOP_LIMIT]
     engage = trip + stop
-    if len(safe) > 3 and abs(VEL.decode(trace[trip][1])) <= VEL.decode(safe[3]):
+    if len(safe) > 3 and braked and braked[0] < engage:
         engage = braked[0]                              # standstill: ticks of the hold
-        assert trip + (safe[4] - 1) * TICK < engage <= trip + safe[4] * TICK + 1
+        assert engage >= trip + (safe[4] - 1) * TICK
+        if abs(VEL.decode(trace[trip][1])) <= VEL.decode(safe[3]):     # from the first tick
+            assert engage <= trip + safe[4] * TICK + 1
         assert not limit
     elif len(safe) > 3:
         assert limit == list(range(engage, rearmed))
