@@ -35,6 +35,10 @@ def test_the_ci_campaign_runs_through_mrm_sweep(tmp_path, capsys):
     assert by["node-reset"]["by"].startswith("disconnect")
     text = (out / "summary.md").read_text()
     assert "95 % upper bound" in text and "| master-stall |" in text
+    # a lost FCT that breaks no parity check leaves the sender 8 credits short, silently:
+    # the credit column must see it (the FIFO of 64 never starves the sender on one loss)
+    assert "## Credit left unbalanced" in text
+    assert doc["credit_skew_link_up"]["lost-fct"] >= 5, doc["credit_skew_link_up"]
     assert (out / "recovery.png").stat().st_size and (out / "detectors.png").stat().st_size
 
 
