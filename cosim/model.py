@@ -295,10 +295,11 @@ class ModelBackend(GatewareSide):
     # --- the fast path ---------------------------------------------------------------------
     def fast_path(self, plant, rec):
         """With the compiled kernel and the plant on it (:meth:`attach_plant`): whole plain plant
-        steps in three calls each — :func:`models.plant_kernel_src.pre_free`, ``pin.aba`` and
-        :func:`cosim.model_kernel_src.fast_step` (the rest of the plant step, the trace row,
-        the count changes, every node's ticks and torques); the stick-slip solve, where a step
-        needs it, in Python between them (:meth:`Plant.kernel_parts
+        steps in two calls each — ``pin.aba`` and :func:`cosim.model_kernel_src.fast_step`
+        (the rest of the plant step, the trace row, the count changes, every node's ticks and
+        torques, then the next step's :func:`models.plant_kernel_src.pre_free`: only a run's
+        first step calls that from Python); the stick-slip solve, where a step needs it, in
+        Python between them (:meth:`Plant.kernel_parts
         <models.plant.Plant.kernel_parts>`). A step is plain when it ends at or before every
         node's next special cycle (:meth:`FastNode.next_special
         <cosim.model_node.FastNode.next_special>`) + 1, every packet or time-code reaching a
@@ -374,10 +375,15 @@ class ModelBackend(GatewareSide):
         j = i
         r = 0
         n_stick = n_solve = 0
+        code = None             # the step's pre_free result, where the last fast_step ran it
         while j < stop and cycle + s <= lim:
-            code = pre_free(S, C, tau, hh, friction)
+            if code is None:
+                code = pre_free(S, C, tau, hh, friction)
+            # the next step runs here too: fast_step runs its pre_free (one call less)
+            more = j + 1 < stop and cycle + 2 * s <= lim
             if code == 1:
-                r = fast_step(IB, F, S, aba(model, data, qm, vm, force), no_M, rec, j, cycle, 1)
+                r = fast_step(IB, F, S, aba(model, data, qm, vm, force), no_M, rec, j, cycle, 1,
+                              C, more)
             elif code == 0:
                 r = 1
             else:
@@ -386,14 +392,19 @@ class ModelBackend(GatewareSide):
                 bias = nle(model, data, qm, vm)     # none: it changes nothing they read)
                 M = crba(model, data, qm)
                 n_stick += 1
-                r = fast_step(IB, F, S, bias, M, rec, j, cycle, 2)
+                r = fast_step(IB, F, S, bias, M, rec, j, cycle, 2, C, more)
                 if r == 4:
                     n_solve += 1
                     solve(M)
-                    r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0)
+                    r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0, C, more)
             j += 1
+            if r >= 8:                  # done, and the next step's pre_free with it
+                code = (r >> 3) - 2
+                cycle += s
+                continue
             if r:
                 break
+            code = None
             cycle += s
         stepped(j - i)
         counts = self.fast_steps

@@ -927,7 +927,7 @@ def blob_views(IB):
     return N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR
 
 
-def fast_step(IB, F, S, a, M, rec, i, start, mode):
+def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     """One whole plant step with no event anywhere in it (:meth:`ModelBackend.fast_path
     <cosim.model.ModelBackend.fast_path>`), after :func:`models.plant_kernel_src.pre_free` and
     pinocchio: the rest of the plant step, the trace row ``i`` (``rec[0, i]`` the angles,
@@ -942,10 +942,16 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode):
     :func:`~models.plant_kernel_src.likely_pattern`; ``mode`` 0: the end velocities are
     already in ``S[NEW]``; then :func:`~models.plant_kernel_src.finish`.
 
+    With ``pre_next`` (the caller will run the next step on this path too), the step done, the
+    next step's :func:`~models.plant_kernel_src.pre_free` on the torques the nodes output
+    (``C`` the plant's constants): one call from Python less per step. Exactly the caller's
+    own next ``pre_free`` call, on the same arrays.
+
     Returns 0; 1 if the free step does not hold (nothing else done: the caller calls again in
     mode 2) or 4 if the likely pattern does not (the caller runs the general solve and calls
     again in mode 0); 2 if a joint moved more than one count in a cycle (the plant has
-    stepped, the nodes have not); 3 as :func:`plain_step`'s True."""
+    stepped, the nodes have not); 3 as :func:`plain_step`'s True. With ``pre_next`` and the
+    step done, ``8 · (code + 2)``: ``code`` the next step's ``pre_free`` result (−1, 0, 1)."""
     n = IB[H_N]
     cycles = IB[H_CYCLES]
     h = F[F_H]
@@ -976,4 +982,6 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode):
     if plain_step(N, P, E, VIS, PIPE, DUE, PEND, plain, start, cycles, 0, CHC, CHN, NCH, CUR,
                   tau):
         return 3
+    if pre_next:
+        return 8 * (plant_src.pre_free(S, C, tau, hh, F[F_FRICTION]) + 2)
     return 0
