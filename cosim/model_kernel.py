@@ -152,6 +152,7 @@ def _warm_up(k) -> None:
     z6, z13 = np.zeros(6, dtype=np.int64), np.zeros(13, dtype=np.int64)
     k.vdc_link(z13, z6, z13, z13, z13, z6, z6, z6, np.zeros(3, dtype=np.int64), z6,
                z13.copy())
+    k.vdc_link_packed(np.zeros(79, dtype=np.int64), np.zeros(19, dtype=np.int64))
     a = _throw_away()
     z = np.zeros(0, dtype=np.int64)
     tau = np.zeros(1)
@@ -343,15 +344,11 @@ class KernelVdc(VdcModel):
 
     def _link(self, i, V, V_r, dV, g):
         p = self.params
-        F = np.empty(6, dtype=np.int64)
-        new = np.empty(13, dtype=np.int64)
-        arr = np.array
-        src.vdc_link(arr(self.theta[i], dtype=np.int64), arr(p.K[i], dtype=np.int64),
-                     arr(p.rho_T[i], dtype=np.int64), arr(p.lower[i], dtype=np.int64),
-                     arr(p.upper[i], dtype=np.int64), arr(V, dtype=np.int64),
-                     arr(V_r, dtype=np.int64), arr(dV, dtype=np.int64),
-                     arr(g, dtype=np.int64), F, new)
-        return F.tolist(), new.tolist()
+        out = np.empty(19, dtype=np.int64)
+        src.vdc_link_packed(np.array([*self.theta[i], *p.K[i], *p.rho_T[i], *p.lower[i],
+                                      *p.upper[i], *V, *V_r, *dV, *g], dtype=np.int64), out)
+        w = out.tolist()
+        return w[:6], w[6:]
 
 
 _TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX, _RAMP = (int(c) for c in (

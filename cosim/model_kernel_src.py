@@ -884,6 +884,15 @@ def vdc_link(th, K, rho, lower, upper, V, Vr, dV, g, F, new):
         new[j] = min(max(t, lower[j]), upper[j])
 
 
+def vdc_link_packed(X, out):
+    """:func:`vdc_link` on its inputs packed into one array ``X`` (79 words: ``th``, ``K``,
+    ``rho``, ``lower``, ``upper``, ``V``, ``Vr``, ``dV``, ``g``, in that order), the force words
+    then the adapted estimates into ``out`` (19): one array to build and one to read back from
+    Python instead of eleven."""
+    vdc_link(X[0:13], X[13:19], X[19:32], X[32:45], X[45:58], X[58:64], X[64:70], X[70:76],
+             X[76:79], out[0:6], out[6:19])
+
+
 # --- the whole plain plant step in one call (ModelBackend's fast path) -----------------------
 #: Buffer sizes per node (changes of one plant step are ≤ 500 per line; the queues empty at
 #: every observed tick, at least once a plant step). Overflow raises.
