@@ -427,40 +427,25 @@ class KernelNode(FastNode):
         return self.torque_at(until)
 
     def push(self) -> None:
-        """The object's tick state into the kernel's row; the kernel owns it from now."""
-        N = self._row
-        N[src.N_NT] = self._nt
+        """The object's tick state into the kernel's row; the kernel owns it from now. (One
+        assignment of the whole row, in ``N_*`` order; a field the row marks absent — no
+        landing, no deferred Part B, no PRIME due — is written 0, which the kernel never reads.)"""
         t = self.torque
-        N[src.N_TORQUE_NONE] = t is None
-        N[src.N_TORQUE] = 0 if t is None else t
         land = self._landing
-        if land is None:
-            N[src.N_LAND] = 0
-        else:
-            N[src.N_LAND_C] = land[0]
-            N[src.N_LAND] = 2 if land[1] is None else 1
-            N[src.N_LAND_V] = 0 if land[1] is None else land[1]
-        N[src.N_STARTED] = self._started
-        N[src.N_BUSY] = self._busy_until
-        N[src.N_OVERRUNS] = self.overruns
         d = self._deferred
-        N[src.N_DEF] = d is not None
-        if d is not None:
-            N[src.N_DEF_TN:src.N_DEF_A + 1] = d
         j = self.joint
-        N[src.N_QDES], N[src.N_VDES], N[src.N_ILO], N[src.N_IHI] = \
-            j.q_des, j.v_des, j.i_lo, j.i_hi
-        N[src.N_ARMED], N[src.N_TRIPPED], N[src.N_PRIME] = self.armed, self.tripped, self.prime
         pd = self._prime_due
-        N[src.N_PRIME_SET] = pd is not None
-        N[src.N_PRIME_DUE] = 0 if pd is None else pd
-        N[src.N_LAST_PACKET] = self.last_packet
-        N[src.N_DBASE] = self.d_base
-        N[src.N_D0:src.N_D0 + 4] = self.d_words
         cfg = self.config
-        N[src.N_TICK], N[src.N_MODE], N[src.N_TIMEOUT] = cfg[_TICK], cfg[_MODE], cfg[_TIMEOUT]
-        N[src.N_TAU_MIN], N[src.N_TAU_MAX], N[src.N_RAMP] = \
-            cfg[_TAU_MIN], cfg[_TAU_MAX], cfg[_RAMP]
+        self._row[:] = [
+            self._nt, 0 if t is None else t, t is None,
+            *((0, 0, 0) if land is None else (land[0], 0, 2) if land[1] is None else
+              (land[0], land[1], 1)),
+            self._started, self._busy_until, self.overruns,
+            *((0, 0, 0, 0, 0) if d is None else (1, *d)),
+            j.q_des, j.v_des, j.i_lo, j.i_hi,
+            self.armed, self.tripped, self.prime, 0 if pd is None else pd, pd is not None,
+            self.last_packet, self.d_base, *self.d_words,
+            cfg[_TICK], cfg[_MODE], cfg[_TIMEOUT], cfg[_TAU_MIN], cfg[_TAU_MAX], cfg[_RAMP]]
         if self._prow_of is not j.params:
             param_row(j.params, self._prow)
             self._prow_of = j.params
