@@ -534,8 +534,8 @@ class ModelBackend(GatewareSide):
                 while i < len(box) and box[i][0] < end:
                     c, _, kind, data = box[i]
                     i += 1
-                    node.run(c, sample)
                     if kind == "timecode":
+                        node.run(c, sample)
                         ph_before = node.phase(c) if c < node.next_boundary() else 0
                         window = node.config[Config.SYNC_WINDOW]
                         if start is not None and c >= start:
@@ -548,7 +548,7 @@ class ModelBackend(GatewareSide):
                                           f"near the sync window {window}")
                         continue
                     ptype, payload, seq = data
-                    node.run(c + 1)
+                    node.run(c + 1, sample)         # (what run(c), then run(c + 1) do)
                     self._check_packet(k, node, c, ptype)
                     reply = node.packet(c, ptype, payload, sample=sample)
                     if reply is not None:
