@@ -153,6 +153,7 @@ def _warm_up(k) -> None:
     k.vdc_link(z13, z6, z13, z13, z13, z6, z6, z6, np.zeros(3, dtype=np.int64), z6,
                z13.copy())
     k.vdc_link_packed(np.zeros(79, dtype=np.int64), np.zeros(19, dtype=np.int64))
+    k.vdc_step(np.zeros(src.VX_SIZE, dtype=np.int64), np.zeros(src.VO_SIZE, dtype=np.int64))
     a = _throw_away()
     z = np.zeros(0, dtype=np.int64)
     tau = np.zeros(1)
@@ -333,9 +334,29 @@ class KernelEncoder:
 
 
 class KernelVdc(VdcModel):
-    """:class:`~hdl.node.vdc_ref.VdcModel` whose per-link computation runs compiled
-    (:func:`cosim.model_kernel_src.vdc_link`, same words bit for bit; tests/test_model_kernel.py);
-    the step around it is the reference's. :meth:`adopt` turns a node's model into one."""
+    """:class:`~hdl.node.vdc_ref.VdcModel` whose step runs compiled
+    (:func:`cosim.model_kernel_src.vdc_step`, the step around both links, and
+    :func:`~cosim.model_kernel_src.vdc_link`, each link; same words bit for bit;
+    tests/test_model_kernel.py). :meth:`adopt` turns a node's model into one."""
+
+    def step(self, x):
+        """:meth:`VdcModel.step <hdl.node.vdc_ref.VdcModel.step>` in one compiled call."""
+        p = self.params
+        th = self.theta
+        X = np.array([*th[0], *th[1], *p.K[0], *p.K[1], *p.rho_T[0], *p.rho_T[1],
+                      *p.lower[0], *p.lower[1], *p.upper[0], *p.upper[1], p.inv_T,
+                      *self.prev_C, self.prev_qd_r, self.primed, x.qd_r, *x.V_C, *x.V_rC,
+                      x.qd, x.cos_q, x.sin_q, *x.g_C], dtype=np.int64)
+        if X.shape[0] != src.VX_SIZE:           # not the unit's shapes: the reference says how
+            return VdcModel.step(self, x)
+        out = np.empty(src.VO_SIZE, dtype=np.int64)
+        src.vdc_step(X, out)
+        w = out.tolist()
+        self.theta = [w[src.VO_TH:src.VO_TH + 13], w[src.VO_TH + 13:src.VO_TH + 26]]
+        self.prev_C = list(x.V_rC)
+        self.prev_qd_r = x.qd_r
+        self.primed = True
+        return w[src.VO_F:src.VO_F + 6], w[src.VO_F + 6:src.VO_F + 12]
 
     @classmethod
     def adopt(cls, vdc: VdcModel) -> None:

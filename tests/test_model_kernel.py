@@ -385,3 +385,45 @@ def test_kernel_node_push_writes_each_field_where_the_kernel_reads_it(
     for name in ("_nt", "torque", "_landing", "_started", "_busy_until", "overruns",
                  "_deferred", "armed", "tripped", "prime", "_prime_due"):
         assert after[name] == before[name], name
+
+
+@needs_numba
+@settings(max_examples=200, deadline=None)
+@given(th=st.lists(st.lists(words, min_size=13, max_size=13), min_size=2, max_size=2),
+       K=st.lists(st.lists(words, min_size=6, max_size=6), min_size=2, max_size=2),
+       rho=st.lists(st.lists(words, min_size=13, max_size=13), min_size=2, max_size=2),
+       bounds=st.lists(st.lists(st.tuples(words, words), min_size=13, max_size=13),
+                       min_size=2, max_size=2),
+       inv_t=st.one_of(st.integers(0, WORD_MAX), st.just(WORD_MAX)),
+       prev=st.one_of(st.none(), st.tuples(st.lists(words, min_size=6, max_size=6), words)),
+       runs=st.lists(st.tuples(words, st.lists(words, min_size=6, max_size=6),
+                               st.lists(words, min_size=6, max_size=6), words,
+                               st.integers(-(1 << 22), 1 << 22),
+                               st.integers(-(1 << 22), 1 << 22),
+                               st.lists(words, min_size=3, max_size=3)),
+                     min_size=1, max_size=3))
+def test_compiled_vdc_step_equals_the_reference(th, K, rho, bounds, inv_t, prev, runs):
+    """:class:`~cosim.model_kernel.KernelVdc`'s step (:func:`vdc_step`: the rotations into
+    {A}, the backward differences, both links) gives :meth:`VdcModel.step
+    <hdl.node.vdc_ref.VdcModel.step>`'s force words and leaves its state (estimates, previous
+    {C} velocity and q̇_r, primed) bit for bit, over runs from unprimed and primed states,
+    saturated words included."""
+    import copy
+
+    from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel
+    from mrm_cosim.protocol.vdc_program import VdcParams
+
+    lower = [[min(a, b) for a, b in link] for link in bounds]
+    upper = [[max(a, b) for a, b in link] for link in bounds]
+    p = VdcParams(K=K, rho_T=rho, lower=lower, upper=upper, inv_T=inv_t)
+    ref = VdcModel(copy.deepcopy(p), copy.deepcopy(th))
+    fast = VdcModel(copy.deepcopy(p), copy.deepcopy(th))
+    mk.KernelVdc.adopt(fast)
+    if prev is not None:
+        for m in (ref, fast):
+            m.prev_C, m.prev_qd_r, m.primed = list(prev[0]), prev[1], True
+    for qd_r, V_C, V_rC, qd, c, s, g in runs:
+        x = VdcInputs(qd_r, V_C, V_rC, qd, c, s, g)
+        assert fast.step(x) == ref.step(x)
+        assert (fast.theta, fast.prev_C, fast.prev_qd_r, fast.primed) == \
+            (ref.theta, ref.prev_C, ref.prev_qd_r, ref.primed)
