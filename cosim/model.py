@@ -501,9 +501,8 @@ class ModelBackend(GatewareSide):
                     node.push()
                 if node._done < last:
                     node._done = last
-            else:
+            else:               # (KernelNode.run pulls the row where the event loop needs it)
                 plain[k] = False
-                node.pull()
                 others = [k] if others is None else others + [k]
         if self._kern.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, plain, start, n,
                                  offset, a.CHC, a.CHN, a.NCH, a.CUR, self._torque):
