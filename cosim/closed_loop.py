@@ -198,8 +198,8 @@ class ClosedLoop:
         """``n`` cycles from the step's cycle ``offset``; what reached the master, to it."""
         seen = await self.backend.advance(n, lines, offset)
         master = self.master
-        for cycle, node, name in seen.events:
-            master.on_node_event(cycle, node, name)
+        if seen.events:
+            master.on_node_events(seen.events)
         for r in seen.replies:
             self.frames.append((r.cycle, r.src, r.ptype))
             if not master.stale(r.ptype, r.seq):                # else counted late
