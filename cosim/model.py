@@ -162,10 +162,13 @@ class ModelBackend(GatewareSide):
             self._fed = 0
             # the fast path's floats: the plant's constants, then the torque outputs
             self._F = np.zeros(ksrc.F_SIZE + 2 * self.n)
-        self._horizon_end = None        # fast path: steps may end up to here (None: recompute)
+        self._horizon_end = None        # fast path: _horizon's (None: recompute)
+        self._fast_seen = None          # fast path: what reached the master (fast_observed)
         #: plant steps the fast path ran, by how the plant step ended (free, stick-slip: the
         #: likely pattern or stuck, the general solve)
         self.fast_steps = {"free": 0, "stick-slip": 0, "solve": 0}
+        #: fast runs whose last step handed replies or strobes to the master (fast_observed)
+        self.fast_handovers = 0
         self._fast_end = 0              # fast path: the end of its last step (node._done)
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
             node.lazy = self.lazy
@@ -303,8 +306,10 @@ class ModelBackend(GatewareSide):
         <models.plant.Plant.kernel_parts>`). A step is plain when it ends at or before every
         node's next special cycle (:meth:`FastNode.next_special
         <cosim.model_node.FastNode.next_special>`) + 1, every packet or time-code reaching a
-        node, every pending observation-port strobe and every reply reaching the master
-        (:meth:`_horizon`). The same operations as :meth:`_run_kernel` and
+        node (:meth:`_horizon`). A step in which observation-port strobes or replies reach the
+        master ends the run: :meth:`fast_observed` hands them over, as :meth:`advance` would
+        at the end of that step (the master is quiet in it: it learns of them at the step's
+        end on either path). The same operations as :meth:`_run_kernel` and
         :meth:`Plant.step <models.plant.Plant.step>` in the same order, so the same results bit
         for bit (tests/test_model_backend.py)."""
         from mrm_cosim.models.plant import Plant
@@ -332,32 +337,41 @@ class ModelBackend(GatewareSide):
 
         return fast
 
-    def _horizon(self) -> int:
-        """The latest end of a plain step from now (:meth:`fast_path`)."""
-        end = ksrc.NEVER
+    def _horizon(self) -> tuple[int, int]:
+        """``(end, soon)``: the latest end of a plain step from now, and the first cycle of a
+        strobe or reply for the master (a run stops after the step holding it;
+        :meth:`fast_path`)."""
+        end = soon = ksrc.NEVER
         inbox = self._link.inbox
         for k, node in enumerate(self.nodes):
             x = node.next_special() + 1
             for e in inbox[k]:
                 if e[0] < x:
                     x = e[0]
-            for c, _ in node.events:
-                if c < x:
-                    x = c
             if x < end:
                 end = x
+            for c, _ in node.events:
+                if c < soon:
+                    soon = c
         for r in self._link.replies:
-            if r[0] < end:
-                end = r[0]
-        return end
+            if r[0] < soon:
+                soon = r[0]
+        return end, soon
+
+    def fast_observed(self) -> Observed | None:
+        """What reached the master in the last fast run's last step (:meth:`fast_path`), once;
+        None if nothing did."""
+        seen, self._fast_seen = self._fast_seen, None
+        return seen
 
     def _fast(self, plant, pk, rec, s: int, i: int, stop: int, cycle: int, lim: int) -> int:
         """:meth:`fast_path`'s callable."""
         hz = self._horizon_end
         if hz is None:
             hz = self._horizon_end = self._horizon()
-        if hz < lim:
-            lim = hz
+        hard, soon = hz
+        if hard < lim:
+            lim = hard
         if i >= stop or cycle + s > lim:
             return 0
         if cycle != self.cycle or cycle != self._fed:
@@ -380,7 +394,7 @@ class ModelBackend(GatewareSide):
             if code is None:
                 code = pre_free(S, C, tau, hh, friction)
             # the next step runs here too: fast_step runs its pre_free (one call less)
-            more = j + 1 < stop and cycle + 2 * s <= lim
+            more = j + 1 < stop and cycle + 2 * s <= lim and cycle + s <= soon
             if code == 1:
                 r = fast_step(IB, F, S, aba(model, data, qm, vm, force), no_M, rec, j, cycle, 1,
                               C, more)
@@ -406,6 +420,8 @@ class ModelBackend(GatewareSide):
                 break
             code = None
             cycle += s
+            if cycle > soon:            # a strobe or a reply for the master in this step
+                break
         stepped(j - i)
         counts = self.fast_steps
         counts["free"] += j - i - n_stick
@@ -417,6 +433,16 @@ class ModelBackend(GatewareSide):
         if r == 3:
             raise RuntimeError("model kernel: an unobserved torque word was sampled")
         self.cycle = self._fed = self._fast_end = cycle
+        if cycle > soon:                # hand them over as advance() would at this end
+            self._horizon_end = None
+            self.fast_handovers += 1
+            out = []
+            for k, node in enumerate(self.nodes):
+                if node.events:
+                    self._collect(k, node, cycle, out)
+            self._fast_seen = Observed(out, [
+                Reply(c, src, ptype, seq, bytes(payload))
+                for c, src, ptype, payload, seq in self._link.replies_before(cycle)])
         return j - i
 
     def _sync_done(self) -> None:
