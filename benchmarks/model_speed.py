@@ -64,7 +64,7 @@ def run(robot_name: str, kernel: str, cycles: int, breakdown: bool = False):
     if breakdown:
         _timed(loop.plant, "step", acc, "plant")
         _timed(loop.plant, "encoder_changes", acc, "plant")
-        for name in ("poll", "on_packet", "on_node_event", "next_due", "quiet_end"):
+        for name in ("poll", "on_packet", "on_node_events", "next_due", "quiet_end"):
             _timed(loop.master, name, acc, "master")
         _timed(loop.backend, "advance", acc, "gateware side")
         fast_path = loop.backend.fast_path

@@ -196,15 +196,18 @@ class ClosedLoop:
     # --- the backend's cycles ----------------------------------------------------------------
     async def _advance(self, n: int, lines: PlantLines, offset: int = 0) -> None:
         """``n`` cycles from the step's cycle ``offset``; what reached the master, to it."""
-        seen = await self.backend.advance(n, lines, offset)
+        self._deliver(await self.backend.advance(n, lines, offset))
+        self.cycle += n
+
+    def _deliver(self, seen) -> None:
+        """What reached the master (:class:`~cosim.gateware_side.Observed`), to it."""
         master = self.master
-        for cycle, node, name in seen.events:
-            master.on_node_event(cycle, node, name)
+        if seen.events:
+            master.on_node_events(seen.events)
         for r in seen.replies:
             self.frames.append((r.cycle, r.src, r.ptype))
             if not master.stale(r.ptype, r.seq):                # else counted late
                 master.on_packet(r.cycle, r.src, r.ptype, r.payload)
-        self.cycle += n
 
     async def _step(self, lines: PlantLines) -> None:
         """One plant step, split where the master has packets due."""
@@ -266,6 +269,9 @@ class ClosedLoop:
                 if k:
                     i += k
                     self.cycle += k * s
+                    seen = backend.fast_observed()      # (its last step's, at its end)
+                    if seen is not None:
+                        self._deliver(seen)
                     if progress is not None and i % 100 == 0:
                         progress(i * s / CLOCK_HZ, steps * s / CLOCK_HZ)
                     continue

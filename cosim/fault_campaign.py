@@ -210,6 +210,7 @@ def write_campaign_summary(out: Path, spec: CampaignSpec, rows: list[dict],
             lines.append(f"| {kind} | {len(quiet)} | {sum(f['went_down'] for f in quiet)} | "
                          f"{sum(f['corrupted'] for f in quiet)} |")
         lines.append("")
+        lines += _credit_lines(c["kinds"], faults)
         stall = [f for f in faults if f["kind"] == "master-stall"]
         if stall:
             lines += ["## Master stall by duration", "",
@@ -226,11 +227,41 @@ def write_campaign_summary(out: Path, spec: CampaignSpec, rows: list[dict],
     doc = {"name": spec.name, "level": "link", "campaign": c, "points": n_points,
            "finished": len(ok), "faults": len(faults), "summary": summary,
            "detectors": {k: dict(Counter(_detector(f) for f in faults if f["kind"] == k))
-                         for k in c["kinds"]}}
+                         for k in c["kinds"]},
+           "credit_skew_link_up": {k: sum(bool(f.get("credit_skew") and any(f["credit_skew"])
+                                               and not f["went_down"])
+                                          for f in faults if f["kind"] == k)
+                                   for k in c["kinds"]}}
     write_json(out / "summary.json", doc)
     if plots and faults:
         _link_plots(out, spec, faults)
     return doc
+
+
+def _credit_lines(kinds, faults: list[dict]) -> list[str]:
+    """The table of faults that changed the link's credit balance (``credit_skew``): a skew no
+    counter flagged is a fault absorbed silently until a later credit error pays for it."""
+    measured = [f for f in faults if f.get("credit_skew") is not None]
+    if not measured:
+        return []
+    lines = ["## Credit left unbalanced", "",
+             "After each fault a drained copy of the link compares, per direction, the credit "
+             "the receiver has granted with what the sender holds "
+             "(`LinkCampaign.credit_balance`; 0 on a healthy link). A fault that changes it "
+             "with the link up leaves a skew no counter keeps; it stays until a credit error or "
+             "a restart, whose row then shows the opposite change (a restart settles every "
+             "account: its change is the skew earlier faults left).", "",
+             "| fault | measured | left a skew, link up | of them no counter moved | "
+             "took the link down and settled an earlier skew |", "|---|---|---|---|---|"]
+    for kind in kinds:
+        sel = [f for f in measured if f["kind"] == kind]
+        if not sel:
+            continue
+        up = [f for f in sel if any(f["credit_skew"]) and not f["went_down"]]
+        down = [f for f in sel if any(f["credit_skew"]) and f["went_down"]]
+        lines.append(f"| {kind} | {len(sel):,} | {len(up):,} | "
+                     f"{sum(not f['moved'] for f in up):,} | {len(down):,} |")
+    return [*lines, ""]
 
 
 def summarize_folder(out) -> dict:

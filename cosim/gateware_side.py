@@ -191,7 +191,14 @@ class GatewareSide(ABC):
         ``stop``) starting at ``cycle``, each ending at or before ``end_limit`` and before
         anything the backend must hand to Python, writes trace rows ``rec[0, i]`` (angles) and
         ``rec[1, i]`` (torques) and returns how many it ran (0: the loop's general step runs).
-        Results equal the general step's bit for bit. None (the default): no fast path."""
+        A run may end with a step in which replies or strobes reached the master
+        (:meth:`fast_observed`). Results equal the general step's bit for bit. None (the
+        default): no fast path."""
+        return None
+
+    def fast_observed(self) -> Observed | None:
+        """After a fast run (:meth:`fast_path`): what reached the master in its last step, for
+        the loop to hand over as after :meth:`advance`; None (the default): nothing."""
         return None
 
     def begin(self, cycle: int, period_cycles: int) -> None:  # noqa: B027 - optional hook

@@ -70,6 +70,7 @@ SETTLE = 40             # both in Run this long before a fault
 TC_PERIOD = 97          # cycles between a's time-codes
 QUIET = 150             # an undetected fault is judged after this many cycles
 LIMIT = 6000            # a fault not recovered after this is a failure
+DRAIN = 120             # cycles a drained copy runs before its credit balance is read
 _DATA, _EOP, _EEP = CharKind.DATA.value, CharKind.EOP.value, CharKind.EEP.value
 _HOST = ("crc_drop", "eep", "tc_sequence")
 
@@ -157,6 +158,7 @@ class LinkCampaign:
         self.resets = {}            # cycle -> codec reset at its start ("a" / "b")
         self.stall = {}             # host -> first cycle it runs again
         self.base = {w: Counter() for w in "ab"}    # counts of codecs before their resets
+        self.balance = None         # credit_balance() after the last judged fault
 
     # -- one cycle of both codecs and both hosts ----------------------------------------------
     def step(self):
@@ -274,9 +276,28 @@ class LinkCampaign:
             self.masks[c] = {k: tuple(tuple(x) for x in v) for k, v in lines.items()}
         return True
 
+    def credit_balance(self) -> tuple[int, int] | None:
+        """What each receiver has granted minus what its sender holds, per direction (a → b,
+        b → a), with nothing in flight: a copy of the link runs with both hosts stalled until
+        the lines carry only NULLs. (0, 0) on a healthy link; the standard keeps no record of
+        it, so a fault that shifts it without a credit error leaves a latent skew that only a
+        later credit error or link restart reveals. None if the copy is not in Run."""
+        c = copy.deepcopy(self)
+        c.stall = {"a": c.cycle + 10**9, "b": c.cycle + 10**9}
+        for _ in range(DRAIN):
+            c.step()
+        a, b = c.codecs["a"], c.codecs["b"]
+        if not c.running():
+            return None
+        return b.rx_credit - a.tx_credit, a.rx_credit - b.tx_credit
+
     def judge(self, fault: Fault) -> dict:
-        """Inject ``fault`` now and run until it is over; return its record."""
+        """Inject ``fault`` now and run until it is over; return its record. Its
+        ``credit_skew`` is the change of :meth:`credit_balance` across the fault (per
+        direction; None where the link was not in Run to measure it)."""
         self.settle()
+        if self.balance is None:
+            self.balance = self.credit_balance()
         before = self.counters()
         corrupted = sum(h.corrupted for h in self.hosts.values())
         t0 = self.cycle
@@ -301,11 +322,15 @@ class LinkCampaign:
                 break
         after = self.counters()
         moved = {k: after[k] - before[k] for k in after if after[k] != before[k]}
+        prev, self.balance = self.balance, self.credit_balance()
+        skew = (None if prev is None or self.balance is None else
+                [x - y for x, y in zip(self.balance, prev, strict=True)])
         return {"kind": fault.kind, "line": fault.line, "cycles": fault.cycles,
                 "moved": moved, "went_down": went_down, "in_frame": in_frame,
                 "recovered": self.cycle - t0 < LIMIT,
                 "recovery_cycles": self.cycle - t0 if went_down else 0,
-                "corrupted": sum(h.corrupted for h in self.hosts.values()) - corrupted}
+                "corrupted": sum(h.corrupted for h in self.hosts.values()) - corrupted,
+                "credit_skew": skew}
 
     def settle(self):
         """Both in Run for SETTLE cycles with traffic flowing."""

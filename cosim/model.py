@@ -162,10 +162,13 @@ class ModelBackend(GatewareSide):
             self._fed = 0
             # the fast path's floats: the plant's constants, then the torque outputs
             self._F = np.zeros(ksrc.F_SIZE + 2 * self.n)
-        self._horizon_end = None        # fast path: steps may end up to here (None: recompute)
+        self._horizon_end = None        # fast path: _horizon's (None: recompute)
+        self._fast_seen = None          # fast path: what reached the master (fast_observed)
         #: plant steps the fast path ran, by how the plant step ended (free, stick-slip: the
         #: likely pattern or stuck, the general solve)
         self.fast_steps = {"free": 0, "stick-slip": 0, "solve": 0}
+        #: fast runs whose last step handed replies or strobes to the master (fast_observed)
+        self.fast_handovers = 0
         self._fast_end = 0              # fast path: the end of its last step (node._done)
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
             node.lazy = self.lazy
@@ -295,15 +298,18 @@ class ModelBackend(GatewareSide):
     # --- the fast path ---------------------------------------------------------------------
     def fast_path(self, plant, rec):
         """With the compiled kernel and the plant on it (:meth:`attach_plant`): whole plain plant
-        steps in three calls each — :func:`models.plant_kernel_src.pre_free`, ``pin.aba`` and
-        :func:`cosim.model_kernel_src.fast_step` (the rest of the plant step, the trace row,
-        the count changes, every node's ticks and torques); the stick-slip solve, where a step
-        needs it, in Python between them (:meth:`Plant.kernel_parts
+        steps in two calls each — ``pin.aba`` and :func:`cosim.model_kernel_src.fast_step`
+        (the rest of the plant step, the trace row, the count changes, every node's ticks and
+        torques, then the next step's :func:`models.plant_kernel_src.pre_free`: only a run's
+        first step calls that from Python); the stick-slip solve, where a step needs it, in
+        Python between them (:meth:`Plant.kernel_parts
         <models.plant.Plant.kernel_parts>`). A step is plain when it ends at or before every
         node's next special cycle (:meth:`FastNode.next_special
         <cosim.model_node.FastNode.next_special>`) + 1, every packet or time-code reaching a
-        node, every pending observation-port strobe and every reply reaching the master
-        (:meth:`_horizon`). The same operations as :meth:`_run_kernel` and
+        node (:meth:`_horizon`). A step in which observation-port strobes or replies reach the
+        master ends the run: :meth:`fast_observed` hands them over, as :meth:`advance` would
+        at the end of that step (the master is quiet in it: it learns of them at the step's
+        end on either path). The same operations as :meth:`_run_kernel` and
         :meth:`Plant.step <models.plant.Plant.step>` in the same order, so the same results bit
         for bit (tests/test_model_backend.py)."""
         from mrm_cosim.models.plant import Plant
@@ -331,32 +337,41 @@ class ModelBackend(GatewareSide):
 
         return fast
 
-    def _horizon(self) -> int:
-        """The latest end of a plain step from now (:meth:`fast_path`)."""
-        end = ksrc.NEVER
+    def _horizon(self) -> tuple[int, int]:
+        """``(end, soon)``: the latest end of a plain step from now, and the first cycle of a
+        strobe or reply for the master (a run stops after the step holding it;
+        :meth:`fast_path`)."""
+        end = soon = ksrc.NEVER
         inbox = self._link.inbox
         for k, node in enumerate(self.nodes):
             x = node.next_special() + 1
             for e in inbox[k]:
                 if e[0] < x:
                     x = e[0]
-            for c, _ in node.events:
-                if c < x:
-                    x = c
             if x < end:
                 end = x
+            for c, _ in node.events:
+                if c < soon:
+                    soon = c
         for r in self._link.replies:
-            if r[0] < end:
-                end = r[0]
-        return end
+            if r[0] < soon:
+                soon = r[0]
+        return end, soon
+
+    def fast_observed(self) -> Observed | None:
+        """What reached the master in the last fast run's last step (:meth:`fast_path`), once;
+        None if nothing did."""
+        seen, self._fast_seen = self._fast_seen, None
+        return seen
 
     def _fast(self, plant, pk, rec, s: int, i: int, stop: int, cycle: int, lim: int) -> int:
         """:meth:`fast_path`'s callable."""
         hz = self._horizon_end
         if hz is None:
             hz = self._horizon_end = self._horizon()
-        if hz < lim:
-            lim = hz
+        hard, soon = hz
+        if hard < lim:
+            lim = hard
         if i >= stop or cycle + s > lim:
             return 0
         if cycle != self.cycle or cycle != self._fed:
@@ -374,10 +389,15 @@ class ModelBackend(GatewareSide):
         j = i
         r = 0
         n_stick = n_solve = 0
+        code = None             # the step's pre_free result, where the last fast_step ran it
         while j < stop and cycle + s <= lim:
-            code = pre_free(S, C, tau, hh, friction)
+            if code is None:
+                code = pre_free(S, C, tau, hh, friction)
+            # the next step runs here too: fast_step runs its pre_free (one call less)
+            more = j + 1 < stop and cycle + 2 * s <= lim and cycle + s <= soon
             if code == 1:
-                r = fast_step(IB, F, S, aba(model, data, qm, vm, force), no_M, rec, j, cycle, 1)
+                r = fast_step(IB, F, S, aba(model, data, qm, vm, force), no_M, rec, j, cycle, 1,
+                              C, more)
             elif code == 0:
                 r = 1
             else:
@@ -386,15 +406,22 @@ class ModelBackend(GatewareSide):
                 bias = nle(model, data, qm, vm)     # none: it changes nothing they read)
                 M = crba(model, data, qm)
                 n_stick += 1
-                r = fast_step(IB, F, S, bias, M, rec, j, cycle, 2)
+                r = fast_step(IB, F, S, bias, M, rec, j, cycle, 2, C, more)
                 if r == 4:
                     n_solve += 1
                     solve(M)
-                    r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0)
+                    r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0, C, more)
             j += 1
+            if r >= 8:                  # done, and the next step's pre_free with it
+                code = (r >> 3) - 2
+                cycle += s
+                continue
             if r:
                 break
+            code = None
             cycle += s
+            if cycle > soon:            # a strobe or a reply for the master in this step
+                break
         stepped(j - i)
         counts = self.fast_steps
         counts["free"] += j - i - n_stick
@@ -406,6 +433,16 @@ class ModelBackend(GatewareSide):
         if r == 3:
             raise RuntimeError("model kernel: an unobserved torque word was sampled")
         self.cycle = self._fed = self._fast_end = cycle
+        if cycle > soon:                # hand them over as advance() would at this end
+            self._horizon_end = None
+            self.fast_handovers += 1
+            out = []
+            for k, node in enumerate(self.nodes):
+                if node.events:
+                    self._collect(k, node, cycle, out)
+            self._fast_seen = Observed(out, [
+                Reply(c, src, ptype, seq, bytes(payload))
+                for c, src, ptype, payload, seq in self._link.replies_before(cycle)])
         return j - i
 
     def _sync_done(self) -> None:
@@ -490,9 +527,8 @@ class ModelBackend(GatewareSide):
                     node.push()
                 if node._done < last:
                     node._done = last
-            else:
+            else:               # (KernelNode.run pulls the row where the event loop needs it)
                 plain[k] = False
-                node.pull()
                 others = [k] if others is None else others + [k]
         if self._kern.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, plain, start, n,
                                  offset, a.CHC, a.CHN, a.NCH, a.CUR, self._torque):
@@ -523,8 +559,8 @@ class ModelBackend(GatewareSide):
                 while i < len(box) and box[i][0] < end:
                     c, _, kind, data = box[i]
                     i += 1
-                    node.run(c, sample)
                     if kind == "timecode":
+                        node.run(c, sample)
                         ph_before = node.phase(c) if c < node.next_boundary() else 0
                         window = node.config[Config.SYNC_WINDOW]
                         if start is not None and c >= start:
@@ -537,7 +573,7 @@ class ModelBackend(GatewareSide):
                                           f"near the sync window {window}")
                         continue
                     ptype, payload, seq = data
-                    node.run(c + 1)
+                    node.run(c + 1, sample)         # (what run(c), then run(c + 1) do)
                     self._check_packet(k, node, c, ptype)
                     reply = node.packet(c, ptype, payload, sample=sample)
                     if reply is not None:

@@ -148,10 +148,12 @@ def _warm_up(k) -> None:
     F = np.zeros(src.F_SIZE + 2)
     F[src.F_H], F[src.F_HH] = 1e-5, 5e-6
     k.fast_step(b.IB, F, np.zeros((plant_src.S_ROWS, 1)), np.zeros(1), np.ones((1, 1)),
-                np.zeros((2, 1, 1)), 0, 0, 1)
+                np.zeros((2, 1, 1)), 0, 0, 1, np.ones((plant_src.C_ROWS, 1)), 1)
     z6, z13 = np.zeros(6, dtype=np.int64), np.zeros(13, dtype=np.int64)
     k.vdc_link(z13, z6, z13, z13, z13, z6, z6, z6, np.zeros(3, dtype=np.int64), z6,
                z13.copy())
+    k.vdc_link_packed(np.zeros(79, dtype=np.int64), np.zeros(19, dtype=np.int64))
+    k.vdc_step(np.zeros(src.VX_SIZE, dtype=np.int64), np.zeros(src.VO_SIZE, dtype=np.int64))
     a = _throw_away()
     z = np.zeros(0, dtype=np.int64)
     tau = np.zeros(1)
@@ -332,9 +334,29 @@ class KernelEncoder:
 
 
 class KernelVdc(VdcModel):
-    """:class:`~hdl.node.vdc_ref.VdcModel` whose per-link computation runs compiled
-    (:func:`cosim.model_kernel_src.vdc_link`, same words bit for bit; tests/test_model_kernel.py);
-    the step around it is the reference's. :meth:`adopt` turns a node's model into one."""
+    """:class:`~hdl.node.vdc_ref.VdcModel` whose step runs compiled
+    (:func:`cosim.model_kernel_src.vdc_step`, the step around both links, and
+    :func:`~cosim.model_kernel_src.vdc_link`, each link; same words bit for bit;
+    tests/test_model_kernel.py). :meth:`adopt` turns a node's model into one."""
+
+    def step(self, x):
+        """:meth:`VdcModel.step <hdl.node.vdc_ref.VdcModel.step>` in one compiled call."""
+        p = self.params
+        th = self.theta
+        X = np.array([*th[0], *th[1], *p.K[0], *p.K[1], *p.rho_T[0], *p.rho_T[1],
+                      *p.lower[0], *p.lower[1], *p.upper[0], *p.upper[1], p.inv_T,
+                      *self.prev_C, self.prev_qd_r, self.primed, x.qd_r, *x.V_C, *x.V_rC,
+                      x.qd, x.cos_q, x.sin_q, *x.g_C], dtype=np.int64)
+        if X.shape[0] != src.VX_SIZE:           # not the unit's shapes: the reference says how
+            return VdcModel.step(self, x)
+        out = np.empty(src.VO_SIZE, dtype=np.int64)
+        src.vdc_step(X, out)
+        w = out.tolist()
+        self.theta = [w[src.VO_TH:src.VO_TH + 13], w[src.VO_TH + 13:src.VO_TH + 26]]
+        self.prev_C = list(x.V_rC)
+        self.prev_qd_r = x.qd_r
+        self.primed = True
+        return w[src.VO_F:src.VO_F + 6], w[src.VO_F + 6:src.VO_F + 12]
 
     @classmethod
     def adopt(cls, vdc: VdcModel) -> None:
@@ -343,15 +365,11 @@ class KernelVdc(VdcModel):
 
     def _link(self, i, V, V_r, dV, g):
         p = self.params
-        F = np.empty(6, dtype=np.int64)
-        new = np.empty(13, dtype=np.int64)
-        arr = np.array
-        src.vdc_link(arr(self.theta[i], dtype=np.int64), arr(p.K[i], dtype=np.int64),
-                     arr(p.rho_T[i], dtype=np.int64), arr(p.lower[i], dtype=np.int64),
-                     arr(p.upper[i], dtype=np.int64), arr(V, dtype=np.int64),
-                     arr(V_r, dtype=np.int64), arr(dV, dtype=np.int64),
-                     arr(g, dtype=np.int64), F, new)
-        return F.tolist(), new.tolist()
+        out = np.empty(19, dtype=np.int64)
+        src.vdc_link_packed(np.array([*self.theta[i], *p.K[i], *p.rho_T[i], *p.lower[i],
+                                      *p.upper[i], *V, *V_r, *dV, *g], dtype=np.int64), out)
+        w = out.tolist()
+        return w[:6], w[6:]
 
 
 _TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX, _RAMP = (int(c) for c in (
@@ -430,40 +448,25 @@ class KernelNode(FastNode):
         return self.torque_at(until)
 
     def push(self) -> None:
-        """The object's tick state into the kernel's row; the kernel owns it from now."""
-        N = self._row
-        N[src.N_NT] = self._nt
+        """The object's tick state into the kernel's row; the kernel owns it from now. (One
+        assignment of the whole row, in ``N_*`` order; a field the row marks absent — no
+        landing, no deferred Part B, no PRIME due — is written 0, which the kernel never reads.)"""
         t = self.torque
-        N[src.N_TORQUE_NONE] = t is None
-        N[src.N_TORQUE] = 0 if t is None else t
         land = self._landing
-        if land is None:
-            N[src.N_LAND] = 0
-        else:
-            N[src.N_LAND_C] = land[0]
-            N[src.N_LAND] = 2 if land[1] is None else 1
-            N[src.N_LAND_V] = 0 if land[1] is None else land[1]
-        N[src.N_STARTED] = self._started
-        N[src.N_BUSY] = self._busy_until
-        N[src.N_OVERRUNS] = self.overruns
         d = self._deferred
-        N[src.N_DEF] = d is not None
-        if d is not None:
-            N[src.N_DEF_TN:src.N_DEF_A + 1] = d
         j = self.joint
-        N[src.N_QDES], N[src.N_VDES], N[src.N_ILO], N[src.N_IHI] = \
-            j.q_des, j.v_des, j.i_lo, j.i_hi
-        N[src.N_ARMED], N[src.N_TRIPPED], N[src.N_PRIME] = self.armed, self.tripped, self.prime
         pd = self._prime_due
-        N[src.N_PRIME_SET] = pd is not None
-        N[src.N_PRIME_DUE] = 0 if pd is None else pd
-        N[src.N_LAST_PACKET] = self.last_packet
-        N[src.N_DBASE] = self.d_base
-        N[src.N_D0:src.N_D0 + 4] = self.d_words
         cfg = self.config
-        N[src.N_TICK], N[src.N_MODE], N[src.N_TIMEOUT] = cfg[_TICK], cfg[_MODE], cfg[_TIMEOUT]
-        N[src.N_TAU_MIN], N[src.N_TAU_MAX], N[src.N_RAMP] = \
-            cfg[_TAU_MIN], cfg[_TAU_MAX], cfg[_RAMP]
+        self._row[:] = [
+            self._nt, 0 if t is None else t, t is None,
+            *((0, 0, 0) if land is None else (land[0], 0, 2) if land[1] is None else
+              (land[0], land[1], 1)),
+            self._started, self._busy_until, self.overruns,
+            *((0, 0, 0, 0, 0) if d is None else (1, *d)),
+            j.q_des, j.v_des, j.i_lo, j.i_hi,
+            self.armed, self.tripped, self.prime, 0 if pd is None else pd, pd is not None,
+            self.last_packet, self.d_base, *self.d_words,
+            cfg[_TICK], cfg[_MODE], cfg[_TIMEOUT], cfg[_TAU_MIN], cfg[_TAU_MAX], cfg[_RAMP]]
         if self._prow_of is not j.params:
             param_row(j.params, self._prow)
             self._prow_of = j.params

@@ -831,6 +831,24 @@ def _vdc_tables():
 
 (VDC_TERMS, VDC_GROUP, VDC_PT_A, VDC_PT_P, VDC_PT_VEL, VDC_PT_F, VDC_PT_SIG, VDC_PT_DELTA,
  VDC_PT_THETA) = _vdc_tables()
+
+
+def _vdc_step_points():
+    """The rounding points of :meth:`VdcModel.step <hdl.node.vdc_ref.VdcModel.step>` around
+    its links (``_ROT``, ``_VEL``, ``_ACC``, ``_DIFF``, ``_DA`` of hdl/node/vdc_ref.py)."""
+    from mrm_cosim.protocol.fixed import ACC, INVT, TRIG, VEL
+
+    return tuple(np.array(_vdc_point(*a), dtype=np.int64) for a in (
+        (VEL, TRIG.lsb + VEL.lsb), (ACC, TRIG.lsb + ACC.lsb), (VEL, VEL.lsb), (ACC, ACC.lsb),
+        (ACC, VEL.lsb + INVT.lsb), (ACC, TRIG.lsb + ACC.lsb, 2 * VEL.lsb)))
+
+
+VDC_PT_ROTV, VDC_PT_ROTA, VDC_PT_SUMV, VDC_PT_SUMA, VDC_PT_DIFF, VDC_PT_DA = _vdc_step_points()
+#: :func:`vdc_step`'s packed input (offsets into ``X``) and output (into ``out``).
+(VX_TH, VX_K, VX_RHO, VX_LO, VX_HI, VX_INVT, VX_PREV_C, VX_PREV_QDR, VX_PRIMED, VX_QDR, VX_VC,
+ VX_VRC, VX_QD, VX_COS, VX_SIN, VX_G, VX_SIZE) = (0, 26, 38, 64, 90, 116, 117, 123, 124, 125,
+                                                  126, 132, 138, 139, 140, 141, 144)
+VO_F, VO_TH, VO_SIZE = 0, 12, 38
 WORD_LO, WORD_HI = _WORD_MIN, _WORD_MAX
 
 
@@ -884,6 +902,83 @@ def vdc_link(th, K, rho, lower, upper, V, Vr, dV, g, F, new):
         new[j] = min(max(t, lower[j]), upper[j])
 
 
+def vdc_link_packed(X, out):
+    """:func:`vdc_link` on its inputs packed into one array ``X`` (79 words: ``th``, ``K``,
+    ``rho``, ``lower``, ``upper``, ``V``, ``Vr``, ``dV``, ``g``, in that order), the force words
+    then the adapted estimates into ``out`` (19): one array to build and one to read back from
+    Python instead of eleven."""
+    vdc_link(X[0:13], X[13:19], X[19:32], X[32:45], X[45:58], X[58:64], X[64:70], X[70:76],
+             X[76:79], out[0:6], out[6:19])
+
+
+def _vp1(v0, pt):
+    """A one-summand rounding point (``fx_point`` with one LSB)."""
+    return _vround(v0 << pt[0], pt[1])
+
+
+def _vp2(v0, v1, pt):
+    """A two-summand rounding point."""
+    return _vround((v0 << pt[0]) + (v1 << pt[1]), pt[2])
+
+
+def _vdc_link_a(c, s, V, qd, out):
+    """``_link_a`` of vdc_ref.py: ``Rz(q)ᵀ`` per block plus ``z q̇``, VEL words."""
+    out[0] = _vp1(c * V[0] + s * V[1], VDC_PT_ROTV)
+    out[1] = _vp1(c * V[1] - s * V[0], VDC_PT_ROTV)
+    out[2] = V[2]
+    out[3] = _vp1(c * V[3] + s * V[4], VDC_PT_ROTV)
+    out[4] = _vp1(c * V[4] - s * V[3], VDC_PT_ROTV)
+    out[5] = _vp1(V[5] + qd, VDC_PT_SUMV)
+
+
+def vdc_step(X, out):
+    """:meth:`VdcModel.step <hdl.node.vdc_ref.VdcModel.step>` on its state and inputs packed
+    into ``X`` (the ``VX_*`` offsets: both links' estimates, gains, ρT, bounds, ``inv_T``, the
+    previous {C} velocity and ``q̇_r``, primed, then the run's inputs): the forces of Link a and
+    Link b into ``out[VO_F:]`` (12), the adapted estimates of both into ``out[VO_TH:]`` (26).
+    The caller keeps ``prev_C``, ``prev_qd_r`` and ``primed`` as the reference sets them."""
+    c = X[VX_COS]
+    s = X[VX_SIN]
+    qd = X[VX_QD]
+    qdr = X[VX_QDR]
+    VC = X[VX_VC:VX_VC + 6]
+    VrC = X[VX_VRC:VX_VRC + 6]
+    gC = X[VX_G:VX_G + 3]
+    if X[VX_PRIMED]:
+        prevC = X[VX_PREV_C:VX_PREV_C + 6]
+        pqdr = X[VX_PREV_QDR]
+    else:
+        prevC = VrC
+        pqdr = qdr
+    VA = np.empty(6, dtype=np.int64)
+    VrA = np.empty(6, dtype=np.int64)
+    _vdc_link_a(c, s, VC, qd, VA)
+    _vdc_link_a(c, s, VrC, qdr, VrA)
+    gA = np.empty(3, dtype=np.int64)
+    gA[0] = _vp1(c * gC[0] + s * gC[1], VDC_PT_ROTA)
+    gA[1] = _vp1(c * gC[1] - s * gC[0], VDC_PT_ROTA)
+    gA[2] = gC[2]
+    inv_t = X[VX_INVT]
+    dC = np.empty(6, dtype=np.int64)
+    for k in range(6):
+        dC[k] = _vp1(inv_t * (VrC[k] - prevC[k]), VDC_PT_DIFF)
+    qddr = _vp1(inv_t * (qdr - pqdr), VDC_PT_DIFF)
+    dA = np.zeros(6, dtype=np.int64)
+    for base in (0, 3):
+        d0 = dC[base]
+        d1 = dC[base + 1]
+        dA[base] = _vp2(c * d0 + s * d1, qd * VrA[base + 1], VDC_PT_DA)
+        dA[base + 1] = _vp2(c * d1 - s * d0, -qd * VrA[base], VDC_PT_DA)
+    dA[2] = dC[2]
+    dA[5] = _vp1(dC[5] + qddr, VDC_PT_SUMA)
+    vdc_link(X[VX_TH:VX_TH + 13], X[VX_K:VX_K + 6], X[VX_RHO:VX_RHO + 13],
+             X[VX_LO:VX_LO + 13], X[VX_HI:VX_HI + 13], VA, VrA, dA, gA,
+             out[VO_F:VO_F + 6], out[VO_TH:VO_TH + 13])
+    vdc_link(X[VX_TH + 13:VX_TH + 26], X[VX_K + 6:VX_K + 12], X[VX_RHO + 13:VX_RHO + 26],
+             X[VX_LO + 13:VX_LO + 26], X[VX_HI + 13:VX_HI + 26], VC, VrC, dC, gC,
+             out[VO_F + 6:VO_F + 12], out[VO_TH + 13:VO_TH + 26])
+
+
 # --- the whole plain plant step in one call (ModelBackend's fast path) -----------------------
 #: Buffer sizes per node (changes of one plant step are ≤ 500 per line; the queues empty at
 #: every observed tick, at least once a plant step). Overflow raises.
@@ -927,7 +1022,7 @@ def blob_views(IB):
     return N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR
 
 
-def fast_step(IB, F, S, a, M, rec, i, start, mode):
+def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     """One whole plant step with no event anywhere in it (:meth:`ModelBackend.fast_path
     <cosim.model.ModelBackend.fast_path>`), after :func:`models.plant_kernel_src.pre_free` and
     pinocchio: the rest of the plant step, the trace row ``i`` (``rec[0, i]`` the angles,
@@ -942,10 +1037,16 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode):
     :func:`~models.plant_kernel_src.likely_pattern`; ``mode`` 0: the end velocities are
     already in ``S[NEW]``; then :func:`~models.plant_kernel_src.finish`.
 
+    With ``pre_next`` (the caller will run the next step on this path too), the step done, the
+    next step's :func:`~models.plant_kernel_src.pre_free` on the torques the nodes output
+    (``C`` the plant's constants): one call from Python less per step. Exactly the caller's
+    own next ``pre_free`` call, on the same arrays.
+
     Returns 0; 1 if the free step does not hold (nothing else done: the caller calls again in
     mode 2) or 4 if the likely pattern does not (the caller runs the general solve and calls
     again in mode 0); 2 if a joint moved more than one count in a cycle (the plant has
-    stepped, the nodes have not); 3 as :func:`plain_step`'s True."""
+    stepped, the nodes have not); 3 as :func:`plain_step`'s True. With ``pre_next`` and the
+    step done, ``8 · (code + 2)``: ``code`` the next step's ``pre_free`` result (−1, 0, 1)."""
     n = IB[H_N]
     cycles = IB[H_CYCLES]
     h = F[F_H]
@@ -976,4 +1077,6 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode):
     if plain_step(N, P, E, VIS, PIPE, DUE, PEND, plain, start, cycles, 0, CHC, CHN, NCH, CUR,
                   tau):
         return 3
+    if pre_next:
+        return 8 * (plant_src.pre_free(S, C, tau, hh, F[F_FRICTION]) + 2)
     return 0

@@ -380,17 +380,36 @@ class Master:
         period ``[start, start + period_cycles)`` holding ``now`` as the first such cycle;
         before period 0, or in a period without a record, ignored. The master does not act on
         it: the harnesses (``cosim.closed_loop``, ``cosim.model``) report it for the timeline."""
-        if self.start is None or now < self.start:
+        self.on_node_events(((now, node, name),))
+
+    def on_node_events(self, events) -> None:
+        """:meth:`on_node_event` for each ``(cycle, node, name)`` of ``events``, in order (the
+        harness's call for a piece's strobes: the period's record looked up once, not per
+        strobe)."""
+        start = self.start
+        if start is None:
             return
-        index = (now - self.start) // self.timing.period_cycles
-        for rec in reversed(self.records):
-            if rec.index == index:
-                key = (name, node)
-                if key not in rec.node_events or now < rec.node_events[key]:
-                    rec.node_events[key] = now
-                return
-            if rec.index < index:
-                return
+        period = self.timing.period_cycles
+        rec = None
+        for now, node, name in events:
+            if now < start:
+                continue
+            index = (now - start) // period
+            if rec is None or rec.index != index:
+                rec = None
+                for r in reversed(self.records):
+                    if r.index == index:
+                        rec = r
+                        break
+                    if r.index < index:
+                        break
+                if rec is None:
+                    continue
+            seen = rec.node_events
+            key = (name, node)
+            first = seen.get(key)
+            if first is None or now < first:
+                seen[key] = now
 
     # --- replies ---------------------------------------------------------------------------
     def stale(self, ptype: int, seq: int) -> bool:

@@ -35,6 +35,10 @@ def test_the_ci_campaign_runs_through_mrm_sweep(tmp_path, capsys):
     assert by["node-reset"]["by"].startswith("disconnect")
     text = (out / "summary.md").read_text()
     assert "95 % upper bound" in text and "| master-stall |" in text
+    # a lost FCT that breaks no parity check leaves the sender 8 credits short, silently:
+    # the credit column must see it (the FIFO of 64 never starves the sender on one loss)
+    assert "## Credit left unbalanced" in text
+    assert doc["credit_skew_link_up"]["lost-fct"] >= 5, doc["credit_skew_link_up"]
     assert (out / "recovery.png").stat().st_size and (out / "detectors.png").stat().st_size
 
 
@@ -138,29 +142,18 @@ def test_a_tiny_closed_loop_campaign(tmp_path):
     assert (out / "loop_faults.png").stat().st_size
 
 
-def _credit_balance(camp) -> tuple[int, int]:
-    """What each receiver has granted minus what its sender holds, with nothing in flight: a
-    copy of the link runs with both hosts stalled until the line carries only NULLs (0, 0 on a
-    healthy link; the standard keeps no other record of it)."""
-    import copy
-
-    c = copy.deepcopy(camp)
-    c.stall = {"a": c.cycle + 10**9, "b": c.cycle + 10**9}
-    for _ in range(120):
-        c.step()
-    a, b = c.codecs["a"], c.codecs["b"]
-    assert a.state == b.state == 5
-    return b.rx_credit - a.tx_credit, a.rx_credit - b.tx_credit
-
-
-def test_a_short_master_stall_pays_for_an_earlier_bit_flip():
+def test_a_short_master_stall_pays_for_an_earlier_fault():
     """Fault 245 of chunk 10 of configs/sweeps/link-faults.toml (a 50-cycle stall of host a
     inside a frame, a quarter of the credit timeout) took the link down with a credit error.
-    The stall is not the cause: fault 241, D flipped for one bit period on a → b, made b
-    decode one N-char more than a sent with no parity error (only b's CRC check dropped
-    frames), so b's credit count stood one below a's from then on, unflagged, until b's next
-    FCT overflowed a's 56 (the standard's credit error, §8.5.2): a latent credit skew a fault
-    can leave behind, like a lost FCT (docs/faults.md)."""
+    The stall is not the cause, and the rows' ``credit_skew`` column says which fault was:
+    fault 241 (D flipped for one bit period on a → b) made b decode one N-char more than a sent
+    with no parity error (only b's CRC check dropped frames): b's credit count one below a's
+    (skew −1), unflagged. Fault 242, a reset of b's codec, restarted the link and settled that
+    account (+1). Fault 244, a lost-FCT injection on a → b that held the lines over a
+    time-code and an N-char (b's CRC, EEP and time-code sequence counters moved; no codec
+    error), left the same −1 again, and that is the skew b's next FCT turned into a's credit
+    error (§8.5.2) during the stall — which then shows +1, the restart settling it (an earlier
+    version of this test and of docs/faults.md blamed fault 241 alone)."""
     import numpy as np
 
     from mrm_cosim.cosim.link_faults import draw
@@ -171,7 +164,7 @@ def test_a_short_master_stall_pays_for_an_earlier_bit_flip():
     judged, rows = 0, {}
     while judged < 244:
         if judged == 240:
-            assert _credit_balance(camp) == (0, 0)
+            assert camp.credit_balance() == (0, 0)
         fault = draw(rng, KINDS)
         row = camp.judge(fault)
         if not row.get("skipped"):
@@ -181,8 +174,17 @@ def test_a_short_master_stall_pays_for_an_earlier_bit_flip():
     assert (fault.kind, fault.line) == ("bit", "ab")
     assert not row["went_down"] and row["corrupted"] == 0
     assert set(row["moved"]) == {"b.crc_drop"}         # no codec counter moved
-    assert _credit_balance(camp) == (-1, 0)              # still there before the stall
+    assert row["credit_skew"] == [-1, 0]
+    fault, row = rows[242]
+    assert fault.kind == "node-reset" and row["went_down"] and row["credit_skew"] == [1, 0]
+    assert rows[243][1]["credit_skew"] == [0, 0]
+    fault, row = rows[244]
+    assert (fault.kind, fault.line) == ("lost-fct", "ab") and not row["went_down"]
+    assert set(row["moved"]) == {"b.crc_drop", "b.eep", "b.tc_sequence"}
+    assert row["credit_skew"] == [-1, 0]
+    assert camp.credit_balance() == (-1, 0)              # still there before the stall
     stall = draw(rng, KINDS)
     assert (stall.kind, stall.line, stall.cycles) == ("master-stall", "ab", 50)
     row = camp.judge(stall)
     assert row["corrupted"] == 0 and row["went_down"] and row["moved"]["a.credit"] == 1
+    assert row["credit_skew"] == [1, 0]                  # the restart settled the account

@@ -213,6 +213,8 @@ def test_compiled_and_python_paths_give_the_same_trace(robot, controller):
     steps = fast[4].fast_steps
     assert sum(steps.values()) > 0.8 * cycles / 500 and steps["free"] > 0, steps
     assert steps["stick-slip"] + steps["solve"] > 0, steps
+    # and some of its runs ended with a step whose replies or strobes it handed to the master
+    assert fast[4].fast_handovers > 0
     assert slow[4].fast_steps == {"free": 0, "stick-slip": 0, "solve": 0}
     assert fast[1] == slow[1] and len(fast[1]) > 0
     assert fast[2] == slow[2]
@@ -317,3 +319,113 @@ def test_a_plant_with_its_own_step_gets_no_fast_path():
         backend.attach_plant(plant)
         assert (backend.fast_path(plant, rec) is not None) is expect, cls.__name__
     assert ModelBackend(kernel="python").fast_path(Plant(robot), rec) is None
+
+
+@needs_numba
+@settings(max_examples=200, deadline=None)
+@given(vals=st.lists(st.integers(-(1 << 40), 1 << 40), min_size=20, max_size=20),
+       torque_none=st.booleans(), land=st.sampled_from([None, "word", "dead"]),
+       deferred=st.booleans(), prime_due=st.booleans(),
+       flags=st.lists(st.booleans(), min_size=3, max_size=3))
+def test_kernel_node_push_writes_each_field_where_the_kernel_reads_it(
+        vals, torque_none, land, deferred, prime_due, flags):
+    """:meth:`KernelNode.push` (one assignment of the whole row) puts every field of the
+    object's tick state at its ``N_*`` index, a field marked absent as 0, and :meth:`pull`
+    gives the object back unchanged."""
+    from mrm_cosim.hdl.node.joint_ref import JointModel
+    from mrm_cosim.protocol.regs import Config
+
+    node = mk.KernelNode(joint=JointModel(JointParams.zero()))
+    node.bind(mk.KernelArrays(2), 1, None)
+    v = iter(vals)
+    node._nt = next(v)
+    node.torque = None if torque_none else next(v)
+    c = next(v)
+    node._landing = None if land is None else (c, next(v) if land == "word" else None)
+    node._started, node._busy_until, node.overruns = next(v), next(v), next(v)
+    node._deferred = (next(v), next(v), next(v), next(v)) if deferred else None
+    j = node.joint
+    j.q_des, j.v_des, j.i_lo, j.i_hi = next(v), next(v), next(v), next(v)
+    node.armed, node.tripped, node.prime = flags
+    node._prime_due = next(v) if prime_due else None
+    node.last_packet, node.d_base = next(v), next(v)
+    node.d_words = [11, -12, 13, -14]
+    cfg = node.config
+    cfg[Config.TICK], cfg[Config.MODE], cfg[Config.TIMEOUT] = 50, 2, 12345
+    cfg[Config.TAU_MIN], cfg[Config.TAU_MAX], cfg[Config.RAMP] = -77, 88, 9
+    before = dict(vars(node))
+    before_joint = (j.q_des, j.v_des, j.i_lo, j.i_hi)
+    node.push()
+    N = node._row
+    lnd = node._landing
+    want = {src.N_NT: node._nt, src.N_TORQUE_NONE: int(torque_none),
+            src.N_TORQUE: 0 if torque_none else node.torque,
+            src.N_LAND: 0 if lnd is None else 2 if lnd[1] is None else 1,
+            src.N_STARTED: node._started, src.N_BUSY: node._busy_until,
+            src.N_OVERRUNS: node.overruns, src.N_DEF: int(deferred),
+            src.N_QDES: j.q_des, src.N_VDES: j.v_des, src.N_ILO: j.i_lo, src.N_IHI: j.i_hi,
+            src.N_ARMED: int(flags[0]), src.N_TRIPPED: int(flags[1]),
+            src.N_PRIME: int(flags[2]), src.N_PRIME_SET: int(prime_due),
+            src.N_LAST_PACKET: node.last_packet, src.N_DBASE: node.d_base,
+            src.N_TICK: 50, src.N_MODE: 2, src.N_TIMEOUT: 12345, src.N_TAU_MIN: -77,
+            src.N_TAU_MAX: 88, src.N_RAMP: 9}
+    for k in range(4):
+        want[src.N_D0 + k] = node.d_words[k]
+    if lnd is not None:
+        want[src.N_LAND_C] = lnd[0]
+        if lnd[1] is not None:
+            want[src.N_LAND_V] = lnd[1]
+    if deferred:
+        for k, f in enumerate((src.N_DEF_TN, src.N_DEF_Q, src.N_DEF_V, src.N_DEF_A)):
+            want[f] = node._deferred[k]
+    if prime_due:
+        want[src.N_PRIME_DUE] = node._prime_due
+    assert {k: int(N[k]) for k in want} == want and node.in_kernel
+    node.pull()
+    assert (j.q_des, j.v_des, j.i_lo, j.i_hi) == before_joint
+    after = dict(vars(node))
+    for name in ("_nt", "torque", "_landing", "_started", "_busy_until", "overruns",
+                 "_deferred", "armed", "tripped", "prime", "_prime_due"):
+        assert after[name] == before[name], name
+
+
+@needs_numba
+@settings(max_examples=200, deadline=None)
+@given(th=st.lists(st.lists(words, min_size=13, max_size=13), min_size=2, max_size=2),
+       K=st.lists(st.lists(words, min_size=6, max_size=6), min_size=2, max_size=2),
+       rho=st.lists(st.lists(words, min_size=13, max_size=13), min_size=2, max_size=2),
+       bounds=st.lists(st.lists(st.tuples(words, words), min_size=13, max_size=13),
+                       min_size=2, max_size=2),
+       inv_t=st.one_of(st.integers(0, WORD_MAX), st.just(WORD_MAX)),
+       prev=st.one_of(st.none(), st.tuples(st.lists(words, min_size=6, max_size=6), words)),
+       runs=st.lists(st.tuples(words, st.lists(words, min_size=6, max_size=6),
+                               st.lists(words, min_size=6, max_size=6), words,
+                               st.integers(-(1 << 22), 1 << 22),
+                               st.integers(-(1 << 22), 1 << 22),
+                               st.lists(words, min_size=3, max_size=3)),
+                     min_size=1, max_size=3))
+def test_compiled_vdc_step_equals_the_reference(th, K, rho, bounds, inv_t, prev, runs):
+    """:class:`~cosim.model_kernel.KernelVdc`'s step (:func:`vdc_step`: the rotations into
+    {A}, the backward differences, both links) gives :meth:`VdcModel.step
+    <hdl.node.vdc_ref.VdcModel.step>`'s force words and leaves its state (estimates, previous
+    {C} velocity and q̇_r, primed) bit for bit, over runs from unprimed and primed states,
+    saturated words included."""
+    import copy
+
+    from mrm_cosim.hdl.node.vdc_ref import VdcInputs, VdcModel
+    from mrm_cosim.protocol.vdc_program import VdcParams
+
+    lower = [[min(a, b) for a, b in link] for link in bounds]
+    upper = [[max(a, b) for a, b in link] for link in bounds]
+    p = VdcParams(K=K, rho_T=rho, lower=lower, upper=upper, inv_T=inv_t)
+    ref = VdcModel(copy.deepcopy(p), copy.deepcopy(th))
+    fast = VdcModel(copy.deepcopy(p), copy.deepcopy(th))
+    mk.KernelVdc.adopt(fast)
+    if prev is not None:
+        for m in (ref, fast):
+            m.prev_C, m.prev_qd_r, m.primed = list(prev[0]), prev[1], True
+    for qd_r, V_C, V_rC, qd, c, s, g in runs:
+        x = VdcInputs(qd_r, V_C, V_rC, qd, c, s, g)
+        assert fast.step(x) == ref.step(x)
+        assert (fast.theta, fast.prev_C, fast.prev_qd_r, fast.primed) == \
+            (ref.theta, ref.prev_C, ref.prev_qd_r, ref.primed)
