@@ -441,7 +441,7 @@ def _joints(value) -> str:
 
 def _gear(table) -> GearConfig:
     return _section(table, "plant.gear", GearConfig,
-                    lambda v, name: _bool(v, name) if name == "plant.gear.hysteresis" else
+                    lambda v, name: v if name == "plant.gear.hysteresis" else
                     require_finite(_number(v, name), name))
 
 

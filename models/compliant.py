@@ -4,15 +4,18 @@ Per joint ``i``, with the motor angle ``θ`` referred to the output (motor angle
 
     B θ̈            = τ_m + ε − τ_J − τ_F(θ̇)             motor + wave generator side
     M(q) q̈ + c + g = τ_J + τ_s(q)                        link side (pinocchio, no armature)
-    τ_J = T(y) + d ẏ + r,   y = play_a(θ − q + φ0)        the gear
+    τ_J = T(δ) + z + d δ̇ + r,   δ = θ − q + φ0            the gear
+    dz/dδ = σ (1 − z / F_h · sgn δ̇)                      its hysteresis (Dahl)
 
 * ``B``: the actuator's output-referred rotor inertia (rotor, wave generator, encoder disc:
   ``models.actuators``), the armature the rigid plant adds to ``M(q)``;
 * ``T``: Harmonic Drive's piecewise-linear torque–torsion curve (``models.gear``) of the
-  elastic deflection ``y``, which follows the gear's deflection ``θ − q + φ0`` through a play
-  of the catalogue's hysteresis loss (``φ0``: the static deflection at the reset pose, where
-  the encoders are zeroed, :meth:`CompliantPlant.reset`); ``d ẏ``: structural damping (acts
-  while the play is engaged);
+  gear's deflection ``δ`` (``φ0``: the static deflection at the reset pose, where the encoders
+  are zeroed, :meth:`CompliantPlant.reset`); ``z``: the hysteresis, a Dahl friction torque of
+  amplitude ``F_h = T(a)`` (``2a`` the catalogue's hysteresis loss: the loop's width at zero
+  torque), ``models.gear.dahl``; ``d δ̇``: structural damping. ``[plant.gear] hysteresis =
+  "play"`` replaces ``T(δ) + z`` by the earlier dead-zone model ``T(play_a(δ))`` (damping only
+  while engaged);
 * ``r = A sin(2 N θ + φ)``: the wave generator's torque ripple, twice per motor revolution;
 * ``ε``: current-sensor noise, white over each plant step (the current loop follows the sensor,
   so the noise becomes motor torque); ``τ_m``: the amplifier as in the rigid plant;
@@ -28,7 +31,8 @@ Integrator: the rigid plant's midpoint scheme on both sides; the gear torque at 
 positions with the damping on the start velocities; the link by one ABA; the motor's friction
 solved exactly at the velocity level (scalar: the set-valued law ``B(ω⁺ − ω) = h(ρ − F s)``,
 ``s ∈ Sgn ω⁺``, has the closed-form solution). Stable while ``h²ω² + 2hc ≤ 4`` for the gear
-mode (``models.gear.step_bound``, checked at construction).
+mode (``models.gear.step_bound``, checked at construction, with the Dahl element's largest
+tangent stiffness ``2σ`` added to the curve's).
 """
 
 from __future__ import annotations
@@ -44,7 +48,9 @@ from mrm_cosim.errors import InputError
 from mrm_cosim.models.encoder import (
     EncoderCycles, cycle_counts, joint_counts, quadrature_levels,
 )
-from mrm_cosim.models.gear import GEARS, STEP_MARGIN, check_step, deflection, gear_torque, play
+from mrm_cosim.models.gear import (
+    GEARS, STEP_MARGIN, check_step, dahl, deflection, gear_torque, play,
+)
 from mrm_cosim.models.plant import Plant, PlantConfig, PlantTruth, true_parameters
 
 __all__ = ["GearTruth", "gear_truth", "CompliantPlant"]
@@ -59,7 +65,11 @@ class GearTruth:
     t1, t2, k1, k2, k3 : ndarray, shape (n,)
         Each gear's curve (N·m, N·m/rad), the stiffness scaled and spread.
     half_play : ndarray, shape (n,), rad
-        Half the hysteresis loss (0: no hysteresis).
+        Half the hysteresis loss where the play model is chosen, else 0.
+    hyst_torque : ndarray, shape (n,), N·m
+        The Dahl element's amplitude ``F_h = T(a)`` (0: no Dahl hysteresis).
+    hyst_sigma : ndarray, shape (n,), N·m/rad
+        The Dahl element's stiffness ``σ``.
     damping : ndarray, shape (n,), N·m·s/rad
     motor_inertia : ndarray, shape (n,), kg·m², output-referred
     ratio : ndarray, shape (n,)
@@ -74,6 +84,8 @@ class GearTruth:
     k2: np.ndarray
     k3: np.ndarray
     half_play: np.ndarray
+    hyst_torque: np.ndarray
+    hyst_sigma: np.ndarray
     damping: np.ndarray
     motor_inertia: np.ndarray
     ratio: np.ndarray
@@ -95,7 +107,9 @@ def gear_streams(seed: int) -> tuple[np.random.Generator, np.random.Generator]:
 def gear_truth(truth: PlantTruth, config: PlantConfig, seed: int) -> GearTruth:
     """The true gears of a plant: the catalogue curve (``models.gear.GEARS``) per actuator,
     times ``stiffness_scale``, each joint's stiffness times ``1 + spread · u`` (``u`` uniform
-    in [−1, 1] from the seed), the damping from the damping ratio, ripple phases drawn."""
+    in [−1, 1] from the seed), the damping from the damping ratio, ripple phases drawn; the
+    hysteresis as ``config.gear.hysteresis`` says: Dahl amplitude ``F_h = T(a)`` on the joint's
+    own (scaled) curve, ``σ = hysteresis_stiffness · K1``, or the play's half width ``a``."""
     g = config.gear
     n = len(truth.actuators)
     for k, spec in enumerate(truth.actuators):
@@ -108,12 +122,21 @@ def gear_truth(truth: PlantTruth, config: PlantConfig, seed: int) -> GearTruth:
     factor = g.stiffness_scale * (1.0 + g.stiffness_spread * u)
     gears = [GEARS[s.name] for s in truth.actuators]
     k1 = np.array([x.k1 for x in gears]) * factor
+    k2 = np.array([x.k2 for x in gears]) * factor
+    k3 = np.array([x.k3 for x in gears]) * factor
+    t1 = np.array([x.t1 for x in gears])
+    t2 = np.array([x.t2 for x in gears])
+    a = np.array([0.5 * x.hysteresis for x in gears])
+    fh = np.array([gear_torque(float(a[i]), float(t1[i]), float(t2[i]), float(k1[i]),
+                               float(k2[i]), float(k3[i])) for i in range(n)])
+    dahl_on = g.hysteresis == "dahl"
     B = np.asarray(truth.rotor_inertia, dtype=float).copy()
     peak = np.asarray(truth.peak_torque, dtype=float)
     return GearTruth(
-        t1=np.array([x.t1 for x in gears]), t2=np.array([x.t2 for x in gears]), k1=k1,
-        k2=np.array([x.k2 for x in gears]) * factor, k3=np.array([x.k3 for x in gears]) * factor,
-        half_play=np.array([0.5 * x.hysteresis if g.hysteresis else 0.0 for x in gears]),
+        t1=t1, t2=t2, k1=k1, k2=k2, k3=k3,
+        half_play=a if g.hysteresis == "play" else np.zeros(n),
+        hyst_torque=fh if dahl_on else np.zeros(n),
+        hyst_sigma=g.hysteresis_stiffness * k1 if dahl_on else np.zeros(n),
         damping=2.0 * g.damping_ratio * np.sqrt(k1 * B), motor_inertia=B,
         ratio=np.array([float(s.gear_ratio) for s in truth.actuators]),
         ripple=g.ripple * peak, ripple_phase=phase, noise=g.current_noise * peak)
@@ -142,8 +165,9 @@ class CompliantPlant(Plant):
     Raises
     ------
     InputError
-        A gear the step cannot integrate stably (``plant.gear.stiffness_scale`` or
-        ``plant.gear.damping_ratio``, with the largest step allowed).
+        A gear the step cannot integrate stably (``plant.gear.stiffness_scale``,
+        ``plant.gear.damping_ratio`` or ``plant.gear.hysteresis_stiffness``, with the largest
+        step allowed).
     """
 
     def __init__(self, robot, config: PlantConfig | None = None, seed: int = 0, *,
@@ -164,10 +188,15 @@ class CompliantPlant(Plant):
         M = np.triu(M) + np.triu(M, 1).T
         self.step_bound = check_step(self.dt, gt.k_max(), gt.damping, gt.motor_inertia, M,
                                      STEP_MARGIN, "plant.gear.stiffness_scale",
-                                     "plant.gear.damping_ratio")
+                                     "plant.gear.damping_ratio", gt.hyst_sigma,
+                                     "plant.gear.hysteresis_stiffness")
         self._gl = [gt.t1.tolist(), gt.t2.tolist(), gt.k1.tolist(), gt.k2.tolist(),
                     gt.k3.tolist()]
         self._a = gt.half_play.tolist()
+        self._fh = gt.hyst_torque.tolist()
+        self._sig = gt.hyst_sigma.tolist()
+        # the play model where any joint has a play (a GearTruth's choice), else Dahl
+        self._play = [1.0 if x > 0.0 else 0.0 for x in self._a]
         self._dg = gt.damping.tolist()
         self._inv_b = (1.0 / gt.motor_inertia).tolist()
         self._bm = gt.motor_inertia.tolist()
@@ -189,7 +218,8 @@ class CompliantPlant(Plant):
         the robot at ``q0`` under its own weight (calibrated there: the gears carry the
         static torque ``g(q0) − τ_s(q0)`` at the catalogue curve's deflection, which the
         motor angle ``θ`` then counts from: :attr:`preload`); the motor at ``theta0`` (default
-        ``q0``) moving at ``theta_d0`` (default ``qd0``); the play centred; the noise stream
+        ``q0``) moving at ``theta_d0`` (default ``qd0``); the hysteresis unloaded (Dahl torque 0,
+        the play centred); the noise stream
         restarted (same seed, same noise)."""
         super().reset(q0, qd0, tau_motor0)
         if not hasattr(self, "_gl"):             # Plant.__init__'s reset, before the gears
@@ -205,6 +235,7 @@ class CompliantPlant(Plant):
         self._w = list(self._v) if theta_d0 is None else \
             self._vector(theta_d0, "theta_d0").tolist()
         self._y = [self._th[i] - self._q[i] + self._off[i] for i in range(self.n)]
+        self._z = [0.0] * self.n
         self._am_prev = [0.0] * self.n
         self._th_start = list(self._th)
         self._w_start = list(self._w)
@@ -256,6 +287,7 @@ class CompliantPlant(Plant):
             C[k.AMP, i], C[k.PHASE, i], C[k.HAS_SPRING, i] = amp, phase, 1.0
         C[k.T1], C[k.T2], C[k.K1], C[k.K2], C[k.K3] = self._gl
         C[k.HALF], C[k.DG], C[k.BM] = self._a, self._dg, self._bm
+        C[k.FH], C[k.SIG], C[k.PLAY] = self._fh, self._sig, self._play
         C[k.RIPPLE], C[k.RPHASE], C[k.R2], C[k.SIGMA] = \
             self._ripple, self._rphase, self._r2, self._noise
         C[k.OFF] = self._off
@@ -270,7 +302,7 @@ class CompliantPlant(Plant):
         for row, name in ((k.Q, "_q"), (k.V, "_v"), (k.A_PREV, "_a_prev"),
                           (k.Q_START, "_q_start"), (k.V_START, "_v_start"), (k.TH, "_th"),
                           (k.W, "_w"), (k.AM_PREV, "_am_prev"), (k.TH_START, "_th_start"),
-                          (k.W_START, "_w_start"), (k.Y, "_y"), (k.TAU, "_tau"),
+                          (k.W_START, "_w_start"), (k.Y, "_y"), (k.Z, "_z"), (k.TAU, "_tau"),
                           (k.TAU_J, "_tau_j"), (k.BRAKE, "_bh"), (k.BRAKE_SLIP, "_bs")):
             if hasattr(self, name):
                 S[row] = getattr(self, name)
@@ -308,13 +340,14 @@ class CompliantPlant(Plant):
         hh = 0.5 * h
         n = self.n
         q, v, a_prev = self._q, self._v, self._a_prev
-        th, w, am_prev, y = self._th, self._w, self._am_prev, self._y
+        th, w, am_prev, y, z = self._th, self._w, self._am_prev, self._y, self._z
         tau, tau_j = self._tau, self._tau_j
         qm, vm, lf = self._qm, self._vm, self._lf
         alpha, beta, peak = self._alpha, self._beta, self._peak
         fc, fsx, inv_vs, visc = self._fc, self._fs_excess, self._inv_vs, self._visc
         t1, t2, k1, k2, k3 = self._gl
         half, dg, bm, off = self._a, self._dg, self._bm, self._off
+        fh, sig, use_play = self._fh, self._sig, self._play
         ripple, rphase, r2, sigma = self._ripple, self._rphase, self._r2, self._noise
         friction = self._has_friction
         bh, bs = self._bh, self._bs
@@ -338,13 +371,20 @@ class CompliantPlant(Plant):
             qm[i] = q[i] + hh * vi
             vm[i] = vi + hh * a_prev[i]
             thm[i] = th[i] + hh * w[i]
-            # the gear at mid-step: play, curve, damping (while engaged), ripple
+            # the gear at mid-step: curve + Dahl hysteresis + damping (or the play option), ripple
             delta = thm[i] - qm[i] + off[i]
-            yi = play(y[i], delta, half[i])
-            tj = gear_torque(yi, t1[i], t2[i], k1[i], k2[i], k3[i])
-            if yi != y[i] or half[i] == 0.0:
+            if use_play[i] != 0.0:
+                yi = play(y[i], delta, half[i])
+                tj = gear_torque(yi, t1[i], t2[i], k1[i], k2[i], k3[i])
+                if yi != y[i] or half[i] == 0.0:
+                    tj += dg[i] * (w[i] - vi)
+                y[i] = yi
+            else:
+                zi = dahl(z[i], delta - y[i], fh[i], sig[i])
+                z[i] = zi
+                y[i] = delta
+                tj = gear_torque(delta, t1[i], t2[i], k1[i], k2[i], k3[i]) + zi
                 tj += dg[i] * (w[i] - vi)
-            y[i] = yi
             tj += ripple[i] * sin(r2[i] * thm[i] + rphase[i])
             tau_j[i] = tj
             lf[i] = tj

@@ -3,7 +3,7 @@
 :meth:`CompliantPlant.step <models.compliant.CompliantPlant.step>` but the noise draw and
 pinocchio's ABA, which stay calls from Python before and between these functions.
 
-A line-for-line translation of that method (``models.gear.play`` and ``gear_torque`` are
+A line-for-line translation of that method (``models.gear.play``, ``dahl`` and ``gear_torque`` are
 the reference's own functions, compiled as they are), which stays the readable source of
 truth and the pure-Python path: every float operation is the reference's, in the reference's
 order (no fastmath, so no contraction), ``exp``/``sin``/``cos`` as Python's ``math`` calls
@@ -19,21 +19,23 @@ import math
 
 # The gear's curve and play are the reference's own functions (floats only): the loader
 # compiles them with this module's (cosim.model_kernel.jit_module).
-from mrm_cosim.models.gear import gear_torque, play  # noqa: F401 - called by pre, compiled
+from mrm_cosim.models.gear import dahl, gear_torque, play  # noqa: F401 - called by pre, compiled
 
 #: Functions of other modules this one calls, compiled with it.
-CALLS = ("gear_torque", "play")
+CALLS = ("gear_torque", "play", "dahl")
 
 # --- state rows ------------------------------------------------------------------------------
 (Q, V, A_PREV, Q_START, V_START, TH, W, AM_PREV, TH_START, W_START, Y, TAU, TAU_J, QM, VM, THM,
  LF) = range(17)
 #: the holding brakes' levels (output-referred, on the motor side) where engaged, else 0
 BRAKE, BRAKE_SLIP = 17, 18
-S_ROWS = 19
+#: the Dahl hysteresis torque (Y then holds the last mid-step deflection)
+Z = 19
+S_ROWS = 20
 # --- constant rows ---------------------------------------------------------------------------
 (ALPHA, BETA, PEAK, FC, FSX, INV_VS, VISC, AMP, PHASE, HAS_SPRING, T1, T2, K1, K2, K3, HALF,
- DG, BM, RIPPLE, RPHASE, R2, SIGMA, OFF) = range(23)
-C_ROWS = 23
+ DG, BM, RIPPLE, RPHASE, R2, SIGMA, OFF, FH, SIG, PLAY) = range(26)
+C_ROWS = 26
 
 
 def pre(S, C, cmd, noise, h, hh, friction):
@@ -63,11 +65,18 @@ def pre(S, C, cmd, noise, h, hh, friction):
         S[VM, i] = vi + hh * S[A_PREV, i]
         S[THM, i] = S[TH, i] + hh * S[W, i]
         delta = S[THM, i] - S[QM, i] + C[OFF, i]
-        yi = play(S[Y, i], delta, C[HALF, i])
-        tj = gear_torque(yi, C[T1, i], C[T2, i], C[K1, i], C[K2, i], C[K3, i])
-        if yi != S[Y, i] or C[HALF, i] == 0.0:
+        if C[PLAY, i] != 0.0:
+            yi = play(S[Y, i], delta, C[HALF, i])
+            tj = gear_torque(yi, C[T1, i], C[T2, i], C[K1, i], C[K2, i], C[K3, i])
+            if yi != S[Y, i] or C[HALF, i] == 0.0:
+                tj += C[DG, i] * (S[W, i] - vi)
+            S[Y, i] = yi
+        else:
+            zi = dahl(S[Z, i], delta - S[Y, i], C[FH, i], C[SIG, i])
+            S[Z, i] = zi
+            S[Y, i] = delta
+            tj = gear_torque(delta, C[T1, i], C[T2, i], C[K1, i], C[K2, i], C[K3, i]) + zi
             tj += C[DG, i] * (S[W, i] - vi)
-        S[Y, i] = yi
         tj += C[RIPPLE, i] * math.sin(C[R2, i] * S[THM, i] + C[RPHASE, i])
         S[TAU_J, i] = tj
         S[LF, i] = tj

@@ -14,11 +14,27 @@ Torque–torsion curve at the output, for a deflection ``φ ≥ 0`` (odd in ``φ
     φ1 < φ ≤ φ2:   T = T1 + K2 (φ − φ1)           φ2 = φ1 + (T2 − T1) / K2
     φ > φ2:        T = T2 + K3 (φ − φ2)
 
-which is the catalogue's equation 68.1-68.3 solved for the torque. Hysteresis: the elastic
-deflection ``y`` follows the gear's deflection ``δ`` through a play of width ``2a`` (``2a`` =
-the catalogue's hysteresis loss): ``y ← clamp(y, δ − a, δ + a)``, so after a reversal the
-deflection travels ``2a`` before the torque changes, and a static loop between ± T has the
-width ``2a`` at every torque.
+which is the catalogue's equation 68.1-68.3 solved for the torque.
+
+Hysteresis (``hysteresis = "dahl"``, the default): a harmonic drive has no backlash; its
+"hysteresis loss" is the width at zero torque of the loop between the loading and unloading
+curves, from friction inside the flexspline and wave generator. The gear torque is the curve
+of the whole deflection ``δ`` plus a Dahl friction torque ``z``::
+
+    τ = T(δ) + z,     dz/dδ = σ (1 − z / F_h · sgn δ̇)         (Dahl, exponent 1)
+
+``|z| ≤ F_h`` always and the tangent stiffness ``dT/dδ + dz/dδ`` lies in ``[K, K + 2σ]``: the
+link is never disconnected. On a monotone branch ``z → ± F_h``, so the loading and unloading
+curves are ``T(δ) ± F_h`` and cross zero torque at ``δ = ∓ T⁻¹(F_h)``: with ``F_h = T(a)``,
+``a`` half the catalogue's hysteresis loss, the loop's width at zero torque is the catalogue's
+``2a``. ``σ = c · K1`` sets how fast ``z`` turns after a reversal (rate-independent: ``z`` is a
+function of the deflection path, not of time); :func:`dahl` integrates it exactly over a
+deflection increment. Passive: with the storage ``z² / 2σ`` the element dissipates
+``|δ̇| z² / F_h ≥ 0``.
+
+``hysteresis = "play"`` keeps the earlier model as a named option (not the catalogue's
+physics: the elastic deflection ``y`` follows ``δ`` through a dead zone of width ``2a``,
+``y ← clamp(y, δ − a, δ + a)``, inside which the gear transmits no torque).
 """
 
 from __future__ import annotations
@@ -30,8 +46,8 @@ import numpy as np
 
 from mrm_cosim.errors import InputError
 
-__all__ = ["GearSpec", "GEARS", "GearConfig", "ARCMIN", "STEP_MARGIN", "gear_torque", "play",
-           "deflection",
+__all__ = ["GearSpec", "GEARS", "GearConfig", "ARCMIN", "STEP_MARGIN", "DAHL_SIGMA",
+           "HYSTERESIS", "gear_torque", "play", "dahl", "dahl_loop_area", "deflection",
            "step_bound", "check_step"]
 
 ARCMIN = math.pi / (180.0 * 60.0)
@@ -155,6 +171,41 @@ def play(y: float, delta: float, a: float) -> float:
     return y
 
 
+def dahl(z: float, step: float, fh: float, sigma: float) -> float:
+    """The Dahl friction torque after the deflection moved by ``step``, N·m: the exact
+    solution of ``dz/dδ = σ (1 − z / F_h · sgn step)`` over a monotone increment,
+    ``z⁺ = s − (s − z) e^{−σ |step| / F_h}`` with ``s = ± F_h`` (unconditionally stable, keeps
+    ``|z| ≤ F_h``, independent of how fast the step was taken). ``fh = 0``: no hysteresis, ``z``
+    is returned unchanged (0).
+
+    Python floats, the same operations as the compiled kernel (``models.compliant_kernel_src``).
+    """
+    if fh == 0.0 or step == 0.0:
+        return z
+    if step > 0.0:
+        s = fh
+        e = math.exp(-sigma * step / fh)
+    else:
+        s = -fh
+        e = math.exp(sigma * step / fh)
+    return s - (s - z) * e
+
+
+def dahl_loop_area(amplitude: float, fh: float, sigma: float) -> float:
+    """Energy a Dahl element dissipates per cycle of the deflection between ``± amplitude``
+    once the loop is periodic, J (the area of its torque–deflection loop; the curve ``T``
+    encloses none).
+
+    On the rising branch from ``−A`` (``z = −z_m``) ``z = F − (F + z_m) e^{−σ(δ + A)/F}``;
+    periodicity gives ``z_m = F (1 − E) / (1 + E)``, ``E = e^{−2σA/F}``; by symmetry the area
+    is twice the integral of the rising branch: ``2 [2 F A − (F + z_m)(F/σ)(1 − E)]``.
+    """
+    F, A = fh, amplitude
+    E = math.exp(-2.0 * sigma * A / F)
+    zm = F * (1.0 - E) / (1.0 + E)
+    return 2.0 * (2.0 * F * A - (F + zm) * (F / sigma) * (1.0 - E))
+
+
 def step_bound(k: np.ndarray, d: np.ndarray, motor_inertia: np.ndarray,
                link_mass_matrix: np.ndarray) -> tuple[float, float, float]:
     """The largest stable step of the plant's gear coupling, s, with the mode's data.
@@ -186,24 +237,46 @@ def step_bound(k: np.ndarray, d: np.ndarray, motor_inertia: np.ndarray,
 
 
 def check_step(dt: float, k, d, motor_inertia, link_mass_matrix, margin: float,
-               stiffness_field: str, damping_field: str) -> float:
+               stiffness_field: str, damping_field: str, hysteresis_stiffness=None,
+               hysteresis_field: str = "") -> float:
     """Refuse a gear the plant step cannot integrate stably (``h_max / margin < dt``).
 
-    Names ``damping_field`` when the damping alone would make the step unstable
-    (``2hc > 4``… the damping term dominates), else ``stiffness_field``; the message gives the
-    largest step allowed. Returns ``h_max``.
+    ``k`` is each gear's largest stiffness; ``hysteresis_stiffness`` (optional, per gear) the
+    Dahl element's ``σ``, whose tangent stiffness reaches ``2σ`` just after a reversal, so the
+    bound uses ``k + 2σ``. Names ``damping_field`` when the damping term dominates
+    (``c h > ω² h²``), else ``hysteresis_field`` when the step would be stable without the
+    Dahl element, else ``stiffness_field``; the message gives the largest step allowed.
+    Returns ``h_max``.
     """
+    k = np.asarray(k, float)
+    dahl_breaks = False
+    if hysteresis_stiffness is not None:
+        extra = 2.0 * np.asarray(hysteresis_stiffness, float)
+        without = step_bound(k, np.asarray(d, float), np.asarray(motor_inertia, float),
+                             np.asarray(link_mass_matrix, float))[0]
+        dahl_breaks = dt <= without / margin        # stable without the Dahl element
+        k = k + extra
     h_max, omega, c = step_bound(np.asarray(k, float), np.asarray(d, float),
                                  np.asarray(motor_inertia, float),
                                  np.asarray(link_mass_matrix, float))
     allowed = h_max / margin
     if dt > allowed:
-        field = damping_field if c * dt > omega * omega * dt * dt else stiffness_field
+        field = damping_field if c * dt > omega * omega * dt * dt else \
+            hysteresis_field if dahl_breaks and hysteresis_field else stiffness_field
         raise InputError(field, f"makes the gear mode (ω = {omega:.4g} rad/s, damping rate "
                          f"{c:.4g} 1/s) unstable at plant.dt = {dt:g} s: the largest step it "
                          f"allows is {allowed:.3g} s (bound {h_max:.3g} s / safety {margin:g})")
     return h_max
 
+
+DAHL_SIGMA = 0.5 * math.log(20.0)
+"""Default Dahl stiffness over K1 (``σ = DAHL_SIGMA · K1`` ≈ 1.50 K1) [ASSUMED]: after a
+reversal the friction torque covers 95 % of its swing from ``−F_h`` to ``+F_h`` within one
+hysteresis loss of travel (``2 F_h e^{−σ·2a/F_h} = 0.05 · 2 F_h`` with ``F_h = K1 a``), the
+travel over which the play took it up; the catalogue gives no figure for the loop's corner."""
+
+HYSTERESIS = ("dahl", "play", "off")
+"""The hysteresis models of ``[plant.gear] hysteresis`` (true means "dahl", false "off")."""
 
 STEP_MARGIN = 4.0
 """Safety factor on the step bound of :func:`step_bound`: the bound is computed at the home
@@ -225,8 +298,14 @@ class GearConfig:
     damping_ratio : float
         Structural damping: ``d = 2 ζ √(K1 · B)`` per gear with ``B`` the motor-side inertia
         (damping ratio of the motor against a locked link). [ASSUMED 0.05]
-    hysteresis : bool
-        The catalogue's hysteresis loss as a play of that width (off: a one-valued curve).
+    hysteresis : str
+        The catalogue's hysteresis loss: "dahl" (default; a Dahl friction torque on the
+        curve, loop width at zero torque = the loss, the link never disconnected), "play" (a
+        dead zone of that width: the earlier model, kept as a named option) or "off" (the
+        one-valued curve). ``true`` / ``false`` mean "dahl" / "off".
+    hysteresis_stiffness : float
+        Dahl stiffness ``σ`` over each gear's K1 (how sharply the loop turns after a
+        reversal). [ASSUMED ``DAHL_SIGMA`` = ln 20 / 2 ≈ 1.50]
     ripple : float
         Wave-generator torque ripple amplitude, fraction of the actuator's peak torque, at twice
         the motor's revolution frequency. [ASSUMED 0.005]
@@ -238,12 +317,13 @@ class GearConfig:
     stiffness_scale: float = 1.0
     stiffness_spread: float = 0.1
     damping_ratio: float = 0.05
-    hysteresis: bool = True
+    hysteresis: str = "dahl"
+    hysteresis_stiffness: float = DAHL_SIGMA
     ripple: float = 0.005
     current_noise: float = 0.002
 
     def __post_init__(self):
-        for name in ("stiffness_scale", "damping_ratio"):
+        for name in ("stiffness_scale", "damping_ratio", "hysteresis_stiffness"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) \
                     or v <= 0.0:
@@ -256,6 +336,11 @@ class GearConfig:
                     or not 0.0 <= v <= top:
                 raise InputError(f"plant.gear.{name}", f"must be in [0, {top}], not {v!r}")
             object.__setattr__(self, name, float(v))
-        if not isinstance(self.hysteresis, bool):
-            raise InputError("plant.gear.hysteresis", f"must be true or false, not "
+        h = self.hysteresis
+        if isinstance(h, bool):
+            h = "dahl" if h else "off"
+        if h not in HYSTERESIS:
+            raise InputError("plant.gear.hysteresis", f"must be one of "
+                             f"{', '.join(map(repr, HYSTERESIS))} (or true / false), not "
                              f"{self.hysteresis!r}")
+        object.__setattr__(self, "hysteresis", h)

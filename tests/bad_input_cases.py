@@ -181,7 +181,8 @@ for key, values in (("stiffness_scale", ["0", "-1", "nan", '"1"', "1e7"]),
                     ("stiffness_spread", ["-0.1", "0.9"]),
                     ("ripple", ["-0.01", "1"]),
                     ("current_noise", ["-0.01", '"x"']),
-                    ("hysteresis", ["1"])):
+                    ("hysteresis", ["1", '"backlash"']),
+                    ("hysteresis_stiffness", ["0", "-1", "1e7"])):
     for i, value in enumerate(values):
         case(f"config-plant-gear-{key}-{i}", ["run", "table2", "--config", "{config}",
                                               "--out", "{out}"], f"plant.gear.{key}",

@@ -1,7 +1,8 @@
 """The compliant plant (models.compliant, models.gear) against independent references: the
 catalogue's worked torsion-angle example, the two-inertia natural frequency, energy balance,
 pinocchio's gravity for the static deflection, the rigid plant in the stiff limit, the
-hysteresis loop width, seeded noise, and the step bound's refusals."""
+hysteresis (Dahl: loop width, loop area, passivity; the play option), seeded noise, and the
+step bound's refusals."""
 
 import math
 from dataclasses import replace
@@ -12,7 +13,9 @@ import pytest
 
 from mrm_cosim.errors import InputError
 from mrm_cosim.models.compliant import CompliantPlant, gear_truth
-from mrm_cosim.models.gear import ARCMIN, GEARS, GearConfig, GearSpec, gear_torque, play
+from mrm_cosim.models.gear import (
+    ARCMIN, DAHL_SIGMA, GEARS, GearConfig, GearSpec, dahl, dahl_loop_area, gear_torque, play,
+)
 from mrm_cosim.models.plant import Plant, PlantConfig, make_plant, true_parameters
 from mrm_cosim.models.robot import load_robot, robot_from_dict
 
@@ -69,6 +72,130 @@ def test_hysteresis_loop_width_is_the_catalogue_loss():
         prev = t
     down, up = zeros[0], zeros[-1]
     assert up - down == pytest.approx(g.hysteresis, rel=1e-3)
+
+
+def _dahl_loop(g, fh, sigma, top, points=8001):
+    """δ from 0 to ``top``, down to ``−top`` and up again; (δ, z, total torque) per point."""
+    path = np.concatenate([np.linspace(0, top, points // 2 + 1),
+                           np.linspace(top, -top, points), np.linspace(-top, top, points)])
+    z, prev = 0.0, 0.0
+    out = []
+    for delta in path.tolist():
+        z = dahl(z, delta - prev, fh, sigma)
+        prev = delta
+        out.append((delta, z, gear_torque(delta, g.t1, g.t2, g.k1, g.k2, g.k3) + z))
+    return out
+
+
+def test_dahl_loop_width_at_zero_torque_is_the_catalogue_loss():
+    """The Dahl hysteresis with F_h = T(a), a quasi-static loop between ± 2 T2: the unloading
+    and loading branches cross zero torque one hysteresis loss (2a) apart, for both gears and
+    for a sharper and a softer corner; the torque never jumps (no play: the link is never
+    disconnected, the tangent stiffness stays ≥ K1)."""
+    for name in GEARS:
+        g = GEARS[name]
+        a = 0.5 * g.hysteresis
+        fh = gear_torque(a, g.t1, g.t2, g.k1, g.k2, g.k3)
+        assert fh == pytest.approx(g.k1 * a, rel=1e-12)          # a lies on the K1 segment
+        for c in (DAHL_SIGMA, 5.0):
+            top = g.deflection(2 * g.t2)
+            loop = _dahl_loop(g, fh, c * g.k1, top)
+            zeros = [d0 + (d1 - d0) * t0 / (t0 - t1)
+                     for (d0, _, t0), (d1, _, t1) in zip(loop[4001:], loop[4002:], strict=False)
+                     if (t0 > 0) != (t1 > 0)]
+            down, up = zeros[0], zeros[-1]     # unloading at +a, loading at −a (friction leads)
+            assert down - up == pytest.approx(g.hysteresis, rel=1e-3), (name, c)
+            slopes = [(t1 - t0) / (d1 - d0) for (d0, _, t0), (d1, _, t1)
+                      in zip(loop, loop[1:], strict=False) if d1 != d0]
+            assert min(slopes) >= g.k1 * (1 - 1e-9)
+            assert max(abs(z) for _, z, _ in loop) <= fh
+
+
+def test_dahl_off_is_the_one_valued_curve():
+    """No hysteresis: the Dahl torque stays 0 whatever the path, so the gear torque is the
+    catalogue curve of the deflection, the same bits as ``gear_torque``."""
+    g = GEARS["FHA-14C-100"]
+    loop = _dahl_loop(g, 0.0, DAHL_SIGMA * g.k1, g.deflection(2 * g.t2), 2001)
+    for delta, z, t in loop:
+        assert z == 0.0
+        assert t == gear_torque(delta, g.t1, g.t2, g.k1, g.k2, g.k3)
+    gt = gear_truth(true_parameters(load_robot("mrm3"), PlantConfig(), 0),
+                    PlantConfig(joints="compliant", gear=GearConfig(hysteresis=False)), 0)
+    assert not gt.hyst_torque.any() and not gt.half_play.any()
+
+
+def test_dahl_energy_per_cycle_is_the_loop_area():
+    """Cycled between ± A until periodic, the Dahl element's ∮ z dδ (the energy it dissipates
+    per cycle, the area of the torque–deflection loop) equals the closed form
+    ``models.gear.dahl_loop_area``, at amplitudes inside and well beyond the corner."""
+    g = GEARS["FHA-14C-100"]
+    fh, sigma = g.k1 * 0.5 * g.hysteresis, DAHL_SIGMA * g.k1
+    for amp in (0.2 * g.hysteresis, g.hysteresis, 10 * g.hysteresis):
+        z, prev = 0.0, 0.0
+        t = np.linspace(0.0, 4.0, 40001)
+        path = amp * np.sin(2 * np.pi * t)
+        work = 0.0
+        for k, delta in enumerate(path.tolist()):
+            z_new = dahl(z, delta - prev, fh, sigma)
+            if k >= 30000:                                   # the fourth cycle
+                work += 0.5 * (z + z_new) * (delta - prev)
+            z, prev = z_new, delta
+        assert work == pytest.approx(dahl_loop_area(amp, fh, sigma), rel=1e-3), amp   # trapezoid
+    # large amplitude: the loop is the two branches T ± F_h, area → 2 F_h · 2A
+    assert dahl_loop_area(1.0, fh, sigma) == pytest.approx(4 * fh * 1.0, rel=1e-3)
+
+
+def _elastic(t1, t2, k1, k2, k3):
+    phi1 = t1 / k1
+    phi2 = phi1 + (t2 - t1) / k2
+
+    def energy(y):
+        x = abs(y)
+        if x <= phi1:
+            return 0.5 * k1 * x * x
+        e = 0.5 * k1 * phi1 * phi1
+        if x <= phi2:
+            return e + t1 * (x - phi1) + 0.5 * k2 * (x - phi1) ** 2
+        e += t1 * (phi2 - phi1) + 0.5 * k2 * (phi2 - phi1) ** 2
+        return e + t2 * (x - phi2) + 0.5 * k3 * (x - phi2) ** 2
+    return energy
+
+
+def test_dahl_gear_is_passive_and_dissipates_what_it_should():
+    """One joint swinging on its gear, no friction, no damping, Dahl hysteresis on: the stored
+    energy (both kinetic, the curve's elastic energy, the Dahl storage z²/2σ) never grows
+    (passivity: no energy created) and what it loses is the dissipation ∫ z²/F_h |dδ| summed
+    along the plant's own path (to 2 %): the swing decays through the hysteresis alone."""
+    robot = _one_joint()
+    gear = replace(QUIET, hysteresis="dahl")
+    base = CompliantPlant(robot, PlantConfig(joints="compliant", friction=False, gear=gear))
+    gears = replace(base.gears, damping=np.zeros(1))
+    plant = CompliantPlant(robot, PlantConfig(joints="compliant", friction=False,
+                                              current_loop=False, gear=gear), gears=gears)
+    J = pin.crba(plant._model, plant._model.createData(), np.zeros(1))[0, 0]
+    B = gears.motor_inertia[0]
+    elastic = _elastic(gears.t1[0], gears.t2[0], gears.k1[0], gears.k2[0], gears.k3[0])
+    fh, sigma = gears.hyst_torque[0], gears.hyst_sigma[0]
+    assert fh > 0 and sigma > 0
+
+    def energy():
+        return 0.5 * B * plant.theta_d[0] ** 2 + 0.5 * J * plant.qd[0] ** 2 + \
+            elastic(plant.theta[0] - plant.q[0]) + plant._z[0] ** 2 / (2 * sigma)
+
+    plant.reset([0.0], theta0=[4.0 * plant.gears.half_play[0] + 6 * ARCMIN])
+    e0 = energy()
+    top = e0
+    lost = 0.0
+    y, z = plant._y[0], plant._z[0]
+    for _ in range(20000):
+        plant.step([0.0])
+        e = energy()
+        assert e <= top + 1e-6 * e0
+        top = min(top, e)
+        lost += 0.5 * (z * z + plant._z[0] ** 2) / fh * abs(plant._y[0] - y)
+        y, z = plant._y[0], plant._z[0]
+    assert e < 0.5 * e0                                   # it decays, through hysteresis only
+    assert e0 - e == pytest.approx(lost, rel=0.02)
 
 
 def test_natural_frequency_is_the_two_inertia_formula():
@@ -156,11 +283,13 @@ def test_static_deflection_under_gravity_follows_the_curve():
         assert (moved < 1e-9) == still, moved
 
 
-def test_stiff_gears_approach_the_rigid_plant():
+@pytest.mark.parametrize("hysteresis", ["off", "dahl"])
+def test_stiff_gears_approach_the_rigid_plant(hysteresis):
     """Gears 30× stiffer, well damped: the link follows the rigid plant (pinocchio with
-    the rotor as armature) to within a fraction of the motion."""
+    the rotor as armature) to within a fraction of the motion; with the Dahl hysteresis too
+    (its F_h = T(a) grows with the stiffness, the loop's width stays the catalogue's)."""
     robot = load_robot("mrm3")
-    gear = replace(QUIET, stiffness_scale=30.0, damping_ratio=0.3)
+    gear = replace(QUIET, stiffness_scale=30.0, damping_ratio=0.3, hysteresis=hysteresis)
     common = dict(friction=False, springs=True, perturbation=0.0)
     rigid = Plant(robot, PlantConfig(**common))
     soft = CompliantPlant(robot, PlantConfig(joints="compliant", gear=gear, **common))
@@ -231,6 +360,10 @@ def test_rigid_draws_do_not_move_when_the_gear_is_added():
     (dict(stiffness_scale=-1.0), "plant.gear.stiffness_scale"),
     (dict(damping_ratio=0.0), "plant.gear.damping_ratio"),
     (dict(damping_ratio=-0.1), "plant.gear.damping_ratio"),
+    (dict(hysteresis_stiffness=0.0), "plant.gear.hysteresis_stiffness"),
+    (dict(hysteresis_stiffness=-1.0), "plant.gear.hysteresis_stiffness"),
+    (dict(hysteresis="backlash"), "plant.gear.hysteresis"),
+    (dict(hysteresis=1), "plant.gear.hysteresis"),
 ])
 def test_zero_or_negative_gear_is_refused(changes, field):
     with pytest.raises(InputError) as e:
@@ -241,6 +374,7 @@ def test_zero_or_negative_gear_is_refused(changes, field):
 @pytest.mark.parametrize("changes, field", [
     (dict(stiffness_scale=1e7), "plant.gear.stiffness_scale"),
     (dict(damping_ratio=200.0), "plant.gear.damping_ratio"),
+    (dict(hysteresis_stiffness=1e7), "plant.gear.hysteresis_stiffness"),
 ])
 def test_gear_unstable_at_the_step_is_refused_with_the_largest_step(changes, field):
     robot = load_robot("mrm3")
@@ -264,16 +398,18 @@ def test_rigid_is_the_default_and_unknown_joints_are_refused():
     assert e.value.field == "plant.joints"
 
 
-def test_compiled_step_equals_the_python_step_bit_for_bit():
-    """models.compliant_kernel_src against CompliantPlant.step: stiction, reversals, the play,
-    noise and ripple, a reset in between; every state row equal to the bit."""
+@pytest.mark.parametrize("hysteresis", ["dahl", "play", "off"])
+def test_compiled_step_equals_the_python_step_bit_for_bit(hysteresis):
+    """models.compliant_kernel_src against CompliantPlant.step: stiction, reversals, the
+    hysteresis (Dahl, the play option, none), noise and ripple, a reset in between; every state
+    row equal to the bit."""
     from mrm_cosim.cosim.model_kernel import load
     from mrm_cosim.models.compliant import compiled_kernel
 
     if load() is None or compiled_kernel() is None:
         pytest.skip("numba unavailable")
     robot = load_robot("mrm3")
-    cfg = PlantConfig(joints="compliant")
+    cfg = PlantConfig(joints="compliant", gear=GearConfig(hysteresis=hysteresis))
     py = CompliantPlant(robot, cfg, 2)
     nb = CompliantPlant(robot, cfg, 2)
     nb.use_kernel(None)
@@ -288,7 +424,7 @@ def test_compiled_step_equals_the_python_step_bit_for_bit():
                 tau[:] = 0.0
             py.step(tau)
             nb.step(tau)
-        for name in ("_q", "_v", "_a_prev", "_th", "_w", "_am_prev", "_y", "_tau", "_tau_j",
+        for name in ("_q", "_v", "_a_prev", "_th", "_w", "_am_prev", "_y", "_z", "_tau", "_tau_j",
                      "_q_start", "_th_start"):
             assert np.asarray(getattr(py, name)).tobytes() == \
                 np.asarray(getattr(nb, name)).tobytes(), name
