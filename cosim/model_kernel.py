@@ -491,7 +491,7 @@ class KernelNode(FastNode):
         j.q_des, j.v_des, j.i_lo, j.i_hi = N[src.N_QDES:src.N_IHI + 1]
         if N[src.N_TRIPPED] and not self.tripped:        # the kernel tripped it
             self.trip_cycle = N[src.N_LAST_PACKET] + 2 + N[src.N_TIMEOUT]
-            self.hold_pos = None
+            self.hold_pos, self.hold_fixed = None, False
             self.still_cycle, self.still_run = None, 0     # as NodeModel._watch's trip
         self.tripped = bool(N[src.N_TRIPPED])
         self.prime = bool(N[src.N_PRIME])

@@ -54,6 +54,8 @@ def uploads(mode=0, safe=None):
         cfg.update({Config.STOP_CYCLES: safe[0], Config.BRAKE_CYCLES: safe[1]})
         if len(safe) > 3:
             cfg.update({Config.STANDSTILL: safe[3], Config.STANDSTILL_TICKS: safe[4]})
+        if len(safe) > 5:
+            cfg[Config.STOP_TRAIL] = safe[5]
     packets = [(PacketType.CONFIG, p) for p in config_payloads(cfg)]
     packets += [(PacketType.PARAM, p) for p in vdc_upload(theta, K, rho, lower, upper)]
     packets += [(PacketType.PARAM, p) for p in joint_upload(jp)]
@@ -87,7 +89,9 @@ def timing_config():
     # ~0.3 rad/s, within ±0.5 rad/s (a standstill: the brake after 5 ticks, long before
     # STOP_CYCLES), not within ±0.1 rad/s (the brake at the time limit, STOP_LIMIT)
     (1, 1, 13_000, (1500, 500, 11_000, VEL.encode(0.5), 5)),
-    (0, 1, 13_000, (700, 500, 11_000, VEL.encode(0.1), 5))])
+    (0, 1, 13_000, (700, 500, 11_000, VEL.encode(0.1), 5)),
+    # an explicit STOP_TRAIL 0: today's stop (the target each tick's count)
+    (1, 1, 13_000, (700, 500, 11_000, VEL.encode(0.1), 5, 0))])
 def test_exchange_ticks_and_watchdog_equal_the_reference(mode, n_periods, end, safe):
     _exchange(mode, n_periods, end, safe)
 
@@ -117,6 +121,42 @@ def test_the_hold_follows_the_joint_to_rest_then_holds_where_it_stopped(monkeypa
     engage = min(c for c in trace if trace[c][4])
     assert trip + 500 < engage < trip + 4000                # at standstill, after a stop
     assert not any(trace[c][3] & Status.STOP_LIMIT for c in trace)
+
+
+def test_the_hold_trails_the_joint_by_stop_trail_then_holds(monkeypatch):
+    """STOP_TRAIL = 2 counts: the joint (3 rad/s, ~0.38 counts a tick, slowing to rest) drives
+    the hold's target, which trails the count by at most 2 counts, until a hold tick sees the
+    velocity within ±1 rad/s; the target is frozen there, 2 counts behind the count it
+    stopped at, and the brake engages at standstill. The core's torque, status and brake
+    equal the reference's in every cycle."""
+    monkeypatch.setattr(sys.modules[__name__], "joint_angle", decelerating_angle)
+    trace, model = _exchange(1, 1, 16_000, (4000, 500, 15_000, VEL.encode(1.0), 5, 2))
+    trip = min(c for c in trace if trace[c][3] & Status.TRIPPED)
+    assert abs(VEL.decode(trace[trip][1])) > 2.0          # moving at the trip
+    engage = min(c for c in trace if trace[c][4])
+    assert trip + 500 < engage < trip + 4000                # at standstill, after a stop
+    assert model.hold_fixed and model.hold_pos & 15 == 0    # a count
+    assert trace[trip][0] + 3 < model.hold_pos >> 4 == trace[engage][0] - 2
+    assert not any(trace[c][3] & Status.STOP_LIMIT for c in trace)
+
+
+def steady_angle(cycle):
+    """3 rad/s throughout (rad): never at rest."""
+    return 0.2 + 3.0 * cycle * 20e-9
+
+
+def test_a_joint_driven_through_the_trail_drags_the_target_to_the_limit(monkeypatch):
+    """STOP_TRAIL = 3 counts, the joint driven on at 3 rad/s (not within ±0.5 rad/s): the
+    target follows 3 counts behind the count at every tick after the joint has moved 3
+    counts, to the time limit (STOP_LIMIT), where it freezes; RTL == reference every cycle."""
+    monkeypatch.setattr(sys.modules[__name__], "joint_angle", steady_angle)
+    trace, model = _exchange(0, 1, 13_000, (1500, 500, 11_000, VEL.encode(0.5), 5, 3))
+    trip = min(c for c in trace if trace[c][3] & Status.TRIPPED)
+    engage = min(c for c in trace if trace[c][4])
+    assert engage == trip + 1500 and trace[engage][3] & Status.STOP_LIMIT
+    assert model.hold_fixed and model.hold_pos & 15 == 0
+    assert model.hold_pos >> 4 in (trace[engage][0] - 3, trace[engage][0] - 4)
+    assert model.hold_pos >> 4 > trace[trip][0] + 5           # it moved ~11 counts
 
 
 def _exchange(mode, n_periods, end, safe):

@@ -3,7 +3,7 @@
 A CONFIG record (:class:`~protocol.regs.Config` id, int32 value; docs/node.md "Packets")
 writes one register at its last byte; a value out of a register's range is ignored (MODE
 ≥ 3, TICK 0 or ≥ 2^16, PERIOD and DMP_STEP < 2 or ≥ 2^24, SYNC_WINDOW, COMMIT and STANDSTILL
-≥ 2^24, STANDSTILL_TICKS ≥ 2^16, DMP not a :class:`~protocol.regs.DmpControl` value).
+≥ 2^24, STANDSTILL_TICKS and STOP_TRAIL ≥ 2^16, DMP not a :class:`~protocol.regs.DmpControl` value).
 PRESET and PRIME are strobes to the encoder and the VDC sequencer; DMP is one of three
 strobes to the primitive generator's timing (:class:`~hdl.node.dmp_seq.DmpTiming`). Every
 register starts at :data:`~protocol.regs.CONFIG_DEFAULTS`.
@@ -63,6 +63,9 @@ class NodeConfig(wiring.Component):
         engaged (:mod:`~protocol.safe_stop`).
     standstill, standstill_ticks : Out(24), Out(16)
         The watchdog's standstill rule: threshold (VEL word) and consecutive ticks.
+    stop_trail : Out(16)
+        The safe stop's trail: how far (counts) the hold's target may trail the count while
+        the joint stops (:class:`~hdl.node.ticks.ControlTicks`).
     """
 
     config:       In(stream.Signature(ConfigRecord, always_ready=True))
@@ -93,6 +96,7 @@ class NodeConfig(wiring.Component):
     brake_cycles: Out(32, init=CONFIG_DEFAULTS[Config.BRAKE_CYCLES])
     standstill:   Out(WORD, init=CONFIG_DEFAULTS[Config.STANDSTILL])
     standstill_ticks: Out(16, init=CONFIG_DEFAULTS[Config.STANDSTILL_TICKS])
+    stop_trail:   Out(16, init=CONFIG_DEFAULTS[Config.STOP_TRAIL])
 
     def elaborate(self, platform):
         m = Module()
@@ -156,6 +160,9 @@ class NodeConfig(wiring.Component):
                 with m.Case(Config.STANDSTILL_TICKS):
                     with m.If(value < (1 << 16)):
                         m.d.sync += self.standstill_ticks.eq(value)
+                with m.Case(Config.STOP_TRAIL):
+                    with m.If(value < (1 << 16)):
+                        m.d.sync += self.stop_trail.eq(value)
 
         # ARM at the next boundary, the integral cleared in its cycle and the one before;
         # disarming wins over both.

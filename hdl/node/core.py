@@ -275,6 +275,7 @@ class NodeCore(wiring.Component):
             ticks.clear_hi.eq(cfg.clear_hi),
             ticks.hold.eq(wd.holding),
             ticks.rest.eq(wd.rest),
+            ticks.trail.eq(cfg.stop_trail),
             joint.start.eq(ticks.start),
             joint.entry.eq(ticks.entry),
             joint.host_addr.eq(ticks.host_addr),

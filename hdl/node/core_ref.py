@@ -20,8 +20,9 @@ Internal events follow the node's period timer (free-running from reset, phase 0
   engine's input (disarmed: at its last byte);
 * the safe stop after a watchdog trip (IEC 61800-5-2 SS1 at monitored standstill, SS1-t as
   the time limit; docs/node.md "Safe stop", :mod:`~hdl.node.watchdog_ref`): the ticks run
-  the PID entry on node-local references (the tick's count while the joint stops, frozen at
-  the first hold tick with the joint at rest, :meth:`NodeModel._at_rest`; zero velocity,
+  the PID entry on node-local references (while the joint stops the first hold tick's count,
+  then at each tick the last target clamped to within ±STOP_TRAIL counts of the tick's count,
+  frozen at the first hold tick with the joint at rest, :meth:`NodeModel._at_rest`; zero velocity,
   acceleration and ``τ_D``) and their commands land; the brake from the cycle after the tick
   that completes STANDSTILL_TICKS consecutive ticks with the velocity within ±STANDSTILL
   (≠ 0), at the latest STOP_CYCLES after the trip; the hold for BRAKE_CYCLES from the
@@ -136,8 +137,10 @@ class NodeModel:
     trip_cycle : int
         First cycle of the last watchdog trip (``tripped`` visible).
     hold_pos : int or None
-        The safe stop's hold position (POS word): each hold tick's count until one finds the
-        joint at rest (``hold_fixed``), then frozen; None before the first hold tick.
+        The safe stop's hold position (POS word): the first hold tick's count, then at each
+        hold tick the last one clamped to within ±STOP_TRAIL counts of the tick's count, until
+        a tick finds the joint at rest (``hold_fixed``), then frozen; None before the first
+        hold tick.
     still_cycle : int or None
         The brake's first cycle when the standstill rule engaged it in the last trip (the cycle
         after the tick that completed the standstill); None otherwise.
@@ -405,8 +408,13 @@ class NodeModel:
             return
         tt = min(tt, _TIME_MAX)
         if hold:                                # the safe stop's PID on node-local references
-            if not self.hold_fixed:             # stopping: the target follows the count
-                self.hold_pos = saturate(count << -POS.lsb)
+            if not self.hold_fixed:             # stopping: the target trails the count
+                pos = saturate(count << -POS.lsb)
+                if self.hold_pos is None:       # the first hold tick: the count
+                    self.hold_pos = pos
+                else:                           # then within ±STOP_TRAIL counts of it
+                    span = self.config[Config.STOP_TRAIL] << -POS.lsb
+                    self.hold_pos = min(max(self.hold_pos, pos - span), pos + span)
                 self.hold_fixed = self._at_rest(now, qd)
             mode = "pid"
             refs = (0, self.hold_pos, 0, 0)
@@ -653,8 +661,8 @@ class NodeModel:
             self.config[Config(reg)] = value
         elif reg == Config.STANDSTILL and value < (1 << 24):
             self.config[Config.STANDSTILL] = value
-        elif reg == Config.STANDSTILL_TICKS and value < (1 << 16):
-            self.config[Config.STANDSTILL_TICKS] = value
+        elif reg in (Config.STANDSTILL_TICKS, Config.STOP_TRAIL) and value < (1 << 16):
+            self.config[Config(reg)] = value
         elif reg == Config.DMP_STEP and 2 <= value < (1 << 24):
             self.config[Config.DMP_STEP] = value
         elif reg == Config.DMP and value in (DmpControl.OFF, DmpControl.START, DmpControl.STOP):

@@ -11,12 +11,17 @@ While the watchdog holds the joint (``hold``: the safe stop's SS1/SS2 stage afte
 :class:`~hdl.node.watchdog.Watchdog`, docs/node.md "Safe stop") every tick runs the PID entry
 whatever the mode, on node-local references: ``q_d0`` the encoder count of the hold tick (as a
 POS word, saturated) until a hold tick finds the joint at rest (``rest``, the watchdog's: its
-velocity within ±STANDSTILL, the brake on, or the standstill rule off), that tick's count
+velocity within ±STANDSTILL, the brake on, or the standstill rule off), that tick's target
 from then on, ``q̇_d0 = q̈_d0 = 0`` and ``τ_D = 0`` (no feed-forward); the PID words ``kp, ki,
-kd`` are the hold gains. While the target follows the count the position error is the last
-tick's step (≈ 0) and the velocity term ``k_d (0 − q̇)`` stops the joint, at most at the
-torque limit; the frozen target then holds it where it came to rest (SS1's stop, then SS2's
-standstill), not where it was at the trip.
+kd`` are the hold gains. The target trails the count by at most ``trail`` counts (CONFIG
+STOP_TRAIL): the first hold tick takes the count, each later stopping tick (the one that
+finds ``rest`` included) ``q_d0 ← clamp(q_d0, count − trail, count + trail)`` (in POS
+words: ``trail · 2^4``). With ``trail`` = 0 the target is each tick's count, the position
+error the last tick's step (≈ 0), and the velocity term ``k_d (0 − q̇)`` stops the joint, at
+most at the torque limit; with ``trail`` > 0 a joint that gravity drives builds a position
+error of up to ``trail`` whose P term and integral carry the load, so it comes to rest. The
+frozen target then holds it where it came to rest (SS1's stop, then SS2's standstill), not
+where it was at the trip.
 
 Between runs the joint engine's host port takes, in priority order, the PID integral clears
 of an ARM (:class:`~hdl.node.config.NodeConfig`) and the PARAM words for the joint bank.
@@ -72,7 +77,10 @@ class ControlTicks(wiring.Component):
         The safe stop holds the joint (PID entry, node-local references).
     rest : In(1)
         The joint is at rest for the hold (the watchdog's ``rest``): the hold tick that finds
-        it set takes the last count into ``q_d0``; the ticks before it take each their own.
+        it set updates ``q_d0`` a last time; the ticks before it each update it.
+    trail : In(16)
+        CONFIG STOP_TRAIL: how far (counts) the hold's target may trail the count while
+        stopping.
     words : In(stream.Signature(HostWrite))
         PARAM words for the joint bank (the bank field is not looked at).
     tick : Out(1)
@@ -105,6 +113,7 @@ class ControlTicks(wiring.Component):
             "clear_hi":   In(1),
             "hold":       In(1),
             "rest":       In(1),
+            "trail":      In(16),
             "words":      In(stream.Signature(HostWrite)),
             "tick":       Out(1),
             "overruns":   Out(16),
@@ -126,8 +135,22 @@ class ControlTicks(wiring.Component):
         j_in     = self.inputs
         entries  = Array(C(jmc.entries[mode], range(len(jmc.instrs))) for mode in MODES)
         hold_set = Signal()             # the hold's position is in j_in.qd0
+        hold_run = Signal()             # a hold tick has set j_in.qd0 (stopping: it trails)
         pos_now  = Signal(signed(WORD)) # the count as a POS word (counts · 2^4), saturated
         lim = 1 << (WORD - 1 + POS.lsb)
+        # the trailing target: clamp(q_d0, pos − E, pos + E), E = trail · 2^4 (a POS word);
+        # the result lies between q_d0 and pos_now, so it needs no saturation
+        span = Signal(16 - POS.lsb)
+        lo, hi = Signal(signed(WORD + 2)), Signal(signed(WORD + 2))
+        trailed = Signal(signed(WORD))
+        qd0 = j_in.qd0
+        m.d.comb += [
+            span.eq(self.trail << -POS.lsb),
+            lo.eq(pos_now - span),
+            hi.eq(pos_now + span),
+            trailed.eq(Mux(~hold_run, pos_now,
+                           Mux(qd0 < lo, lo, Mux(qd0 > hi, hi, qd0)))),
+        ]
         m.d.comb += [
             pos_now.eq(Mux(self.count >= lim, (1 << (WORD - 1)) - 1,
                            Mux(self.count < -lim, -(1 << (WORD - 1)),
@@ -154,10 +177,11 @@ class ControlTicks(wiring.Component):
                         j_in.vd0.eq(0),
                         j_in.ad0.eq(0),
                     ]
-                    with m.If(~hold_set):       # stopping: this tick's count; kept from rest
+                    with m.If(~hold_set):       # stopping: trails the count; kept from rest
                         m.d.sync += [
-                            j_in.qd0.eq(pos_now),
+                            j_in.qd0.eq(trailed),
                             hold_set.eq(self.rest),
+                            hold_run.eq(1),
                         ]
                     m.d.comb += self.entry.eq(jmc.entries["pid"])
                 with m.Else():
@@ -170,7 +194,10 @@ class ControlTicks(wiring.Component):
                     m.d.comb += self.entry.eq(entries[self.mode])
                 m.d.comb += self.start.eq(1)
         with m.If(~self.hold):
-            m.d.sync += hold_set.eq(0)
+            m.d.sync += [
+                hold_set.eq(0),
+                hold_run.eq(0),
+            ]
 
         # Host port: the ARM's integral clears first, then a PARAM word while idle.
         clear = self.clear_lo | self.clear_hi
