@@ -8,7 +8,9 @@ the end of the run (docs/faults.md "Safe stop in the closed loop")::
 Runs: every controller with the default safe stop (the hold follows the joint to rest, the
 brake at standstill) and the brakes of ``[plant.brake]`` (1.5 × the motor's peak) and of
 1.2 ×; the first version's fixed 50 ms timer (the hold's reference the trip position) for
-comparison; ``--amplitude -0.1571`` runs the quintic downwards (joints moving with gravity).
+comparison; ``--amplitude -0.1571`` runs the quintic downwards (joints moving with gravity);
+``--trail 0 1 2`` runs the default stop once per STOP_TRAIL (mrad; default: the
+:class:`SafeStopParams` default).
 About a minute and a half of CPU per run, two at a time.
 """
 
@@ -45,10 +47,10 @@ def one(job):
     from mrm_cosim.models.robot import load_robot
     from mrm_cosim.protocol.safe_stop import SafeStopParams
 
-    controller, stop, factor, amplitude = job
+    controller, stop, factor, amplitude, trail = job
     cfg = load(None)
-    safe = (SafeStopParams() if stop == "default"
-            else SafeStopParams(stop_s=0.05, standstill=0.0))
+    safe = (SafeStopParams(stop_trail=trail) if stop == "default"
+            else SafeStopParams(stop_s=0.05, standstill=0.0, stop_trail=0.0))
     limit = safe.stop_s
     profile = paper_test_profile(load_robot(cfg.robot), amplitude, cfg.trajectory.duration)
     res, _ = run_track(cfg.robot, controller, "model", T_FAST + limit + TAIL, cfg.seed,
@@ -70,18 +72,26 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--amplitude", type=float, default=0.1571)
     ap.add_argument("--quick", action="store_true", help="only the default stop, 1.5 ×")
+    ap.add_argument("--trail", type=float, nargs="+", help="STOP_TRAIL values, mrad")
+    ap.add_argument("--controllers", nargs="+", default=["vdc", "pid-fpga", "pid-1khz"])
+    ap.add_argument("--no-fixed", action="store_true", help="without the fixed-timer runs")
     args = ap.parse_args(argv)
-    jobs = [(c, "default", None, args.amplitude) for c in ("vdc", "pid-fpga", "pid-1khz")]
+    from mrm_cosim.protocol.safe_stop import SafeStopParams
+
+    trails = args.trail or [SafeStopParams().stop_trail]
+    jobs = [(c, "default", None, args.amplitude, e) for e in trails for c in args.controllers]
     if not args.quick:
-        jobs += [(c, "default", 1.2, args.amplitude) for c in ("vdc", "pid-fpga", "pid-1khz")]
-        jobs += [("vdc", "fixed", f, args.amplitude) for f in (None, 1.2)]
+        jobs += [(c, "default", 1.2, args.amplitude, e) for e in trails
+                 for c in args.controllers]
+        if not args.no_fixed:
+            jobs += [("vdc", "fixed", f, args.amplitude, 0.0) for f in (None, 1.2)]
     with ProcessPoolExecutor(args.workers) as pool:
         done = list(pool.map(one, jobs))
     print("| controller | safe stop | brake holds | brakes after the cut (ms) "
           "| cut → brake (mrad) | after the brake (µrad) |")
     print("|---|---|---|---|---|---|")
-    for (controller, stop, factor, _), rows, *_ in done:
-        name = ("standstill rule, hold where it stops" if stop == "default"
+    for (controller, stop, factor, _, trail), rows, *_ in done:
+        name = (f"standstill rule, trail {trail:g} mrad" if stop == "default"
                 else "fixed 50 ms timer, hold at the trip position")
         print(f"| {controller} | {name} | {'1.5' if factor is None else factor} × peak | "
               + ", ".join(f"{1e3 * r[0]:.1f}" for r in rows) + " | "

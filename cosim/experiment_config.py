@@ -93,7 +93,7 @@ class FaultsConfig:
         :func:`master.recovery.fit_blend`).
     safe_stop : protocol.safe_stop.SafeStopParams
         The nodes' safe stop, uploaded by the master (``stop_s``, ``brake_s``, ``hold_hz``,
-        ``standstill``, ``standstill_s``; docs/node.md "Safe stop").
+        ``standstill``, ``standstill_s``, ``stop_trail`` in mrad; docs/node.md "Safe stop").
     """
 
     lines: tuple = ()

@@ -23,7 +23,7 @@ from mrm_cosim.protocol import packet as ref
 from mrm_cosim.protocol.fixed import FORCE
 from mrm_cosim.protocol.joint_program import PID_SHIFT_MAX, JointParams, pid_formats
 from mrm_cosim.protocol.regs import MODES, Config, config_payloads, joint_upload, vdc_upload
-from mrm_cosim.protocol.safe_stop import SafeStopParams, safe_stop_config
+from mrm_cosim.protocol.safe_stop import SafeStopParams, safe_stop_config, stop_trail_counts
 from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["Gains", "pid_gains", "triple_pole_gains", "hold_gains", "node_uploads",
@@ -118,6 +118,16 @@ def pid_shifts(robot: Robot, tick_cycles: int = 50) -> list[int]:
     return out
 
 
+def trail_cap_counts(kp: float, peak_torque: float, counts_per_rev: int) -> int:
+    """The largest STOP_TRAIL (counts, rounded down) whose position error asks the hold's P
+    term (``kp``, N·m/rad) for at most half the joint's ``peak_torque``: after rest the
+    frozen target is up to the trail from the joint, and a pull-back that saturates the
+    torque (joint 1 of the mrm3: 0.19 mrad at its 11 N·m; 1 mrad gave no standstill in
+    0.2 s on the downward cut, 2 mrad a 2.6 mrad slip after the brake) swings the joint as
+    the first version's hold did (docs/node.md "Safe stop")."""
+    return math.floor(0.5 * peak_torque / kp * counts_per_rev / (2 * math.pi))
+
+
 def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int = 50,
                  timeout_cycles: int | None = None, period_cycles: int = 50_000,
                  commit_cycles: int | None = None, sync_window: int = 2_500,
@@ -127,8 +137,11 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
     Safe stop (docs/node.md "Safe stop", :mod:`~mrm_cosim.protocol.safe_stop`): every node
     gets STOP_CYCLES, BRAKE_CYCLES and, with the standstill rule on, STANDSTILL and
     STANDSTILL_TICKS from ``safe_stop`` (None: :class:`SafeStopParams`' defaults;
-    :func:`safe_stop_config` at ``tick_cycles``), and, unless ``controller`` is ``pid-fpga``
-    (whose nodes hold with their tracking PID), PID words holding the hold gains
+    :func:`safe_stop_config` at ``tick_cycles``), STOP_TRAIL (``stop_trail`` in the joint's
+    counts, :func:`stop_trail_counts`, at most :func:`trail_cap_counts` of its hold's
+    ``kp``; not sent when 0, its reset value), and, unless
+    ``controller`` is ``pid-fpga`` (whose nodes hold with their tracking PID), PID words
+    holding the hold gains
     (:func:`hold_gains` at ``safe_stop.hold_hz`` for each joint's nominal inertia): VDC and
     torque-mode nodes read them only while they hold.
 
@@ -180,6 +193,11 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
         cfg = {Config.MODE: mode[controller], Config.TICK: tick_cycles,
                Config.TIMEOUT: timeout_cycles, Config.RAMP: FORCE.encode(0.01),
                Config.TAU_MIN: -peak, Config.TAU_MAX: peak, **stop_cfg}
+        trail = min(stop_trail_counts(safe_stop, mod.type.counts_per_rev),
+                    trail_cap_counts(pid["kp"][k], mod.type.peak_torque,
+                                     mod.type.counts_per_rev))
+        if trail:
+            cfg[Config.STOP_TRAIL] = trail
         out += [(dest, ref.PacketType.CONFIG, p) for p in config_payloads(cfg)]
         theta = robot.nominal_theta[k]
         lo = np.minimum(0.7 * theta, 1.3 * theta)

@@ -13,7 +13,10 @@ whose brake waits for monitored standstill, with SS1-t's time limit as a fallbac
    program at every control tick on node-local references — zero velocity and acceleration,
    no feed-forward, and as position each tick's own encoder count, so only the damping
    ``k_d (0 − q̇)`` acts: the joint decelerates, at most at the torque limit — until a tick
-   finds the velocity word within ±STANDSTILL (the joint at rest).
+   finds the velocity word within ±STANDSTILL (the joint at rest). With STOP_TRAIL > 0 the
+   position is not the count itself but trails it by at most STOP_TRAIL counts (each tick
+   ``q_d0 ← clamp(q_d0, count − E, count + E)``): a joint that gravity drives builds a position
+   error of up to E, whose P term and integral carry the load, so it comes to rest.
 2. **Hold** (SS2's standstill): from that tick the position reference is frozen at that
    tick's count and the PID (``kp, ki, kd`` of the JOINT bank: hold gains) holds the joint
    where it came to rest — not where it was at the trip, which a torque-limited joint
@@ -33,6 +36,7 @@ register words only.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from mrm_cosim.errors import InputError, require_nonnegative, require_positive
@@ -41,10 +45,15 @@ from mrm_cosim.units import CLOCK_HZ
 from .fixed import VEL
 from .regs import Config
 
-__all__ = ["SafeStopParams", "SAFE_STOP_CYCLES_MAX", "safe_stop_config"]
+__all__ = ["SafeStopParams", "SAFE_STOP_CYCLES_MAX", "STOP_TRAIL_MAX_MRAD", "safe_stop_config",
+           "stop_trail_counts"]
 
 #: Largest STOP_CYCLES / BRAKE_CYCLES value (the registers are 32 bits, unsigned).
 SAFE_STOP_CYCLES_MAX = (1 << 32) - 1
+#: Largest ``stop_trail`` (mrad): a bound on the input, far above any useful trail (a trail is
+#: a pull-back after rest); the STOP_TRAIL register (16 bits, counts) holds it for encoders up
+#: to 2^16 / 0.05 counts per radian.
+STOP_TRAIL_MAX_MRAD = 50.0
 
 
 @dataclass(frozen=True)
@@ -79,6 +88,11 @@ class SafeStopParams:
     standstill_s : float, s
         How long the velocity must stay within the band (STANDSTILL_TICKS, in control
         ticks). Assumption: 10 ms.
+    stop_trail : float, **mrad** (the one field not in SI units: ``[safety] stop_trail``)
+        How far the hold's target may trail the joint while it stops (STOP_TRAIL, converted
+        per joint with its encoder's counts per radian, :func:`stop_trail_counts`); 0: the
+        target is each tick's count (only damping acts while stopping). At most
+        :data:`STOP_TRAIL_MAX_MRAD`.
     """
 
     stop_s: float = 0.2
@@ -86,6 +100,7 @@ class SafeStopParams:
     hold_hz: float = 15.0
     standstill: float = 0.01
     standstill_s: float = 0.01
+    stop_trail: float = 1.0
 
     def __post_init__(self):
         for name in ("stop_s", "brake_s"):
@@ -99,6 +114,11 @@ class SafeStopParams:
             raise InputError("safe_stop.standstill", f"{x!r} rad/s is below half the node's "
                              f"velocity LSB ({VEL.resolution:.3g} rad/s): 0 turns the rule off")
         require_nonnegative(self.standstill_s, "safe_stop.standstill_s")
+        x = require_nonnegative(self.stop_trail, "safe_stop.stop_trail")
+        if x > STOP_TRAIL_MAX_MRAD:
+            raise InputError("safe_stop.stop_trail", f"{x!r} mrad exceeds "
+                             f"{STOP_TRAIL_MAX_MRAD:g} mrad (the hold's target may trail the "
+                             f"joint by that at most)")
 
 
 def safe_stop_config(params: SafeStopParams, clock_hz: float = float(CLOCK_HZ),
@@ -121,3 +141,15 @@ def safe_stop_config(params: SafeStopParams, clock_hz: float = float(CLOCK_HZ),
                          f"STANDSTILL_TICKS register (65,535)")
     return words | {Config.STANDSTILL: VEL.encode(params.standstill),
                     Config.STANDSTILL_TICKS: ticks}
+
+
+def stop_trail_counts(params: SafeStopParams, counts_per_rev: int) -> int:
+    """CONFIG STOP_TRAIL for a joint of ``counts_per_rev`` encoder counts per revolution:
+    ``params.stop_trail`` (mrad) in counts, rounded. ``InputError`` on
+    ``safe_stop.stop_trail`` when it exceeds the 16-bit register."""
+    counts = round(params.stop_trail * 1e-3 * counts_per_rev / (2 * math.pi))
+    if counts >= 1 << 16:
+        raise InputError("safe_stop.stop_trail", f"{params.stop_trail!r} mrad is {counts} "
+                         f"counts of this encoder, above the node's 16-bit STOP_TRAIL "
+                         f"register (65,535)")
+    return counts

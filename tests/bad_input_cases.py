@@ -205,7 +205,9 @@ for i, (key, value, field) in enumerate([
         ("line_faults", '["cut:down:1@1ms+forever"]', "safety.line_faults"),
         ("colour", "1", "safety.colour"), ("standstill", "-0.01", "safety.standstill"),
         ("standstill", "50.0", "safety.standstill"), ("standstill_s", "0.5", "safety.standstill_s"),
-        ("stop_s", "1e6", "safety.stop_s"), ("hold_hz", "0", "safety.hold_hz")]):
+        ("stop_s", "1e6", "safety.stop_s"), ("hold_hz", "0", "safety.hold_hz"),
+        ("stop_trail", "-1.0", "safety.stop_trail"), ("stop_trail", "100", "safety.stop_trail"),
+        ("stop_trail", "nan", "safety.stop_trail")]):
     case(f"config-safety-{i}", ["run", "track", "--config", "{config}", "--out", "{out}"],
          field, config=TABLE2 + f"\n[safety]\n{key} = {value}\n")
 case("track-model-bit-fault", ["run", "track", "--config", "{config}", "--backend", "model",

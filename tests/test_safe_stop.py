@@ -24,7 +24,12 @@ SHORT = SafeStopParams(stop_s=0.002, brake_s=0.002, standstill=0.0)
 #: at standstill (0.5 ms within ±2 mrad/s) and brake within 0.1 ms of the trip (the hold's
 #: reference frozen at the first hold tick), joint 3 still moves (~30 mrad/s at most): the
 #: reference follows its count to the 4 ms time limit, where it brakes (STOP_LIMIT).
-STILL = SafeStopParams(stop_s=0.004, brake_s=0.002, standstill=2e-3, standstill_s=0.0005)
+STILL = SafeStopParams(stop_s=0.004, brake_s=0.002, standstill=2e-3, standstill_s=0.0005,
+                       stop_trail=0.0)
+#: The same with a trail of 0.02 mrad (3 counts): joint 3 (moving ~0.1 mrad in the 4 ms)
+#: drives the hold's target through it.
+TRAIL = SafeStopParams(stop_s=0.004, brake_s=0.002, standstill=2e-3, standstill_s=0.0005,
+                       stop_trail=0.02)
 
 
 def test_safe_stop_words_follow_the_durations_and_bad_values_name_their_field():
@@ -42,7 +47,10 @@ def test_safe_stop_words_follow_the_durations_and_bad_values_name_their_field():
                       ({"standstill": 20.0}, "safe_stop.standstill"),
                       ({"standstill": 1e-7}, "safe_stop.standstill"),
                       ({"standstill_s": float("inf")}, "safe_stop.standstill_s"),
-                      ({"standstill_s": -1.0}, "safe_stop.standstill_s")):
+                      ({"standstill_s": -1.0}, "safe_stop.standstill_s"),
+                      ({"stop_trail": -0.5}, "safe_stop.stop_trail"),
+                      ({"stop_trail": float("nan")}, "safe_stop.stop_trail"),
+                      ({"stop_trail": 51.0}, "safe_stop.stop_trail")):
         with pytest.raises(InputError) as e:
             SafeStopParams(**kw)
         assert e.value.field == field
@@ -62,6 +70,33 @@ def test_standstill_words_follow_the_threshold_and_the_tick():
     with pytest.raises(InputError) as e:
         safe_stop_config(SafeStopParams(standstill=1e-3, standstill_s=0.1), tick_cycles=50)
     assert e.value.field == "safe_stop.standstill_s"
+
+
+def test_stop_trail_is_uploaded_per_joint_in_counts():
+    """STOP_TRAIL: ``stop_trail`` mrad in each joint's counts (800,000 per revolution on the
+    mrm3: 127.3 counts per mrad), rounded, at most the trail whose P term is half the joint's
+    peak torque (joint 1: 11 N·m against a 15 Hz hold of 2.2 kg·m², 12 counts); 0 is not sent
+    (the reset value: the uploads of a stop without the trail, byte for byte); too many
+    counts for 16 bits names the field."""
+    from mrm_cosim.master.uploads import Gains, node_uploads, trail_cap_counts
+    from mrm_cosim.models.robot import load_robot
+    from mrm_cosim.protocol.safe_stop import stop_trail_counts
+
+    assert stop_trail_counts(SafeStopParams(stop_trail=1.0), 800_000) == 127
+    assert stop_trail_counts(SafeStopParams(stop_trail=0.0), 800_000) == 0
+    with pytest.raises(InputError) as e:
+        stop_trail_counts(SafeStopParams(stop_trail=50.0), 10_000_000)
+    assert e.value.field == "safe_stop.stop_trail"
+    robot = load_robot("mrm3")
+    default = round(SafeStopParams().stop_trail * 1e-3 * 800_000 / (2 * np.pi))
+    for k, want in ((1, 12), (2, default), (3, default)):
+        cfg, _ = _cfg_and_kp(node_uploads(robot, "vdc", Gains()), k)
+        assert cfg[Config.STOP_TRAIL] == want
+    assert trail_cap_counts(57_600.0, 11.0, 800_000) == 12       # ⌊0.5 · 11 / kp · K⌋
+    cfg, _ = _cfg_and_kp(node_uploads(robot, "pid-fpga", Gains(), safe_stop=STILL), 2)
+    assert Config.STOP_TRAIL not in cfg
+    cfg, _ = _cfg_and_kp(node_uploads(robot, "pid-1khz", Gains(), safe_stop=TRAIL), 2)
+    assert cfg[Config.STOP_TRAIL] == 3
 
 
 def _cfg_and_kp(uploads, dest):
@@ -171,7 +206,7 @@ def _statuses(master):
 
 
 @pytest.mark.parametrize("controller, safe", [("vdc", SHORT), ("pid-fpga", SHORT),
-                                              ("vdc", STILL)])
+                                              ("vdc", STILL), ("vdc", TRAIL)])
 def test_model_paths_agree_through_the_safe_stop(controller, safe):
     """Kernel (numba), pure Python and eager model paths give the same plant trace, torques,
     replies and brake outputs through trip → hold → brake → STO: the fast paths decline to
@@ -199,7 +234,7 @@ def test_model_paths_agree_through_the_safe_stop(controller, safe):
     assert all(b.all() for _, b in br0[-10:]) and not any(b.any() for _, b in br0[:10])
     assert np.all(res0.tau[-1] == 0)                        # STO: no torque at the end
     limit = {k for (_, k), s in st.items() if s & Status.STOP_LIMIT}
-    if safe is STILL:       # joints 1, 2 at standstill, joint 3 at the time limit 4 ms later
+    if safe in (STILL, TRAIL):  # joints 1, 2 at standstill, joint 3 at the time limit 4 ms later
         assert limit == {3}
         on = [next(c for c, b in br0 if b[k]) for k in range(3)]
         assert on[0] == on[1] and on[2] - on[0] > 0.9 * 0.004 * 50e6 - 0.0005 * 50e6
@@ -207,7 +242,7 @@ def test_model_paths_agree_through_the_safe_stop(controller, safe):
         assert not limit
 
 
-@pytest.mark.parametrize("controller, safe", [("vdc", SHORT), ("vdc", STILL)])
+@pytest.mark.parametrize("controller, safe", [("vdc", SHORT), ("vdc", STILL), ("vdc", TRAIL)])
 def test_model_equals_compiled_through_the_safe_stop(controller, safe):
     """The gateware (compiled) and the model backend through the safe stop: the same plant
     trace, torques, Comm A statuses and brake outputs. The model's trip is at its modelled
