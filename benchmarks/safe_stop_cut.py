@@ -103,7 +103,8 @@ def main(argv=None) -> int:
         picked = [d for d in done if d[0][2] is None and d[0][0] in ("vdc", "pid-fpga")]
         t = picked[0][2]
         n = min(len(d[2]) for d in picked)
-        runs = {f"{d[0][0]}, {'hold where it stops' if d[0][1] == 'default' else 'fixed timer'}"
+        runs = {f"{d[0][0]}, " + (f"stop with a {d[0][4]:g} mrad trail" if d[0][1] == "default"
+                                  else "fixed timer")
                 : (d[3][:n], d[4][:n]) for d in picked}
         keep = t[:n] >= T_FAST - 0.05
         plot_safe_stop(args.png, t[:n][keep], {k: (q[keep], b[keep]) for k, (q, b)
