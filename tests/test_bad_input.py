@@ -13,6 +13,16 @@ def test_the_corpus_is_large_and_its_ids_unique():
     assert len(set(ids)) == len(ids)
 
 
+def test_the_readme_states_the_corpus_size():
+    """README: "a corpus of N cases in the tests" stays true as cases are added."""
+    import re
+    from pathlib import Path
+
+    text = (Path(__file__).parents[1] / "README.md").read_text()
+    m = re.search(r"a corpus of ([\d,]+) cases", text)
+    assert m and int(m.group(1).replace(",", "")) == len(CASES), (m and m.group(0), len(CASES))
+
+
 @pytest.mark.parametrize("argv, files, field", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
 def test_bad_input_is_refused_in_one_line(tmp_path, capsys, argv, files, field):
     paths = {}
