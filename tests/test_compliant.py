@@ -234,19 +234,7 @@ def test_energy_is_conserved_without_damping_or_friction():
     g = GEARS[base._truth.actuators[0].name]
     J = pin.crba(plant._model, plant._model.createData(), np.zeros(1))[0, 0]
     B = gears.motor_inertia[0]
-    t1, t2, k1, k2, k3 = gears.t1[0], gears.t2[0], gears.k1[0], gears.k2[0], gears.k3[0]
-    phi1 = t1 / k1
-    phi2 = phi1 + (t2 - t1) / k2
-
-    def elastic(y):
-        x = abs(y)
-        if x <= phi1:
-            return 0.5 * k1 * x * x
-        e = 0.5 * k1 * phi1 * phi1
-        if x <= phi2:
-            return e + t1 * (x - phi1) + 0.5 * k2 * (x - phi1) ** 2
-        e += t1 * (phi2 - phi1) + 0.5 * k2 * (phi2 - phi1) ** 2
-        return e + t2 * (x - phi2) + 0.5 * k3 * (x - phi2) ** 2
+    elastic = _elastic(gears.t1[0], gears.t2[0], gears.k1[0], gears.k2[0], gears.k3[0])
 
     def energy():
         return 0.5 * B * plant.theta_d[0] ** 2 + 0.5 * J * plant.qd[0] ** 2 + \
