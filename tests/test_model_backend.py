@@ -161,21 +161,9 @@ class RecordingMaster:
 
     @staticmethod
     def make(robot, controller):
-        from mrm_cosim.master.cycle import Master, MasterTiming
-        from mrm_cosim.master.uploads import Gains, pid_gains
+        from tests.recording import recording_master
 
-        gains = Gains()
-        master = Master(robot, controller, _wiggle(robot), robot.counts_per_rev,
-                        MasterTiming(), lam=gains.lam, pid=pid_gains(robot, gains.pid_1khz_hz))
-        master.payloads = []
-        on_packet = master.on_packet
-
-        def record(now, src, ptype, payload):
-            master.payloads.append((master._rec.index, src, ptype, bytes(payload)))
-            on_packet(now, src, ptype, payload)
-
-        master.on_packet = record
-        return master
+        return recording_master(robot, controller, _wiggle(robot))
 
 
 def _wiggle(robot):
@@ -300,23 +288,14 @@ def _quintic_loop(controller, cycles, lazy, uploads=None, hook=None, start=50_00
     from mrm_cosim.cosim.closed_loop import ClosedLoop
     from mrm_cosim.cosim.model import ModelBackend
     from mrm_cosim.cosim.track import _trajectory
-    from mrm_cosim.master.cycle import Master, MasterTiming
-    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains, pid_shifts
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_shifts
     from mrm_cosim.models.plant import Plant
     from mrm_cosim.models.robot import load_robot
+    from tests.recording import recording_master
 
     robot = load_robot("mrm3")
     gains = Gains()
-    master = Master(robot, controller, _trajectory(robot), robot.counts_per_rev, MasterTiming(),
-                    lam=gains.lam, pid=pid_gains(robot, gains.pid_1khz_hz))
-    master.payloads = []
-    on_packet = master.on_packet
-
-    def record(now, src, ptype, payload):
-        master.payloads.append((now, src, ptype, bytes(payload)))
-        on_packet(now, src, ptype, payload)
-
-    master.on_packet = record
+    master = recording_master(robot, controller, _trajectory(robot), stamp="cycle")
     plant = Plant(robot, seed=0)
     plant.reset(robot.home)
     loop = ClosedLoop(robot, ModelBackend(lazy=lazy, pid_shift=pid_shifts(robot)), master, plant,

@@ -160,23 +160,14 @@ def _trip_loop(backend_name, controller, cycles, safe=SHORT, **model_kw):
     trips in period 0 and runs the short safe stop; returns (result, master, backend)."""
     from mrm_cosim.cosim.closed_loop import ClosedLoop
     from mrm_cosim.cosim.track import _trajectory, loop_backend
-    from mrm_cosim.master.cycle import Master, MasterTiming
-    from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains, pid_shifts
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_shifts
     from mrm_cosim.models.plant import Plant
     from mrm_cosim.models.robot import load_robot
+    from tests.recording import recording_master
 
     robot = load_robot("mrm3")
     gains = Gains()
-    master = Master(robot, controller, _trajectory(robot), robot.counts_per_rev, MasterTiming(),
-                    lam=gains.lam, pid=pid_gains(robot, gains.pid_1khz_hz))
-    master.payloads = []
-    on_packet = master.on_packet
-
-    def record(now, src, ptype, payload):
-        master.payloads.append((master._rec.index, src, ptype, bytes(payload)))
-        on_packet(now, src, ptype, payload)
-
-    master.on_packet = record
+    master = recording_master(robot, controller, _trajectory(robot))
     plant = Plant(robot, seed=0)
     plant.reset(robot.home)
     if backend_name == "model":
