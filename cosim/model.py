@@ -162,6 +162,8 @@ class ModelBackend(GatewareSide):
             self._fed = 0
             # the fast path's floats: the plant's constants, then the torque outputs
             self._F = np.zeros(ksrc.F_SIZE + 2 * self.n)
+            self._no_a, self._no_M = np.zeros(self.n), np.zeros((self.n, self.n))
+            self._no_M0 = np.zeros((0, 0))      # fast_step: crba not called (yet)
         self._horizon_end = None        # fast path: _horizon's (None: recompute)
         self._fast_seen = None          # fast path: what reached the master (fast_observed)
         #: plant steps the fast path ran, by how the plant step ended (free, stick-slip: the
@@ -385,7 +387,7 @@ class ModelBackend(GatewareSide):
         friction = float(F[ksrc.F_FRICTION])
         pre_free, fast_step = pk.pre_free, self._kern.fast_step
         aba, nle, crba = pin.aba, pin.nonLinearEffects, pin.crba
-        no_a, no_M = np.zeros(self.n), np.zeros((self.n, self.n))
+        no_a, no_M, no_M0 = self._no_a, self._no_M, self._no_M0     # (read, never written)
         j = i
         r = 0
         n_stick = n_solve = 0
@@ -402,11 +404,13 @@ class ModelBackend(GatewareSide):
                 r = 1
             else:
                 raise InputError("tau_cmd", f"must be finite, not {tau.tolist()!r}")
-            if r == 1:                  # the stick-slip solve (crba also where stuck needs
-                bias = nle(model, data, qm, vm)     # none: it changes nothing they read)
-                M = crba(model, data, qm)
+            if r == 1:                  # the stick-slip solve: crba only where the joints
+                bias = nle(model, data, qm, vm)     # are not all stuck (as Plant.step)
                 n_stick += 1
-                r = fast_step(IB, F, S, bias, M, rec, j, cycle, 2, C, more)
+                r = fast_step(IB, F, S, bias, no_M0, rec, j, cycle, 2, C, more)
+                if r == 5:
+                    M = crba(model, data, qm)
+                    r = fast_step(IB, F, S, bias, M, rec, j, cycle, 2, C, more)
                 if r == 4:
                     n_solve += 1
                     solve(M)
