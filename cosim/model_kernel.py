@@ -408,6 +408,10 @@ class KernelNode(FastNode):
         ``stay`` (then the row may: :meth:`pull` before reading it)."""
         if sample is not None:
             self._sample = sample
+        if until <= self._done:         # every event before it processed: nothing to run
+            if not stay:                # (NodeModel.packet and .timecode run to a cycle
+                self.pull()             # the backend has just run the node to)
+            return
         if self._kern is None or not self.lazy or self._sample is None:
             self.pull()
             FastNode.run(self, until)
