@@ -75,6 +75,11 @@ __all__ = ["NodeModel"]
 
 _TIME_MAX = (1 << 23) - 1
 _NEVER = 1 << 62
+(_ST_ARMED, _ST_TRIPPED, _ST_SAFE, _ST_FRESH, _ST_PRIME, _ST_DMP, _ST_HOLD, _ST_BRAKE,
+ _ST_STOP_LIMIT) = (int(b) for b in (Status.ARMED, Status.TRIPPED, Status.SAFE, Status.FRESH,
+                                     Status.PRIME, Status.DMP, Status.HOLD, Status.BRAKE,
+                                     Status.STOP_LIMIT))
+_CFG_MODE = Config.MODE
 
 
 @cache
@@ -572,26 +577,26 @@ class NodeModel:
 
     @property
     def status(self) -> Status:
-        s = Status(0)
-        if self.armed:
-            s |= Status.ARMED
+        # the bits as plain ints (_ST_*), one Status at the end: every boundary and every
+        # Comm C reply forms it, and flag arithmetic on the enum costs a call per operation
+        s = _ST_ARMED if self.armed else 0
         if self.tripped:
-            s |= Status.TRIPPED
+            s |= _ST_TRIPPED
             if self.holding_at(self._now):
-                s |= Status.HOLD
+                s |= _ST_HOLD
             elif self.torque == 0:
-                s |= Status.SAFE
+                s |= _ST_SAFE
             if self.brake_at(self._now):
-                s |= Status.BRAKE
+                s |= _ST_BRAKE
             if self.stop_limit_at(self._now):
-                s |= Status.STOP_LIMIT
+                s |= _ST_STOP_LIMIT
         if self.fresh:
-            s |= Status.FRESH
+            s |= _ST_FRESH
         if self.prime:
-            s |= Status.PRIME
+            s |= _ST_PRIME
         if self.dmp_select:
-            s |= Status.DMP
-        return Status(int(s) | (self.config[Config.MODE] << 5))
+            s |= _ST_DMP
+        return Status(s | (self.config[_CFG_MODE] << 5))
 
     def _reply_a(self) -> bytes:
         torque, status, errors, overruns, sync, late = self._snap
