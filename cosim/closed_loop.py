@@ -260,7 +260,9 @@ class ClosedLoop:
         i = 0
         while i < steps:
             brake = backend.brake()
-            plant.set_brake(brake)
+            braking = brake.any() or not plant.brake_idle
+            if braking:         # (else every command is released already: nothing changes)
+                plant.set_brake(brake)
             # plain steps in one go (fast_path) while the brakes are released and none is
             # commanded: its compiled plant step carries no brake
             if fast is not None and plant.brake_idle:
@@ -282,7 +284,7 @@ class ClosedLoop:
             lines = PlantLines(plant)
             q_rec[i] = plant.q
             tau_rec[i] = tau
-            if brake.any() or not plant.brake_idle:
+            if braking or not plant.brake_idle:
                 engaged[i] = plant.brake_engaged
             await self._step(lines)
             i += 1
