@@ -196,6 +196,16 @@ class GatewareSide(ABC):
         default): no fast path."""
         return None
 
+    def send_ahead(self, due: int, end: int) -> bool:
+        """Optional, with :meth:`fast_path`: whether the master's packets due in cycle ``due``,
+        inside the plant step from the current cycle to ``end``, may be handed over now, before
+        the backend runs the cycles before ``due``: nothing reaches the master in them and
+        nothing in them depends on what it sends. If so, :meth:`send` takes the actions that
+        follow as sent in cycle ``due`` (until the backend next runs), and the loop tries the
+        fast path on the step instead of splitting it at ``due``. False (the default): the
+        loop splits the step."""
+        return False
+
     def fast_observed(self) -> Observed | None:
         """After a fast run (:meth:`fast_path`): what reached the master in its last step, for
         the loop to hand over as after :meth:`advance`; None (the default): nothing."""

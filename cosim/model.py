@@ -165,6 +165,7 @@ class ModelBackend(GatewareSide):
             self._no_a, self._no_M = np.zeros(self.n), np.zeros((self.n, self.n))
             self._no_M0 = np.zeros((0, 0))      # fast_step: crba not called (yet)
         self._horizon_end = None        # fast path: _horizon's (None: recompute)
+        self._send_at = None            # send_ahead: the cycle send() sends at (None: now)
         self._fast_seen = None          # fast path: what reached the master (fast_observed)
         #: plant steps the fast path ran, by how the plant step ended (free, stick-slip: the
         #: likely pattern or stuck, the general solve)
@@ -217,9 +218,29 @@ class ModelBackend(GatewareSide):
 
     def send(self, action) -> None:
         self._horizon_end = None
-        self._link.send(action, self.cycle)
+        at = self.cycle if self._send_at is None else self._send_at
+        self._link.send(action, at)
+
+    def send_ahead(self, due: int, end: int) -> bool:
+        """With the compiled kernel, no line cut and the step to ``end`` plain for every node
+        (:meth:`_horizon`, before the packets are sent) with nothing reaching the master before
+        ``due``: the nodes run the cycles before ``due`` as they would without the packets
+        (each is taken after its frame time, after ``due``), and the master learns nothing in
+        them, so it may poll at ``due`` first. :meth:`send` then sends at ``due``, until the
+        next :meth:`advance` or fast run."""
+        if self._kern is None or self._link.cuts or self._link.errors:
+            return False
+        hz = self._horizon_end
+        if hz is None:
+            hz = self._horizon_end = self._horizon()
+        hard, soon = hz
+        if hard < end or soon < due:
+            return False
+        self._send_at = due
+        return True
 
     async def advance(self, n: int, lines: PlantLines, offset: int = 0) -> Observed:
+        self._send_at = None
         start = self.cycle
         end = start + n
         self._horizon_end = None
@@ -376,6 +397,7 @@ class ModelBackend(GatewareSide):
             lim = hard
         if i >= stop or cycle + s > lim:
             return 0
+        self._send_at = None
         if cycle != self.cycle or cycle != self._fed:
             raise ValueError(f"fast path at cycle {cycle}, the backend at {self.cycle}")
         for node in self.nodes:
