@@ -167,8 +167,14 @@ class NodeEvent(enum.IntFlag):
 
 def pack_words(words) -> bytes:
     """24-bit words, little-endian, two's complement."""
-    # (the master packs a few every period: one join of small conversions is the cheapest)
-    return b"".join((int(w) & 0xFFFFFF).to_bytes(3, "little") for w in words)
+    # (the master and the model's nodes pack a dozen every period: the words as one integer,
+    # the last one highest, then one conversion is the cheapest)
+    if not isinstance(words, (list, tuple)):
+        words = list(words)
+    v = 0
+    for w in reversed(words):
+        v = (v << 24) | (int(w) & 0xFFFFFF)
+    return v.to_bytes(3 * len(words), "little")
 
 
 def unpack_words(data: bytes, n: int, offset: int = 0) -> list[int]:

@@ -389,6 +389,31 @@ def check_safe_stop(trace, safe, end):
                not trace[c][3] & (Status.HOLD | Status.BRAKE) for c in after)
 
 
+def test_pack_words_is_each_word_in_three_bytes():
+    """pack_words (one integer, one conversion) against the word-by-word definition: any
+    ints (numpy's too, out of range wrapped to 24 bits), any iterable, none at all."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from mrm_cosim.protocol.regs import pack_words, unpack_words
+
+    def by_word(words):
+        return b"".join((int(w) & 0xFFFFFF).to_bytes(3, "little") for w in words)
+
+    @settings(max_examples=300, deadline=None)
+    @given(st.lists(st.one_of(st.integers(-(1 << 23), (1 << 23) - 1),
+                              st.sampled_from([-(1 << 23), (1 << 23) - 1, 0, -1]),
+                              st.integers(-(1 << 40), 1 << 40)), max_size=14))
+    def check(words):
+        out = pack_words(words)
+        assert out == by_word(words) == pack_words(iter(words)) == pack_words(tuple(words))
+        assert out == pack_words(np.array(words, dtype=np.int64))
+        assert unpack_words(out, len(words)) == [
+            ((w & 0xFFFFFF) ^ 0x800000) - 0x800000 for w in words]
+
+    check()
+
+
 def test_payload_helpers_round_trip_and_refuse_bad_uploads():
     from mrm_cosim.protocol.fixed import VEL
     from mrm_cosim.protocol.regs import Bank, param_payloads, unpack_words
