@@ -1038,8 +1038,8 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     :func:`~models.plant_kernel_src.likely_pattern` (with no matrix, return 5: the caller
     calls ``crba`` and again in mode 2, as :meth:`Plant._stick_slip_kernel
     <models.plant.Plant._stick_slip_kernel>` calls ``crba`` only where ``stuck`` does not
-    hold); ``mode`` 0: the end velocities are
-    already in ``S[NEW]``; then :func:`~models.plant_kernel_src.finish`.
+    hold); ``mode`` 0: the end velocities are already in ``S[NEW]``; then
+    :func:`~models.plant_kernel_src.finish`.
 
     With ``pre_next`` (the caller will run the next step on this path too), the step done, the
     next step's :func:`~models.plant_kernel_src.pre_free` on the torques the nodes output
@@ -1048,7 +1048,8 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
 
     Returns 0; 1 if the free step does not hold (nothing else done: the caller calls again in
     mode 2) or 4 if the likely pattern does not (the caller runs the general solve and calls
-    again in mode 0) or 5 (mode 2 without a matrix: ``stuck`` does not hold, call ``crba``); 2 if a joint moved more than one count in a cycle (the plant has
+    again in mode 0) or 5 (mode 2 without a matrix: ``stuck`` does not hold, the caller calls
+    ``crba`` and again); 2 if a joint moved more than one count in a cycle (the plant has
     stepped, the nodes have not); 3 as :func:`plain_step`'s True. With ``pre_next`` and the
     step done, ``8 · (code + 2)``: ``code`` the next step's ``pre_free`` result (−1, 0, 1)."""
     n = IB[H_N]
