@@ -573,6 +573,7 @@ class ModelBackend(GatewareSide):
         ``which``: only these nodes (the others' events are still collected)."""
         out = []
         start = self._start
+        stay = {"stay": True} if self._kern is not None else {}   # (KernelNode: no row copies)
         for k, node in enumerate(self.nodes):
             if which is not None and k not in which:
                 self._collect(k, node, end, out)
@@ -586,12 +587,12 @@ class ModelBackend(GatewareSide):
                     c, _, kind, data = box[i]
                     i += 1
                     if kind == "timecode":
-                        node.run(c, sample)
+                        node.run(c, sample, **stay)
                         ph_before = node.phase(c) if c < node.next_boundary() else 0
                         window = node.config[Config.SYNC_WINDOW]
                         if start is not None and c >= start:
                             self.phases["timecode"] = max(self.phases["timecode"], ph_before)
-                        if node.timecode(c, data, sample):
+                        if node.timecode(c, data, sample, **stay):
                             self._violate(f"node {k + 1}: time-code at phase {ph_before} "
                                           f"(cycle {c}) resynchronised the timer")
                         elif window - ph_before < min(_MARGIN, window // 2):
@@ -599,9 +600,9 @@ class ModelBackend(GatewareSide):
                                           f"near the sync window {window}")
                         continue
                     ptype, payload, seq = data
-                    node.run(c + 1, sample)         # (what run(c), then run(c + 1) do)
+                    node.run(c + 1, sample, **stay)     # (what run(c), then run(c + 1) do)
                     self._check_packet(k, node, c, ptype)
-                    reply = node.packet(c, ptype, payload, sample=sample)
+                    reply = node.packet(c, ptype, payload, sample=sample, **stay)
                     if reply is not None:
                         self._link.reply(k, node.reply_cycle(c, ptype), ptype, reply, seq)
                 del box[:i]

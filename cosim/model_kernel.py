@@ -33,6 +33,7 @@ import numpy as np
 
 from mrm_cosim.cosim.model_node import FastNode
 from mrm_cosim.hdl.node.core_ref import NodeModel
+from mrm_cosim.hdl.node.trig_ref import sin_cos
 from mrm_cosim.hdl.node.vdc_ref import VdcModel
 from mrm_cosim.cosim import model_kernel_src as src
 from mrm_cosim.models import compliant_kernel_src as compliant_src
@@ -40,7 +41,8 @@ from mrm_cosim.models import plant_kernel_src as plant_src
 from mrm_cosim.protocol.fixed import CNT, FORCE, IHI, POS, SGN, TIME, VEL
 from mrm_cosim.protocol.fixed import ACC, ANG, CT, IM, IVLC, IVS, KC, LAM, LAMC, TS, VISC, GAIN
 from mrm_cosim.protocol.joint_program import MODES, joint_microcode, pid_formats
-from mrm_cosim.protocol.regs import Config
+from mrm_cosim.protocol.packet import PacketType
+from mrm_cosim.protocol.regs import Config, NodeEvent
 
 __all__ = ["load", "load_plant", "kernel_choice", "KernelEncoder", "KernelNode", "KernelArrays",
            "KernelVdc", "point_shifts", "param_row"]
@@ -372,8 +374,11 @@ class KernelVdc(VdcModel):
         return w[:6], w[6:]
 
 
-_TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX, _RAMP = (int(c) for c in (
-    Config.TICK, Config.MODE, Config.TIMEOUT, Config.TAU_MIN, Config.TAU_MAX, Config.RAMP))
+_ROW_PACKETS = tuple(int(t) for t in (PacketType.COMM_A, PacketType.COMM_B, PacketType.COMM_C,
+                                       PacketType.COMM_D))
+_TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX, _RAMP, _COMMIT, _SYNC_WINDOW, _PERIOD = (
+    int(c) for c in (Config.TICK, Config.MODE, Config.TIMEOUT, Config.TAU_MIN, Config.TAU_MAX,
+                     Config.RAMP, Config.COMMIT, Config.SYNC_WINDOW, Config.PERIOD))
 
 
 class KernelNode(FastNode):
@@ -399,6 +404,8 @@ class KernelNode(FastNode):
         self._prow = arrays.P[k]
         self._erows = (arrays.E[k], arrays.VIS[k], arrays.PIPE[k], arrays.DUE[k])
         self._kern = kern
+        #: the timer's events run with the tick state in the row (no copy of it either way)
+        self.in_row = {"boundary": 0, "commit": 0, "timecode": 0, "packet": 0}
 
     def run(self, until: int, sample=None, stay: bool = False) -> None:
         """:meth:`FastNode.run` with its runs of plain ticks in the kernel
@@ -409,8 +416,8 @@ class KernelNode(FastNode):
         if sample is not None:
             self._sample = sample
         if until <= self._done:         # every event before it processed: nothing to run
-            if not stay:                # (NodeModel.packet and .timecode run to a cycle
-                self.pull()             # the backend has just run the node to)
+            if not (stay or self._row_packet):  # (NodeModel.packet and .timecode run to a
+                self.pull()                     # cycle the backend has just run the node to)
             return
         if self._kern is None or not self.lazy or self._sample is None:
             self.pull()
@@ -431,12 +438,141 @@ class KernelNode(FastNode):
                 node_plain(self._row, self._prow, E, vis, pipe, due, lim)
             if special >= until:
                 break
+            if self._boundary_in_row(special) or self._commit_in_row(special):
+                continue
             self.pull()
             NodeModel.run(self, special + 1)
         if not stay:
             self.pull()
         if until > self._done:
             self._done = until
+
+    def _boundary_in_row(self, c: int) -> bool:
+        """The timer's next event, at cycle ``c``, with the tick state in the kernel's row if it
+        is a plain boundary (no ARM taking effect, no generator, not tripped, the safe stop
+        not near: :meth:`run` checked): :meth:`NodeModel._boundary
+        <hdl.node.core_ref.NodeModel._boundary>` step by step — the watchdog's view in cycle
+        ``c`` (:func:`~cosim.model_kernel_src.torque_at`, the translation of
+        :meth:`FastNode.torque_at`), the encoder's strobe, the snapshot and the CORDIC (the
+        reference's, on the object), then the boundary's tick in the kernel. False (nothing
+        done but the watchdog's view, which the reference's own then repeats) for any other
+        event, or where the watchdog trips or PRIME is due."""
+        if c != self._nb or self.arming or self.dmp_waiting or self.dmp_running or \
+                (self.arm_pending and self._pre_seen != c):
+            return False
+        if not self.in_kernel:
+            self.push()
+        row = self._row
+        self._kern.torque_at(row, c)                            # _watch(c)
+        if row[src.N_TRIPPED] or row[src.N_PRIME_SET] or row[src.N_TORQUE_NONE]:
+            return False
+        self._now = c
+        count, qd, errors = self._sample(c)
+        self.tripped = False                # the status word's view of the row
+        self.prime = bool(row[src.N_PRIME])
+        overruns = int(row[src.N_OVERRUNS])
+        self._snap = (int(row[src.N_TORQUE]), int(self.status), errors, overruns,
+                      self.sync_errors, self.late_d)
+        self.snap_count, self.snap_qd = count, qd
+        self.cos_q, self.sin_q = sin_cos(count, self.encoder.counts_per_rev)
+        self.fresh = False
+        self._lb = c
+        self._nb = c + self.config[_PERIOD]
+        self.boundaries.append(c)
+        if self.events is not None:
+            self.events.append((c, NodeEvent.BOUNDARY))
+        row[src.N_NT] = c                   # the boundary's tick (each boundary ticks)
+        E, vis, pipe, due = self._erows
+        self._kern.node_plain(row, self._prow, E, vis, pipe, due, c + 1)
+        self.in_row["boundary"] += 1
+        return True
+
+    def _commit_in_row(self, c: int) -> bool:
+        """The timer's next event, at cycle ``c``, in the kernel's row if it is a plain commit
+        point (no boundary, pre-arm cycle or generator step with it, the safe stop not near:
+        :meth:`run` checked): the tick in cycle ``c`` first, in the kernel (as
+        :meth:`NodeModel.run <hdl.node.core_ref.NodeModel.run>` runs a cycle's tick before
+        its commit), then the reference's commit (:meth:`NodeModel._take_d
+        <hdl.node.core_ref.NodeModel._take_d>` on the object) and the words it changed into
+        the row: no copy of the row each way. False (nothing done) for any other event."""
+        if c != self._lb + self.config[_COMMIT] or self._commit_seen == self._lb or \
+                c >= self._nb or self.arm_pending or self.dmp_running or self.dmp_waiting or \
+                self.dmp_select:
+            return False
+        if not self.in_kernel:
+            self.push()
+        E, vis, pipe, due = self._erows
+        self._kern.node_plain(self._row, self._prow, E, vis, pipe, due, c + 1)
+        self._commit_seen = self._lb
+        if self.d_pending:
+            if self.events is not None:
+                self.events.append((c, NodeEvent.COMMIT))
+            self._take_d(self.d_next, self.d_next_base)
+            self.d_pending = False
+            row = self._row
+            row[src.N_DBASE] = self.d_base
+            row[src.N_D0:src.N_D0 + 4] = self.d_words
+        self.in_row["commit"] += 1
+        return True
+
+    _row_packet = False     # NodeModel.packet running with the tick state in the row
+
+    def packet(self, now: int, ptype: int, payload: bytes, period: int | None = None,
+               enc_errors: int = 0, sample=None, stay: bool = False):
+        """:meth:`NodeModel.packet <hdl.node.core_ref.NodeModel.packet>`; with ``stay`` (as
+        in :meth:`run`), a Comm A, B, C or D leaves the tick state in the kernel's row where
+        the watchdog's view in its cycle (:func:`~cosim.model_kernel_src.torque_at`, the
+        translation of the reference's ``_watch``) neither trips nor primes: such a packet
+        changes no tick state but the watchdog's last packet, PRIME (a Comm B clears it) and,
+        disarmed, the joint's words (a Comm D), which go into the row after the reference's
+        own code has run on the object (its ``run`` and ``_watch`` done here)."""
+        if not stay or self._kern is None or ptype not in _ROW_PACKETS or self._row_packet:
+            return NodeModel.packet(self, now, ptype, payload, period, enc_errors, sample)
+        self.run(now + 1, sample, stay=True)
+        row = self._row
+        if self.in_kernel:
+            self._kern.torque_at(row, now)                      # _watch(now)
+        if not self.in_kernel or row[src.N_TRIPPED] or row[src.N_PRIME_SET] or \
+                row[src.N_TORQUE_NONE]:
+            self.pull()
+            return NodeModel.packet(self, now, ptype, payload, period, enc_errors, sample)
+        self._now = now
+        self.tripped = False                # the status word's view of the row
+        self.prime = bool(row[src.N_PRIME])
+        self._row_packet = True
+        try:
+            reply = NodeModel.packet(self, now, ptype, payload, period, enc_errors, sample)
+        finally:
+            self._row_packet = False
+        row[src.N_LAST_PACKET] = now
+        row[src.N_PRIME] = self.prime
+        row[src.N_DBASE] = self.d_base
+        row[src.N_D0:src.N_D0 + 4] = self.d_words
+        self.in_row["packet"] += 1
+        return reply
+
+    def _watch(self, now: int) -> None:
+        if self._row_packet:                # done in the row (packet)
+            return
+        NodeModel._watch(self, now)
+
+    def timecode(self, now: int, value: int, sample=None, stay: bool = False) -> bool:
+        """:meth:`NodeModel.timecode <hdl.node.core_ref.NodeModel.timecode>`; one that does
+        not resynchronise the timer touches no tick state (the observation port's strobe and
+        the time-code's value only), so the node's ticks stay in the kernel. ``stay`` as in
+        :meth:`run`."""
+        self.run(now, sample, stay=True)
+        if self._kern is None or self.phase(now) >= self.config[_SYNC_WINDOW]:
+            self.pull()                         # a resync: the reference's boundary
+            return NodeModel.timecode(self, now, value, sample)
+        if self.events is not None:
+            self.events.append((now, NodeEvent.TIMECODE))
+        self.run(now + 1, stay=True)
+        self.tc_value = value & 0xFF
+        if not stay:
+            self.pull()
+        self.in_row["timecode"] += 1
+        return False
 
     def run_torque(self, until: int, sample) -> int:
         """``run(until, sample)`` then ``torque_at(until)``, the node left in the kernel where

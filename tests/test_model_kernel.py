@@ -215,6 +215,10 @@ def test_compiled_and_python_paths_give_the_same_trace(robot, controller):
     assert steps["stick-slip"] + steps["solve"] > 0, steps
     # and some of its runs ended with a step whose replies or strobes it handed to the master
     assert fast[4].fast_handovers > 0
+    # the nodes' boundaries, commits, time-codes and packets ran with their tick state in the
+    # kernel's row (KernelNode._boundary_in_row, _commit_in_row, timecode, packet)
+    for event in ("boundary", "commit", "timecode", "packet"):
+        assert sum(node.in_row[event] for node in fast[4].nodes) > 0, event
     assert slow[4].fast_steps == {"free": 0, "stick-slip": 0, "solve": 0}
     assert fast[1] == slow[1] and len(fast[1]) > 0
     assert fast[2] == slow[2]
