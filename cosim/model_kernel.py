@@ -34,6 +34,7 @@ import numpy as np
 from mrm_cosim.cosim.model_node import FastNode
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.hdl.node.trig_ref import sin_cos
+from mrm_cosim.protocol.cordic import bam_constant
 from mrm_cosim.hdl.node.vdc_ref import VdcModel
 from mrm_cosim.cosim import model_kernel_src as src
 from mrm_cosim.models import compliant_kernel_src as compliant_src
@@ -172,6 +173,7 @@ def _warm_up(k) -> None:
     k.enc_preset(e[0], e[2], e[3], e[4], 900, 0)
     k.enc_feed_changes(e[0], e[1], e[2], 500, 500, z, z)
     k.materialize(a.N[0], a.P[0])
+    k.sin_cos(-5, 1 << 20)
 
 
 def point_shifts(fmt, *lsbs) -> tuple[int, ...]:
@@ -453,8 +455,10 @@ class KernelNode(FastNode):
         not near: :meth:`run` checked): :meth:`NodeModel._boundary
         <hdl.node.core_ref.NodeModel._boundary>` step by step — the watchdog's view in cycle
         ``c`` (:func:`~cosim.model_kernel_src.torque_at`, the translation of
-        :meth:`FastNode.torque_at`), the encoder's strobe, the snapshot and the CORDIC (the
-        reference's, on the object), then the boundary's tick in the kernel. False (nothing
+        :meth:`FastNode.torque_at`), the encoder's strobe and the snapshot (the reference's
+        code, on the object), the CORDIC compiled (:func:`~cosim.model_kernel_src.sin_cos`, the
+        translation of :func:`~hdl.node.trig_ref.sin_cos`), then the boundary's tick in the
+        kernel. False (nothing
         done but the watchdog's view, which the reference's own then repeats) for any other
         event, or where the watchdog trips or PRIME is due."""
         if c != self._nb or self.arming or self.dmp_waiting or self.dmp_running or \
@@ -474,7 +478,11 @@ class KernelNode(FastNode):
         self._snap = (int(row[src.N_TORQUE]), int(self.status), errors, overruns,
                       self.sync_errors, self.late_d)
         self.snap_count, self.snap_qd = count, qd
-        self.cos_q, self.sin_q = sin_cos(count, self.encoder.counts_per_rev)
+        kb = self._kb
+        if kb is None:
+            kb = self._kb = bam_constant(self.encoder.counts_per_rev)
+        self.cos_q, self.sin_q = (self._kern.sin_cos(count, kb) if kb < src.SIN_COS_KB_MAX
+                                  else sin_cos(count, self.encoder.counts_per_rev))
         self.fresh = False
         self._lb = c
         self._nb = c + self.config[_PERIOD]
@@ -516,6 +524,7 @@ class KernelNode(FastNode):
         return True
 
     _row_packet = False     # NodeModel.packet running with the tick state in the row
+    _kb = None              # bam_constant of the encoder's counts per revolution (CORDIC)
 
     def packet(self, now: int, ptype: int, payload: bytes, period: int | None = None,
                enc_errors: int = 0, sample=None, stay: bool = False):

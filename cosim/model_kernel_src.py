@@ -32,6 +32,11 @@ from mrm_cosim.models import plant_kernel_src as plant_src
 from mrm_cosim.models.encoder import _FEW_CHANGES
 from mrm_cosim.protocol.encoder import AGE_MAX as _AGE_MAX
 from mrm_cosim.protocol.encoder import DC_MAX as _DC_MAX
+from mrm_cosim.protocol.cordic import ATAN as _ATAN_LIST
+from mrm_cosim.protocol.cordic import GUARD as _GUARD
+from mrm_cosim.protocol.cordic import ITERATIONS as _ITERATIONS
+from mrm_cosim.protocol.cordic import X0 as _X0
+from mrm_cosim.protocol.cordic import ZGUARD as _ZGUARD
 from mrm_cosim.protocol.encoder import RECIP_TABLE
 from mrm_cosim.protocol.fixed import FORCE as _FORCE
 from mrm_cosim.protocol.fixed import WORD_MAX as _WORD_MAX
@@ -1088,3 +1093,45 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     if pre_next:
         return 8 * (plant_src.pre_free(S, C, tau, hh, F[F_FRICTION]) + 2)
     return 0
+
+
+# --- the boundary's sine/cosine unit (hdl/node/trig_ref.py) ---------------------------------
+_ATAN = np.array(_ATAN_LIST, dtype=np.int64)
+#: :func:`sin_cos` needs ``|count · kb|`` below 2^62: ``kb`` (Q22 binary-angle units per count)
+#: below this, with the 24-bit count (the caller runs the reference otherwise)
+SIN_COS_KB_MAX = 1 << 38
+
+
+def cordic(bam):
+    """:func:`hdl.node.trig_ref.cordic`: ``(cos, sin)`` TRIG words of a 24-bit binary angle
+    (``x``, ``y`` and ``z`` stay below 2^29)."""
+    s = bam & 0xFFFFFF                      # wrap(bam, 24)
+    if s >> 23:
+        s -= 1 << 24
+    flip = s > (1 << 22) or s < -(1 << 22)
+    if flip:
+        s = (s + (1 << 23)) & 0xFFFFFF      # wrap(s + 2^23, 24)
+        if s >> 23:
+            s -= 1 << 24
+    x = _X0
+    y = 0
+    z = s << _ZGUARD
+    for i in range(_ITERATIONS):
+        if z >= 0:
+            x, y, z = x - (y >> i), y + (x >> i), z - _ATAN[i]
+        else:
+            x, y, z = x + (y >> i), y - (x >> i), z + _ATAN[i]
+    c = (x + (1 << (_GUARD - 1))) >> _GUARD         # round_shift(x, GUARD)
+    s_ = (y + (1 << (_GUARD - 1))) >> _GUARD
+    if flip:
+        return -c, -s_
+    return c, s_
+
+
+def sin_cos(count, kb):
+    """:func:`hdl.node.trig_ref.sin_cos` with ``kb = bam_constant(counts_per_rev)`` below
+    :data:`SIN_COS_KB_MAX`: ``(cos q, sin q)`` TRIG words of joint count ``count``."""
+    c = count & 0xFFFFFF                    # wrap(count, 24)
+    if c >> 23:
+        c -= 1 << 24
+    return cordic(((c * kb + (1 << 21)) >> 22) & 0xFFFFFF)     # binary_angle

@@ -194,6 +194,34 @@ def test_compiled_count_changes_equal_the_reference(q0, v0, v1, tiny, cpr):
         assert got == ref[j], (j, cols[j])
 
 
+_FOLD = [0, 1, -1, (1 << 22) - 1, 1 << 22, (1 << 22) + 1, (1 << 23) - 1, 1 << 23,
+         (1 << 23) + 1, 3 << 22, (3 << 22) - 1, (3 << 22) + 1, (1 << 24) - 1]
+
+
+@needs_numba
+@settings(max_examples=400, deadline=None)
+@given(bam=st.one_of(st.integers(0, (1 << 24) - 1), st.sampled_from(_FOLD),
+                     st.integers(-(1 << 40), 1 << 40)),
+       count=st.one_of(st.integers(-(1 << 23), (1 << 23) - 1),
+                       st.sampled_from([-(1 << 23), (1 << 23) - 1, 0, -1, 1 << 23, -(1 << 40)]),
+                       st.integers(-(1 << 40), 1 << 40)),
+       cpr=st.one_of(st.sampled_from([800_000, 1_600_000, 4096, 1 << 24, 2 ** 8 + 1]),
+                     st.integers(2 ** 8 + 1, 1 << 26)))
+def test_compiled_sin_cos_equals_the_reference(bam, count, cpr):
+    """The boundary's CORDIC (:func:`sin_cos`, :func:`cordic`) against
+    :mod:`hdl.node.trig_ref` bit for bit: every binary angle, the half-turn fold's edges,
+    counts beyond 24 bits (wrapped) and every counts per revolution whose ``kb`` it takes
+    (below :data:`SIN_COS_KB_MAX`: the widest product, a 24-bit count times ``kb``, then
+    stays below 2^62)."""
+    from mrm_cosim.hdl.node import trig_ref
+    from mrm_cosim.protocol.cordic import bam_constant
+
+    assert tuple(kern.cordic(bam)) == trig_ref.cordic(bam)
+    kb = bam_constant(cpr)
+    assert kb < src.SIN_COS_KB_MAX and (1 << 23) * kb + (1 << 21) < 1 << 62
+    assert tuple(kern.sin_cos(count, kb)) == trig_ref.sin_cos(count, cpr)
+
+
 @needs_numba
 @pytest.mark.parametrize("robot", ["mrm3", "mrm6"])
 @pytest.mark.parametrize("controller", ["vdc", "pid-fpga", "pid-1khz"])
