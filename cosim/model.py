@@ -172,6 +172,8 @@ class ModelBackend(GatewareSide):
         self.fast_steps = {"free": 0, "stick-slip": 0, "solve": 0}
         #: fast runs whose last step handed replies or strobes to the master (fast_observed)
         self.fast_handovers = 0
+        #: stick-slip fast steps that needed pin.crba (stuck() did not hold; fast_step's 5)
+        self.fast_crba = 0
         self._fast_end = 0              # fast path: the end of its last step (node._done)
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
             node.lazy = self.lazy
@@ -431,6 +433,7 @@ class ModelBackend(GatewareSide):
                 n_stick += 1
                 r = fast_step(IB, F, S, bias, no_M0, rec, j, cycle, 2, C, more)
                 if r == 5:
+                    self.fast_crba += 1
                     M = crba(model, data, qm)
                     r = fast_step(IB, F, S, bias, M, rec, j, cycle, 2, C, more)
                 if r == 4:
