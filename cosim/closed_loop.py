@@ -278,7 +278,7 @@ class ClosedLoop:
         i = 0
         while i < steps:
             brake = backend.brake()
-            braking = brake.any() or not plant.brake_idle
+            braking = True in brake.tolist() or not plant.brake_idle   # (ndarray.any: ~2 µs)
             if braking:         # (else every command is released already: nothing changes)
                 plant.set_brake(brake)
             # plain steps in one go (fast_path) while the brakes are released and none is

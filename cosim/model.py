@@ -207,16 +207,16 @@ class ModelBackend(GatewareSide):
         <cosim.model_node.FastNode.safe_stop_near>` keeps those on the reference), so its
         brake is its trip with STOP_CYCLES = 0: tripped by then."""
         c = self.cycle - 1
-        out = np.zeros(self.n, dtype=bool)
-        for k, node in enumerate(self.nodes):
+        out = []
+        for node in self.nodes:
             if getattr(node, "in_kernel", False):
-                N = node._row
-                out[k] = bool(N[ksrc.N_TRIPPED]) or bool(
-                    node.armed and c >= N[ksrc.N_LAST_PACKET] + 2 + N[ksrc.N_TIMEOUT])
+                item = node._row.item           # (Python ints: no numpy scalar arithmetic)
+                out.append(bool(item(ksrc.N_TRIPPED)) or bool(
+                    node.armed and c >= item(ksrc.N_LAST_PACKET) + 2 + item(ksrc.N_TIMEOUT)))
             else:
                 node._watch(c)
-                out[k] = node.brake_at(c)
-        return out
+                out.append(bool(node.brake_at(c)))
+        return np.array(out, dtype=bool)
 
     def send(self, action) -> None:
         self._horizon_end = None
