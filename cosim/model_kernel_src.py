@@ -1038,13 +1038,9 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     The rest of the plant step, as :meth:`Plant._step_kernel
     <models.plant.Plant._step_kernel>`: ``mode`` 1, ``a`` = ``pin.aba``'s accelerations:
     :func:`~models.plant_kernel_src.free_end`; ``mode`` 2, ``a`` = ``pin.nonLinearEffects``'
-    bias and ``M`` = ``pin.crba``'s matrix, or a 0×0 array where the caller has not called
-    ``crba`` yet: :func:`~models.plant_kernel_src.stuck`, else
-    :func:`~models.plant_kernel_src.likely_pattern` (with no matrix, return 5: the caller
-    calls ``crba`` and again in mode 2, as :meth:`Plant._stick_slip_kernel
-    <models.plant.Plant._stick_slip_kernel>` calls ``crba`` only where ``stuck`` does not
-    hold); ``mode`` 0: the end velocities are already in ``S[NEW]``; then
-    :func:`~models.plant_kernel_src.finish`.
+    bias and ``M`` = ``pin.crba``'s matrix: :func:`~models.plant_kernel_src.stuck`, else
+    :func:`~models.plant_kernel_src.likely_pattern`; ``mode`` 0: the end velocities are
+    already in ``S[NEW]``; then :func:`~models.plant_kernel_src.finish`.
 
     With ``pre_next`` (the caller will run the next step on this path too), the step done, the
     next step's :func:`~models.plant_kernel_src.pre_free` on the torques the nodes output
@@ -1053,8 +1049,7 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
 
     Returns 0; 1 if the free step does not hold (nothing else done: the caller calls again in
     mode 2) or 4 if the likely pattern does not (the caller runs the general solve and calls
-    again in mode 0) or 5 (mode 2 without a matrix: ``stuck`` does not hold, the caller calls
-    ``crba`` and again); 2 if a joint moved more than one count in a cycle (the plant has
+    again in mode 0); 2 if a joint moved more than one count in a cycle (the plant has
     stepped, the nodes have not); 3 as :func:`plain_step`'s True. With ``pre_next`` and the
     step done, ``8 · (code + 2)``: ``code`` the next step's ``pre_free`` result (−1, 0, 1)."""
     n = IB[H_N]
@@ -1065,11 +1060,8 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
         if not plant_src.free_end(S, a, h, F[F_FRICTION] != 0.0):
             return 1
     elif mode == 2:
-        if not plant_src.stuck(S, a):
-            if M.shape[0] == 0:         # crba not called yet: only now is its matrix needed
-                return 5
-            if plant_src.likely_pattern(S, M, h) != 1:
-                return 4
+        if not plant_src.stuck(S, a) and plant_src.likely_pattern(S, M, h) != 1:
+            return 4
     plant_src.finish(S, h, hh)
     N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR = blob_views(IB)
     K = F[F_SIZE:F_SIZE + n]

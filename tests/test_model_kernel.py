@@ -241,8 +241,6 @@ def test_compiled_and_python_paths_give_the_same_trace(robot, controller):
     steps = fast[4].fast_steps
     assert sum(steps.values()) > 0.8 * cycles / 500 and steps["free"] > 0, steps
     assert steps["stick-slip"] + steps["solve"] > 0, steps
-    # crba only where the joints were not all stuck (fast_step's 5), and some such steps
-    assert 0 < fast[4].fast_crba <= steps["stick-slip"] + steps["solve"], fast[4].fast_crba
     # and some of its runs ended with a step whose replies or strobes it handed to the master
     assert fast[4].fast_handovers > 0
     # the nodes' boundaries, commits, time-codes and packets ran with their tick state in the
