@@ -46,6 +46,42 @@ def test_gateware_flags_credit_it_announced_but_never_saw_used():
         char_value(CharKind.EEP.value)]
 
 
+@pytest.mark.parametrize("fcts,error", [(7, False), (6, True), (5, True)])
+def test_gateware_audits_its_credit_after_a_silence(fcts, error):
+    """The peer, scripted, grants ``fcts`` FCTs and sends nothing. A drained peer of the DUT's
+    64-entry FIFO grants 7 (56 credits, ``rest_credit(64)`` = (48, 56]): with 7 the DUT stays in
+    Run; with 6 or 5 (an FCT or two lost) it counts a credit_timeout error once it has sent no
+    N-char for the audit time, and restarts."""
+    audit = 120
+    bench = PeerBench(reset_cycles=60, wait_cycles=150, credit_audit=audit)
+    dut = bench.dut
+    seen = {}
+
+    async def testbench(ctx):
+        await bench.bring_up(ctx)               # one FCT in the handshake
+        bench.peer.send(*[("FCT",)] * (fcts - 1))
+        await bench.until(ctx, lambda: ctx.get(dut.tx_credit) == 8 * fcts, limit=300)
+        await bench.run(ctx, 30)
+        seen["credit"] = ctx.get(dut.tx_credit)
+        start = bench.cycles
+        await bench.until(ctx, lambda: ctx.get(dut.state) != LinkState.RUN, limit=3 * audit)
+        seen["after"] = bench.cycles - start
+        seen["errors"] = bench.errors(ctx)
+
+    sim = Simulator(dut)
+    sim.add_clock(20e-9)
+    sim.add_testbench(testbench)
+    if error:
+        run_simulation(sim, f"credit_audit_{fcts}")
+        assert seen["credit"] == 8 * fcts
+        assert seen["errors"] == {k: int(k == "credit_timeout") for k in seen["errors"]}
+        assert seen["after"] <= audit
+    else:
+        with pytest.raises(AssertionError, match="condition not reached"):
+            run_simulation(sim, f"credit_audit_{fcts}")
+        assert seen["credit"] == 56
+
+
 def test_a_dropped_fct_is_detected_counted_and_the_link_recovers():
     """A FIFO of 16 (one FCT of 8 credits outstanding at a time): a dropped FCT
     starves the sender inside a frame. Where parity does not see the drop, the credit timeout
