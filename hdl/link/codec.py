@@ -157,6 +157,20 @@ class Codec(wiring.Component):
             "s_out":        Out(self.slots),
         })
 
+    def _credit_audit(self, m, err_audit, running, tx_sent):
+        """Drive ``err_audit``: silent for the audit time, we must hold a drained peer's
+        credit."""
+        if not self.credit_audit:
+            return
+        low, high = rest_credit(self.rx_fifo_depth)
+        silent = Signal(range(self.credit_audit))
+        m.d.comb += err_audit.eq(running & (silent == self.credit_audit - 1) &
+                                 ((self.tx_credit <= low) | (self.tx_credit > high)))
+        with m.If(~running | tx_sent):
+            m.d.sync += silent.eq(0)
+        with m.Elif(silent != self.credit_audit - 1):
+            m.d.sync += silent.eq(silent + 1)
+
     def elaborate(self, platform):
         m = Module()
 
@@ -279,16 +293,7 @@ class Codec(wiring.Component):
         with m.Elif(leave_run & tx_in_after):
             m.d.sync += discard.eq(1)
 
-        # Credit audit: silent for the audit time, we must hold a drained peer's credit.
-        if self.credit_audit:
-            low, high = rest_credit(self.rx_fifo_depth)
-            silent = Signal(range(self.credit_audit))
-            m.d.comb += err_audit.eq(running & (silent == self.credit_audit - 1) &
-                                     ((tx_credit <= low) | (tx_credit > high)))
-            with m.If(~running | tx_sent):
-                m.d.sync += silent.eq(0)
-            with m.Elif(silent != self.credit_audit - 1):
-                m.d.sync += silent.eq(silent + 1)
+        self._credit_audit(m, err_audit, running, tx_sent)
 
         with m.If(~running):
             m.d.sync += tc_pending.eq(0)
