@@ -38,7 +38,6 @@ EOP/EEP, so a fragment never starts a later packet.
 
 from amaranth import *
 from amaranth.lib import stream, wiring
-from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.wiring import In, Out
 
 from mrm_cosim.protocol.link import (CREDIT_AUDIT, CREDIT_TIMEOUT, DEFAULT_RUN_DIV,
@@ -49,6 +48,7 @@ from mrm_cosim.units import CLOCK_HZ
 from ..helpers import rejecting
 from .chars import Char, CharKind, ErrorCounts, LinkState
 from .ds import DSReceiver
+from .fifo import BlockRamFIFO
 from .fsm import LinkFSM
 from .rx import CharReceiver
 
@@ -167,8 +167,8 @@ class Codec(wiring.Component):
                                                     max_run_div=self.max_run_div)
         m.submodules.fsm = fsm = LinkFSM(reset_cycles=self.reset_cycles,
                                          wait_cycles=self.wait_cycles)
-        m.submodules.fifo = fifo = SyncFIFO(width=Char.as_shape().size,
-                                            depth=self.rx_fifo_depth)
+        m.submodules.fifo = fifo = BlockRamFIFO(width=Char.as_shape().size,
+                                                depth=self.rx_fifo_depth)
 
         state      = fsm.state
         running    = state == LinkState.RUN
