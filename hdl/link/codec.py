@@ -38,7 +38,6 @@ EOP/EEP, so a fragment never starts a later packet.
 
 from amaranth import *
 from amaranth.lib import stream, wiring
-from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.wiring import In, Out
 
 from mrm_cosim.protocol.link import (CREDIT_AUDIT, CREDIT_TIMEOUT, DEFAULT_RUN_DIV,
@@ -49,6 +48,7 @@ from mrm_cosim.units import CLOCK_HZ
 from ..helpers import rejecting
 from .chars import Char, CharKind, ErrorCounts, LinkState
 from .ds import DSReceiver
+from .fifo import BlockRamFIFO
 from .fsm import LinkFSM
 from .rx import CharReceiver
 
@@ -181,8 +181,8 @@ class Codec(wiring.Component):
                                                     max_run_div=self.max_run_div)
         m.submodules.fsm = fsm = LinkFSM(reset_cycles=self.reset_cycles,
                                          wait_cycles=self.wait_cycles)
-        m.submodules.fifo = fifo = SyncFIFO(width=Char.as_shape().size,
-                                            depth=self.rx_fifo_depth)
+        m.submodules.fifo = fifo = BlockRamFIFO(width=Char.as_shape().size,
+                                                depth=self.rx_fifo_depth)
 
         state      = fsm.state
         running    = state == LinkState.RUN
@@ -317,3 +317,17 @@ class Codec(wiring.Component):
             self.time_out.eq(rx.time),
         ]
         return m
+
+    def _credit_audit(self, m, err_audit, running, tx_sent):
+        """Silent for the audit time, we must hold a drained peer's credit (``err_audit``)."""
+        if not self.credit_audit:
+            return
+        tx_credit = self.tx_credit
+        low, high = rest_credit(self.rx_fifo_depth)
+        silent = Signal(range(self.credit_audit))
+        m.d.comb += err_audit.eq(running & (silent == self.credit_audit - 1) &
+                                 ((tx_credit <= low) | (tx_credit > high)))
+        with m.If(~running | tx_sent):
+            m.d.sync += silent.eq(0)
+        with m.Elif(silent != self.credit_audit - 1):
+            m.d.sync += silent.eq(silent + 1)
