@@ -317,17 +317,3 @@ class Codec(wiring.Component):
             self.time_out.eq(rx.time),
         ]
         return m
-
-    def _credit_audit(self, m, err_audit, running, tx_sent):
-        """Silent for the audit time, we must hold a drained peer's credit (``err_audit``)."""
-        if not self.credit_audit:
-            return
-        tx_credit = self.tx_credit
-        low, high = rest_credit(self.rx_fifo_depth)
-        silent = Signal(range(self.credit_audit))
-        m.d.comb += err_audit.eq(running & (silent == self.credit_audit - 1) &
-                                 ((tx_credit <= low) | (tx_credit > high)))
-        with m.If(~running | tx_sent):
-            m.d.sync += silent.eq(0)
-        with m.Elif(silent != self.credit_audit - 1):
-            m.d.sync += silent.eq(silent + 1)
