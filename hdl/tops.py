@@ -15,7 +15,7 @@ from amaranth.back import verilog
 from amaranth.lib import wiring
 
 from mrm_cosim.protocol.joint_program import PID_SHIFT_MAX
-from mrm_cosim.protocol.link import DEFAULT_RUN_DIV, DEFAULT_SLOTS
+from mrm_cosim.protocol.link import CREDIT_AUDIT, CREDIT_TIMEOUT, DEFAULT_RUN_DIV, DEFAULT_SLOTS
 from mrm_cosim.errors import InputError
 
 from .link.node import link_node_top
@@ -43,12 +43,16 @@ class Top:
 def _spw_codec(*, slots: int = DEFAULT_SLOTS, start_div: int | None = None,
                run_div: int = DEFAULT_RUN_DIV, max_run_div: int | None = None,
                reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
-               rx_fifo_depth: int = 64) -> wiring.Component:
+               rx_fifo_depth: int = 64, credit_timeout: int = CREDIT_TIMEOUT,
+               credit_audit: int = CREDIT_AUDIT) -> wiring.Component:
+    # credit_audit expects a peer that grants what this codec grants at rest (a peer like it):
+    # 0 for a foreign peer (docs/link.md "Lost FCTs").
     from .link.codec import Codec
     return Codec(slots=slots, start_div=start_div, run_div=run_div, max_run_div=max_run_div,
                  reset_cycles=reset_cycles,
                  wait_cycles=wait_cycles, disconnect_cycles=disconnect_cycles,
-                 rx_fifo_depth=rx_fifo_depth)
+                 rx_fifo_depth=rx_fifo_depth, credit_timeout=credit_timeout,
+                 credit_audit=credit_audit)
 
 
 def _dmp_generator(*, max_basis: int = 32) -> wiring.Component:
