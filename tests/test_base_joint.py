@@ -1,0 +1,129 @@
+"""The base joint's own controller settings (docs/experiments.md "Tuning": on the compliant
+plant joint 1's motor-side encoder sees the motor alone above the gear's anti-resonance):
+the PIDs' base-joint pole reaches joint 1 alone — in the node's uploads and in the master's
+1 kHz PID — VDC's ``vdc_base_fb`` scales joint 1's error in the master's link level alone,
+and the defaults are today's controllers."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mrm_cosim.cosim import track, tune
+from mrm_cosim.cosim.experiment_config import load, loads
+from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains
+from mrm_cosim.master.vdc import propagate_velocities, required_velocities
+from mrm_cosim.models.robot import load_robot
+
+ROOT = Path(__file__).resolve().parents[1]
+ROBOT = load_robot("mrm3")
+
+
+def test_the_base_pole_sets_joint_1_alone_and_zero_means_the_others_pole():
+    both = pid_gains(ROBOT, 10.0, 3.0)
+    for name in ("kp", "ki", "kd"):
+        assert both[name][0] == pid_gains(ROBOT, 3.0)[name][0]
+        np.testing.assert_array_equal(both[name][1:], pid_gains(ROBOT, 10.0)[name][1:])
+        np.testing.assert_array_equal(pid_gains(ROBOT, 10.0, 0.0)[name],
+                                      pid_gains(ROBOT, 10.0)[name])
+
+
+def _by_node(uploads):
+    return {k: [(t, p) for d, t, p in uploads if d == k] for k in (1, 2, 3)}
+
+
+def test_the_fpga_base_pole_reaches_node_1s_uploads_alone():
+    g = replace(Gains(), pid_fpga_hz=10.0, pid_fpga_base_hz=3.0)
+    got = _by_node(node_uploads(ROBOT, "pid-fpga", g))
+    at3 = _by_node(node_uploads(ROBOT, "pid-fpga", replace(Gains(), pid_fpga_hz=3.0)))
+    at10 = _by_node(node_uploads(ROBOT, "pid-fpga", replace(Gains(), pid_fpga_hz=10.0)))
+    assert got[1] == at3[1] != at10[1]
+    assert got[2] == at10[2] and got[3] == at10[3]
+    # the default (0) uploads what the node got before the setting existed
+    assert node_uploads(ROBOT, "pid-fpga", replace(Gains(), pid_fpga_hz=10.0)) == \
+        node_uploads(ROBOT, "pid-fpga", replace(Gains(), pid_fpga_hz=10.0,
+                                                pid_fpga_base_hz=10.0))
+
+
+def test_the_1khz_base_pole_and_the_vdc_share_reach_the_master(monkeypatch):
+    seen = {}
+
+    class Spy(track.Master):
+        def __init__(self, *args, **kwargs):
+            seen.update(kwargs)
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(track, "Master", Spy)
+    g = replace(Gains(), pid_1khz_hz=10.0, pid_1khz_base_hz=2.5, vdc_base_fb=0.25)
+    track.run_track(ROBOT, "pid-1khz", backend="model", duration=0.002, gains=g)
+    for name in ("kp", "ki", "kd"):
+        np.testing.assert_array_equal(seen["pid"][name], pid_gains(ROBOT, 10.0, 2.5)[name])
+    assert seen["pid"]["kd"][0] == pytest.approx(3 * 2 * np.pi * 2.5 * (
+        pid_gains(ROBOT, 1.0)["kd"][0] / (3 * 2 * np.pi)))
+    assert seen["base_fb"] == 0.25
+
+
+def _state(seed):
+    rng = np.random.default_rng(seed)
+    return [rng.normal(0, s, 3) for s in (0.3, 0.5, 2.0, 0.3, 0.5)]   # q_d, q̇_d, q̈_d, q, q̇
+
+
+def test_the_vdc_share_1_is_the_papers_required_velocity():
+    q_d, qd_d, qdd_d, q, qd = _state(0)
+    qd_r, qdd_r, qd_p = required_velocities(q_d, qd_d, qdd_d, q, qd, 34.0)
+    np.testing.assert_array_equal(qd_r, qd_d + 34.0 * (q_d - q))
+    np.testing.assert_array_equal(qdd_r, qdd_d + 34.0 * (qd_d - qd))
+    assert qd_p is qd
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_vdc_share_scales_joint_1s_error_in_every_links_velocity_error(seed):
+    """``V_r − V`` of every frame is linear in the share ``w`` of joint 1's error, and at
+    ``w = 0`` joint 1's measured velocity and position error do not enter it at all; joints
+    2 and 3 are the paper's."""
+    q_d, qd_d, qdd_d, q, qd = _state(seed)
+    lam = 34.0
+
+    def err(w, qd=qd, q_d=q_d):
+        qd_r, qdd_r, qd_p = required_velocities(q_d, qd_d, qdd_d, q, qd, lam, w)
+        kin = propagate_velocities(ROBOT, q, qd_p, qd_r, qdd_r)
+        return np.array([np.r_[k.Vr_C - k.V_C, k.Vr_A - k.V_A] for k in kin]), qd_r
+
+    e0, r0 = err(0.0)
+    assert r0[0] == qd_d[0]
+    np.testing.assert_array_equal(r0[1:], qd_d[1:] + lam * (q_d[1:] - q[1:]))
+    other = qd.copy()
+    other[0] += 0.7
+    shifted = q_d.copy()
+    shifted[0] += 0.01
+    np.testing.assert_allclose(err(0.0, qd=other)[0], e0, atol=1e-12)
+    np.testing.assert_allclose(err(0.0, q_d=shifted)[0], e0, atol=1e-12)
+    e1 = err(1.0)[0]
+    np.testing.assert_allclose(err(0.3)[0], e0 + 0.3 * (e1 - e0), atol=1e-12)
+    assert np.abs(e1 - e0).max() > 1e-3              # joint 1's error is really there at 1
+
+
+def test_the_settings_load_round_trip_and_default_to_todays_controllers():
+    d = Gains()
+    assert (d.pid_fpga_base_hz, d.pid_1khz_base_hz, d.vdc_base_fb) == (0.0, 0.0, 1.0)
+    g = load(ROOT / "configs" / "table2.toml").gains
+    assert (g.pid_fpga_base_hz, g.pid_1khz_base_hz, g.vdc_base_fb) == (0.0, 0.0, 1.0)
+    text = (ROOT / "configs" / "table2.toml").read_text().replace(
+        "[gains]\n", "[gains]\npid_fpga_base_hz = 3.5\npid_1khz_base_hz = 2.0\n"
+        "vdc_base_fb = 0.25\n")
+    cfg = loads(text)
+    assert (cfg.gains.pid_fpga_base_hz, cfg.gains.pid_1khz_base_hz,
+            cfg.gains.vdc_base_fb) == (3.5, 2.0, 0.25)
+    assert loads(cfg.to_toml()) == cfg
+
+
+def test_the_shipped_tuning_space_gives_every_controller_one_base_joint_setting():
+    spec = tune.load_tune_spec(ROOT / "configs" / "tuning" / "table2.toml")
+    base = {"pid-1khz": "gains.pid_1khz_base_hz", "pid-fpga": "gains.pid_fpga_base_hz",
+            "vdc": "gains.vdc_base_fb"}
+    for c, field in base.items():
+        assert field in spec.space[c]
+    assert spec.space["pid-1khz"]["gains.pid_1khz_base_hz"] == \
+        spec.space["pid-fpga"]["gains.pid_fpga_base_hz"] == (1.0, 60.0)
+    assert spec.space["vdc"]["gains.vdc_base_fb"] == (0.0, 1.0)
