@@ -127,3 +127,19 @@ def test_the_shipped_tuning_space_gives_every_controller_one_base_joint_setting(
     assert spec.space["pid-1khz"]["gains.pid_1khz_base_hz"] == \
         spec.space["pid-fpga"]["gains.pid_fpga_base_hz"] == (1.0, 60.0)
     assert spec.space["vdc"]["gains.vdc_base_fb"] == (0.0, 1.0)
+
+
+def test_the_compliant_table_carries_tuning_run_4s_choices():
+    """configs/table2-compliant.toml: the gains its provenance block names (docs/experiments.md
+    "What the tuning found on the compliant plant", run 4), on the compliant plant."""
+    cfg = load(ROOT / "configs" / "table2-compliant.toml")
+    g = cfg.gains
+    assert cfg.plant.joints == "compliant"
+    assert (g.pid_1khz_hz, g.pid_1khz_base_hz) == (8.73, 2.74)
+    assert (g.pid_fpga_hz, g.pid_fpga_base_hz) == (19.9, 5.02)
+    assert (g.lam, g.k_j, g.K, g.vdc_base_fb) == (59.8, 15.0, 59.7, 0.0016)
+    text = (ROOT / "configs" / "table2-compliant.toml").read_text()
+    for line in ("pid_1khz_hz = 8.73, pid_1khz_base_hz = 2.74", "FEASIBLE (7 of 24)",
+                 "pid_fpga_hz = 19.9, pid_fpga_base_hz = 5.02",
+                 "lam = 59.8, k_j = 15, K = 59.7, vdc_base_fb = 0.0016"):
+        assert line in text
