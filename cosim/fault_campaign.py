@@ -14,6 +14,7 @@ A spec::
     kinds = ["bit", "cut"]  # default: every kind of cosim.link_faults.KINDS
     rx_fifo_depth = 64      # the codecs' FIFO (16: every lost FCT starves the sender)
     credit_timeout = 200    # cycles; the short timers of cosim.link_faults.SHORT_TIMERS
+    credit_audit = 400      # cycles (0: off); each fault is judged after a silence this long
 
 A point is a chunk: ``chunk`` faults on one link of its own, seeded by ``(seed, chunk index)``,
 a pure function of the point (so serial, process and Dask executors give the same rows, and a
@@ -43,7 +44,8 @@ __all__ = ["CampaignSpec", "load_campaign", "expand_campaign", "run_campaign_poi
 
 KIND = "link-faults"
 LEVELS = ("link", "loop")
-_LINK_KEYS = {"level", "faults", "chunk", "seed", "kinds", "rx_fifo_depth", "credit_timeout"}
+_LINK_KEYS = {"level", "faults", "chunk", "seed", "kinds", "rx_fifo_depth", "credit_timeout",
+              "credit_audit"}
 MAX_FAULTS = 10_000_000
 
 
@@ -116,7 +118,11 @@ def _check_link(camp: dict) -> dict:
            "rx_fifo_depth": _whole(camp.get("rx_fifo_depth", 64), "campaign.rx_fifo_depth", 16,
                                    4096),
            "credit_timeout": _whole(camp.get("credit_timeout", SHORT_TIMERS["credit_timeout"]),
-                                    "campaign.credit_timeout", 0, 1_000_000)}
+                                    "campaign.credit_timeout", 0, 1_000_000),
+           "credit_audit": _whole(camp.get("credit_audit", SHORT_TIMERS["credit_audit"]),
+                                  "campaign.credit_audit", 0, 1_000_000)}
+    if out["credit_audit"] == 1:
+        raise InputError("campaign.credit_audit", "must be 0 (off) or at least 2 cycles, not 1")
     kinds = camp.get("kinds", list(KINDS))
     if not isinstance(kinds, list) or not kinds:
         raise InputError("campaign.kinds", f"must be a non-empty list of {', '.join(KINDS)}")
@@ -150,7 +156,8 @@ def expand_campaign(spec: CampaignSpec) -> list[dict]:
         n = min(c["chunk"], c["faults"] - i * c["chunk"])
         task = {"level": "link", "n": n, "seed": c["seed"] * 1_000_000 + i,
                 "kinds": c["kinds"], "params": {"rx_fifo_depth": c["rx_fifo_depth"],
-                                                "credit_timeout": c["credit_timeout"]}}
+                                                "credit_timeout": c["credit_timeout"],
+                                                "credit_audit": c["credit_audit"]}}
         points.append({"id": _pid(task), "params": {"chunk": i}, "seed": i, "controller": "-",
                        "backend": "ref", "kind": KIND, "task": task})
     return points
@@ -189,7 +196,8 @@ def write_campaign_summary(out: Path, spec: CampaignSpec, rows: list[dict],
     lines = [f"# Fault campaign {spec.name} (link level)", "",
              f"{len(ok)} of {n_points} points ({len(faults):,} of {c['faults']:,} faults) "
              f"finished; seed {c['seed']}, {c['chunk']} faults a point, FIFO "
-             f"{c['rx_fifo_depth']}, credit timeout {c['credit_timeout']} cycles; kinds "
+             f"{c['rx_fifo_depth']}, credit timeout {c['credit_timeout']} cycles, credit audit "
+             f"{c['credit_audit']} cycles; kinds "
              f"{', '.join(c['kinds'])}.", ""]
     failed = [r for r in rows if r["status"] != "ok"]
     if failed:

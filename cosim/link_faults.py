@@ -65,12 +65,14 @@ CUT_CYCLES = (1, 3, 8, 13, 20, 30, 42, 44, 60, 80)
 #: Master-stall durations drawn from, cycles: shorter and longer than the short credit
 #: timeout (200 cycles, SHORT_TIMERS).
 STALL_CYCLES = (10, 50, 150, 190, 210, 300, 600, 1500)
-SHORT_TIMERS = {"reset_cycles": 60, "wait_cycles": 150, "credit_timeout": 200}
+SHORT_TIMERS = {"reset_cycles": 60, "wait_cycles": 150, "credit_timeout": 200,
+                "credit_audit": 400}
 SETTLE = 40             # both in Run this long before a fault
 TC_PERIOD = 97          # cycles between a's time-codes
 QUIET = 150             # an undetected fault is judged after this many cycles
 LIMIT = 6000            # a fault not recovered after this is a failure
 DRAIN = 120             # cycles a drained copy runs before its credit balance is read
+AUDIT_MARGIN = 10       # cycles of silence beyond the credit audit before a fault is judged
 _DATA, _EOP, _EEP = CharKind.DATA.value, CharKind.EOP.value, CharKind.EEP.value
 _HOST = ("crc_drop", "eep", "tc_sequence")
 
@@ -95,6 +97,12 @@ class _Host:
     counts: Counter = field(default_factory=Counter)
     last_tc: int | None = None
     frame_len: int = 0
+    pausing: bool = False       # start no new frame (the control cycle's silence)
+    idle: int = 0               # cycles in a row with nothing to offer while pausing
+
+    def silent(self) -> bool:
+        """Pausing and the last frame has gone: nothing to offer."""
+        return self.pausing and not self.queue
 
     def in_frame(self) -> bool:
         """Part of the frame being sent has gone."""
@@ -176,8 +184,10 @@ class LinkCampaign:
         for who, peer, key in (("a", "b", "ba"), ("b", "a", "ab")):
             o, h = out[who], self.hosts[who]
             live = self.stall.get(who, 0) <= self.cycle
-            payload = h.offer()
-            if o.tx_ready and live:
+            offering = live and not h.silent()
+            h.idle = h.idle + 1 if h.silent() else 0
+            payload = h.offer() if offering else 0
+            if o.tx_ready and offering:
                 h.queue.pop(0)
             if o.rx_valid and live:
                 before = h.accepted
@@ -188,7 +198,7 @@ class LinkCampaign:
             (cd, sd, fd), (cs, ss, fs) = fault.get(key, ((0, 0, 0), (0, 0, 0)))
             d = ((out[peer].d_out & ~cd) | sd) ^ fd
             s = ((out[peer].s_out & ~cs) | ss) ^ fs
-            self.codecs[who].step(d_in=d, s_in=s, tx_valid=int(live), tx_payload=payload,
+            self.codecs[who].step(d_in=d, s_in=s, tx_valid=int(offering), tx_payload=payload,
                                   rx_ready=int(live),
                                   link_start=1, tick_in=int(who == "a" and tick),
                                   time_in=self.tc)
@@ -307,19 +317,26 @@ class LinkCampaign:
         end = max([t0, *self.masks, *self.resets, *(c - 1 for c in self.stall.values())])
         went_down = False
         self.crossed = {"a": 0, "b": 0}
+        audit = self.params.get("credit_audit", 0)
         while self.cycle - t0 < LIMIT:
             self.step()
             went_down |= not self.running()
             if self.cycle <= end:
                 continue
             if went_down:
+                self._pause(False)
                 if self.running() and min(self.crossed.values()) >= 1:
                     break
                 if not self.running():
                     self.crossed = {"a": 0, "b": 0}
             elif self.cycle - t0 >= max(QUIET, self.params["credit_timeout"] + 60,
                                         end - t0 + QUIET):
-                break
+                # The control cycle's silence: both hosts end their frames and send nothing
+                # until the credit audit has looked (a latent credit skew shows there).
+                if not audit or min(h.idle for h in self.hosts.values()) > audit + AUDIT_MARGIN:
+                    break
+                self._pause(True)
+        self._pause(False)
         after = self.counters()
         moved = {k: after[k] - before[k] for k in after if after[k] != before[k]}
         prev, self.balance = self.balance, self.credit_balance()
@@ -331,6 +348,10 @@ class LinkCampaign:
                 "recovery_cycles": self.cycle - t0 if went_down else 0,
                 "corrupted": sum(h.corrupted for h in self.hosts.values()) - corrupted,
                 "credit_skew": skew}
+
+    def _pause(self, on: bool):
+        for h in self.hosts.values():
+            h.pausing = on
 
     def settle(self):
         """Both in Run for SETTLE cycles with traffic flowing."""

@@ -23,9 +23,10 @@ import enum
 
 __all__ = ["CharKind", "ControlCode", "LinkState", "ERROR_CLASSES",
            "DATA_BITS", "CONTROL_BITS", "NULL_BITS", "TIME_BITS", "GROUP_BITS", "NULL_PATTERN",
-           "FCT_CREDIT", "MAX_CREDIT", "CREDIT_TIMEOUT", "DEFAULT_SLOTS", "DEFAULT_RUN_DIV",
+           "FCT_CREDIT", "MAX_CREDIT", "CREDIT_TIMEOUT", "CREDIT_AUDIT",
+           "DEFAULT_SLOTS", "DEFAULT_RUN_DIV",
            "MAX_SLOTS", "MAX_BITS_PER_CYCLE", "min_div", "check_slots", "check_div",
-           "check_cycles",
+           "check_cycles", "rest_credit",
            "codec_params"]
 
 
@@ -63,10 +64,13 @@ class LinkState(enum.IntEnum):
 #: ``parity`` — parity check failed (§7.4); ``escape`` — ESC followed by ESC, EOP or EEP;
 #: ``credit`` — FCT beyond 56 outstanding, or an N-char beyond the credit given;
 #: ``sequence`` — FCT, N-char or time-code in a state where the standard forbids it;
-#: ``credit_timeout`` — inside a packet, credit we announced (FCTs sent) went unused for the
-#: credit timeout: the peer is starved of credit we believe it holds, i.e. an FCT of ours was
-#: lost on the line (docs/link.md "Lost FCTs"). The first five are the standard's; the last is
-#: ours, and recovers the credit the standard's way (Error-Reset, a new handshake).
+#: ``credit_timeout`` — credit went astray, by one of two rules of ours: inside a packet, credit
+#: we announced (FCTs sent) went unused for the credit timeout (the peer is starved of credit
+#: we believe it holds: an FCT of ours was lost on the line); or the credit audit: we sent no
+#: N-char for the audit time and still do not hold the credit a drained peer grants (an FCT of
+#: the peer's was lost, or one appeared that it never sent) (docs/link.md "Lost FCTs"). The
+#: first five are the standard's; the last is ours, and recovers the credit the standard's way
+#: (Error-Reset, a new handshake).
 ERROR_CLASSES = ("disconnect", "parity", "escape", "credit", "sequence", "credit_timeout")
 
 #: Line bits of a data character, a control character, a NULL and a time-code.
@@ -129,6 +133,29 @@ def check_cycles(cycles, name, minimum=1):
 #: its characters costs at most 5 cycles), far below anything a control period notices.
 CREDIT_TIMEOUT = 640
 
+#: Default credit audit, cycles (25.6 µs): after this long without sending an N-char, a
+#: transmitter must hold exactly the credit its peer grants once its receive FIFO is drained
+#: (:func:`rest_credit`). Far beyond the time a peer of the project needs to drain its FIFO and
+#: send its FCTs (≈ 100 cycles at the run rate) or to unblock a forwarding path held by a
+#: starved link further down (the credit timeout, then the restart's spill), far below anything
+#: a control period notices: the 1 ms cycle's links are silent for most of every period, so a
+#: lost FCT is found in the period it was lost in.
+CREDIT_AUDIT = 2 * CREDIT_TIMEOUT
+
+
+def rest_credit(rx_fifo_depth: int) -> tuple[int, int]:
+    """Credit a drained receiver of ``rx_fifo_depth`` entries has granted, as ``(low, high)``:
+    more than ``low``, at most ``high``.
+
+    The receiver sends an FCT while ``rx_credit ≤ 48`` and its FIFO has room for 8 more beyond
+    the credit and one entry in reserve (``level + rx_credit ≤ depth − 9``): with the FIFO empty
+    it stops at the first value above ``low = min(48, depth − 9)``, which is at most 8 above it
+    (the residue of ``rx_credit`` mod 8 depends on where the last packet ended). A peer built
+    with the same depth (the links of one chain are) holds that much once nothing is in flight.
+    """
+    low = min(MAX_CREDIT - FCT_CREDIT, rx_fifo_depth - FCT_CREDIT - 1)
+    return low, low + FCT_CREDIT
+
 
 #: Default SERDES: 6 line samples per 20 ns cycle (300 MS/s), and the default run rate: 2 slots
 #: per bit = 150 Mbit/s, two samples per bit (docs/link.md "Receiver margin").
@@ -138,13 +165,16 @@ DEFAULT_RUN_DIV = 2
 
 def codec_params(*, slots=DEFAULT_SLOTS, start_div=None, run_div=DEFAULT_RUN_DIV,
                  max_run_div=None, reset_cycles=320, wait_cycles=640,
-                 disconnect_cycles=43, rx_fifo_depth=64, credit_timeout=CREDIT_TIMEOUT):
+                 disconnect_cycles=43, rx_fifo_depth=64, credit_timeout=CREDIT_TIMEOUT,
+                 credit_audit=CREDIT_AUDIT):
     """Check the codec's parameters; return them with ``start_div`` (10 Mbit/s) and
     ``max_run_div`` (the slowest run rate the ``run_div`` port selects: ``start_div``, or
     ``run_div`` if that is slower) resolved.
 
     ``run_div`` is the reset value of the codec's run-rate port. ``credit_timeout`` 0 turns the
-    lost-FCT check off (for hosts that pause inside packets).
+    lost-FCT check off (for hosts that pause inside packets). ``credit_audit`` 0 turns the
+    credit audit off (for a peer whose receive FIFO is not ``rx_fifo_depth`` deep, or whose host
+    may leave characters in it for longer than the audit time).
     """
     check_slots(slots)
     if start_div is None:
@@ -169,7 +199,11 @@ def codec_params(*, slots=DEFAULT_SLOTS, start_div=None, run_div=DEFAULT_RUN_DIV
     if not _is_int(credit_timeout) or credit_timeout < 0:
         raise ValueError(f"Credit timeout must be an integer number of cycles, 0 (off) or "
                          f"more, not {credit_timeout!r}")
+    if not _is_int(credit_audit) or credit_audit < 0 or credit_audit == 1:
+        raise ValueError(f"Credit audit must be an integer number of cycles, 0 (off) or 2 or "
+                         f"more, not {credit_audit!r}")
     return dict(slots=slots, start_div=start_div, run_div=run_div, max_run_div=max_run_div,
                 reset_cycles=reset_cycles,
                 wait_cycles=wait_cycles, disconnect_cycles=disconnect_cycles,
-                rx_fifo_depth=rx_fifo_depth, credit_timeout=credit_timeout)
+                rx_fifo_depth=rx_fifo_depth, credit_timeout=credit_timeout,
+                credit_audit=credit_audit)

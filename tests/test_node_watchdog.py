@@ -202,3 +202,47 @@ def test_no_standstill_brakes_at_the_time_limit_and_says_so():
     assert all(o[5] and o[6] for o in rtl[trip + stop:])
     assert all(o[4] for o in rtl[trip:trip + stop + brake])
     assert not any(o[4] for o in rtl[trip + stop + brake:])
+
+
+def test_the_safe_stop_timers_are_24_bits_and_config_ignores_larger_values():
+    """STOP_CYCLES and BRAKE_CYCLES are 24-bit registers (0.336 s at 50 MHz; 32 bits did not
+    fit the XC2V1000, docs/node.md "Resources"): the gateware's CONFIG ignores a value of
+    2^24 or more, as the reference does, and the master refuses such a duration naming it."""
+    import pytest
+    from mrm_cosim.errors import InputError
+    from mrm_cosim.hdl.node.config import NodeConfig
+    from mrm_cosim.hdl.node.core_ref import NodeModel
+    from mrm_cosim.protocol.encoder import EncoderParams
+    from mrm_cosim.protocol.regs import Config
+    from mrm_cosim.protocol.safe_stop import SAFE_STOP_CYCLES_MAX, SafeStopParams
+
+    assert SAFE_STOP_CYCLES_MAX == (1 << 24) - 1
+    writes = [(Config.STOP_CYCLES, (1 << 24) - 1), (Config.BRAKE_CYCLES, 12_345),
+              (Config.STOP_CYCLES, 1 << 24), (Config.BRAKE_CYCLES, (1 << 32) - 1)]
+    dut = NodeConfig()
+    seen = []
+
+    async def bench(ctx):
+        for reg, value in writes:
+            ctx.set(dut.config.valid, 1)
+            ctx.set(dut.config.p.id, int(reg))
+            ctx.set(dut.config.p.value, value)
+            await ctx.tick()
+            ctx.set(dut.config.valid, 0)
+            seen.append((ctx.get(dut.stop_cycles), ctx.get(dut.brake_cycles)))
+
+    sim = Simulator(dut)
+    sim.add_clock(20e-9)
+    sim.add_testbench(bench)
+    run_simulation(sim, "config_timers")
+    want = [((1 << 24) - 1, 0), ((1 << 24) - 1, 12_345), ((1 << 24) - 1, 12_345),
+            ((1 << 24) - 1, 12_345)]
+    assert seen == want
+    model = NodeModel(encoder=EncoderParams())
+    for reg, value in writes:
+        model._config(0, reg, value)
+    assert (model.config[Config.STOP_CYCLES], model.config[Config.BRAKE_CYCLES]) == want[-1]
+    with pytest.raises(InputError, match="24-bit") as err:
+        SafeStopParams(stop_s=0.34)
+    assert err.value.field == "safe_stop.stop_s"
+    SafeStopParams(stop_s=SAFE_STOP_CYCLES_MAX / 50e6, brake_s=0.3)

@@ -42,6 +42,8 @@ def test_safe_stop_words_follow_the_durations_and_bad_values_name_their_field():
     for kw, field in (({"stop_s": -1e-3}, "safe_stop.stop_s"),
                       ({"brake_s": float("nan")}, "safe_stop.brake_s"),
                       ({"stop_s": 100.0}, "safe_stop.stop_s"),
+                      ({"stop_s": 0.34}, "safe_stop.stop_s"),      # 24-bit register: 0.3355 s
+                      ({"brake_s": 0.34}, "safe_stop.brake_s"),
                       ({"hold_hz": 0.0}, "safe_stop.hold_hz"),
                       ({"standstill": -1e-3}, "safe_stop.standstill"),
                       ({"standstill": 20.0}, "safe_stop.standstill"),

@@ -23,6 +23,13 @@ takes the link through Error-Reset, which recovers the credit as the standard re
 any link error: both counts restart from 0 and the handshake's FCTs set them again
 (docs/link.md "Lost FCTs").
 
+Credit audit: a lost FCT that never starves the peer (with a 64-entry FIFO it keeps 40-48
+credits) is found by the sender of the other direction. Once it has sent no N-char for
+``credit_audit`` cycles, the peer has drained its FIFO and granted all it grants at rest
+(:func:`~mrm_cosim.protocol.link.rest_credit`, for a peer of our FIFO depth), so ``tx_credit``
+must be in that window: below it an FCT of the peer's was lost, above it one appeared. Either is
+a ``credit_timeout`` error, recovered by the same restart.
+
 Link errors: every error sends the link through Error-Reset. A packet cut by the error is
 ended with an EEP in the receive FIFO, so it never looks good to the host; on the sending side
 the rest of the cut packet is taken from the host and dropped, up to and including its
@@ -31,16 +38,17 @@ EOP/EEP, so a fragment never starts a later packet.
 
 from amaranth import *
 from amaranth.lib import stream, wiring
-from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.wiring import In, Out
 
-from mrm_cosim.protocol.link import (CREDIT_TIMEOUT, DEFAULT_RUN_DIV, DEFAULT_SLOTS, FCT_CREDIT,
-                                     MAX_CREDIT, codec_params)
+from mrm_cosim.protocol.link import (CREDIT_AUDIT, CREDIT_TIMEOUT, DEFAULT_RUN_DIV,
+                                     DEFAULT_SLOTS, FCT_CREDIT, MAX_CREDIT, codec_params,
+                                     rest_credit)
 from mrm_cosim.units import CLOCK_HZ
 
 from ..helpers import rejecting
 from .chars import Char, CharKind, ErrorCounts, LinkState
 from .ds import DSReceiver
+from .fifo import BlockRamFIFO
 from .fsm import LinkFSM
 from .rx import CharReceiver
 
@@ -75,6 +83,9 @@ class Codec(wiring.Component):
     credit_timeout : int
         Cycles an open packet may pause while we count credit for the peer before that is a
         ``credit_timeout`` error (640 = 12.8 µs; 0: never).
+    credit_audit : int
+        Cycles without an N-char sent after which ``tx_credit`` must be what a drained peer of
+        the same FIFO depth grants, else a ``credit_timeout`` error (1280 = 25.6 µs; 0: never).
 
     Attributes
     ----------
@@ -112,13 +123,15 @@ class Codec(wiring.Component):
     def __init__(self, *, slots: int = DEFAULT_SLOTS, start_div: int | None = None,
                  run_div: int = DEFAULT_RUN_DIV, max_run_div: int | None = None,
                  reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
-                 rx_fifo_depth: int = 64, credit_timeout: int = CREDIT_TIMEOUT):
+                 rx_fifo_depth: int = 64, credit_timeout: int = CREDIT_TIMEOUT,
+                 credit_audit: int = CREDIT_AUDIT):
         with rejecting(self):
             params = codec_params(slots=slots, start_div=start_div, run_div=run_div,
                                   max_run_div=max_run_div, reset_cycles=reset_cycles,
                                   wait_cycles=wait_cycles,
                                   disconnect_cycles=disconnect_cycles,
-                                  rx_fifo_depth=rx_fifo_depth, credit_timeout=credit_timeout)
+                                  rx_fifo_depth=rx_fifo_depth, credit_timeout=credit_timeout,
+                                  credit_audit=credit_audit)
         self.run_div_init = params.pop("run_div")      # the port below is `run_div`
         for name, value in params.items():
             setattr(self, name, value)
@@ -144,6 +157,20 @@ class Codec(wiring.Component):
             "s_out":        Out(self.slots),
         })
 
+    def _credit_audit(self, m, err_audit, running, tx_sent):
+        """Drive ``err_audit``: silent for the audit time, we must hold a drained peer's
+        credit."""
+        if not self.credit_audit:
+            return
+        low, high = rest_credit(self.rx_fifo_depth)
+        silent = Signal(range(self.credit_audit))
+        m.d.comb += err_audit.eq(running & (silent == self.credit_audit - 1) &
+                                 ((self.tx_credit <= low) | (self.tx_credit > high)))
+        with m.If(~running | tx_sent):
+            m.d.sync += silent.eq(0)
+        with m.Elif(silent != self.credit_audit - 1):
+            m.d.sync += silent.eq(silent + 1)
+
     def elaborate(self, platform):
         m = Module()
 
@@ -154,8 +181,8 @@ class Codec(wiring.Component):
                                                     max_run_div=self.max_run_div)
         m.submodules.fsm = fsm = LinkFSM(reset_cycles=self.reset_cycles,
                                          wait_cycles=self.wait_cycles)
-        m.submodules.fifo = fifo = SyncFIFO(width=Char.as_shape().size,
-                                            depth=self.rx_fifo_depth)
+        m.submodules.fifo = fifo = BlockRamFIFO(width=Char.as_shape().size,
+                                                depth=self.rx_fifo_depth)
 
         state      = fsm.state
         running    = state == LinkState.RUN
@@ -206,6 +233,8 @@ class Codec(wiring.Component):
             m.d.comb += err_starved.eq(starving & (starved == self.credit_timeout - 1))
             m.d.sync += starved.eq(Mux(starving & ~err_starved, starved + 1, 0))
 
+        err_audit = Signal()        # driven below, with the transmitter
+
         with m.If(eep_pending):
             with m.If(fifo.w_rdy):
                 m.d.sync += [eep_pending.eq(0), rx_in_packet.eq(0)]
@@ -225,7 +254,7 @@ class Codec(wiring.Component):
             fsm.err_parity.eq(rx.err_parity),
             fsm.err_escape.eq(rx.err_escape),
             fsm.err_credit.eq(err_credit),
-            fsm.err_starved.eq(err_starved),
+            fsm.err_starved.eq(err_starved | err_audit),
             fsm.link_start.eq(self.link_start),
             fsm.auto_start.eq(self.auto_start),
             fsm.link_disable.eq(self.link_disable),
@@ -263,6 +292,8 @@ class Codec(wiring.Component):
                 m.d.sync += discard.eq(0)
         with m.Elif(leave_run & tx_in_after):
             m.d.sync += discard.eq(1)
+
+        self._credit_audit(m, err_audit, running, tx_sent)
 
         with m.If(~running):
             m.d.sync += tc_pending.eq(0)

@@ -14,9 +14,10 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from mrm_cosim.protocol.link import (CREDIT_TIMEOUT, DEFAULT_RUN_DIV, DEFAULT_SLOTS,
-                                     ERROR_CLASSES, FCT_CREDIT, GROUP_BITS, MAX_CREDIT,
-                                     NULL_PATTERN, CharKind, LinkState, codec_params, min_div)
+from mrm_cosim.protocol.link import (CREDIT_AUDIT, CREDIT_TIMEOUT, DEFAULT_RUN_DIV,
+                                     DEFAULT_SLOTS, ERROR_CLASSES, FCT_CREDIT, GROUP_BITS,
+                                     MAX_CREDIT, NULL_PATTERN, CharKind, LinkState,
+                                     codec_params, min_div, rest_credit)
 from mrm_cosim.protocol.packet import COUNTER_MAX
 
 __all__ = ["CodecRef", "CodecOutputs", "char_value", "char_fields", "saturating_sum_ref"]
@@ -69,12 +70,13 @@ class CodecRef:
     def __init__(self, *, slots: int = DEFAULT_SLOTS, start_div: int | None = None,
                  run_div: int = DEFAULT_RUN_DIV, max_run_div: int | None = None,
                  reset_cycles: int = 320, wait_cycles: int = 640, disconnect_cycles: int = 43,
-                 rx_fifo_depth: int = 64, credit_timeout: int = CREDIT_TIMEOUT):
+                 rx_fifo_depth: int = 64, credit_timeout: int = CREDIT_TIMEOUT,
+                 credit_audit: int = CREDIT_AUDIT):
         params = codec_params(slots=slots, start_div=start_div, run_div=run_div,
                               max_run_div=max_run_div, reset_cycles=reset_cycles,
                               wait_cycles=wait_cycles,
                               disconnect_cycles=disconnect_cycles, rx_fifo_depth=rx_fifo_depth,
-                              credit_timeout=credit_timeout)
+                              credit_timeout=credit_timeout, credit_audit=credit_audit)
         for name, value in params.items():
             setattr(self, name, value)
         self._limit = self.disconnect_cycles - 2
@@ -83,6 +85,7 @@ class CodecRef:
         self._div_mask = _range_mask(self.max_run_div + 1)
         self._min_div = min_div(self.slots)
         self._refill = -(-self.slots // self._min_div)     # most bits a cycle can take
+        self._rest = rest_credit(self.rx_fifo_depth)
         self.reset()
 
     def reset(self):
@@ -109,6 +112,7 @@ class CodecRef:
         self.tx_credit = self.rx_credit = 0
         self.eep_pending = self.rx_in_packet = 0
         self.starved = 0
+        self.silent = 0                     # cycles without an N-char sent (credit audit)
         self.discard = self.tx_in_packet = 0
         self.tc_pending = self.tc_value = 0
         self.fifo = [0] * self.rx_fifo_depth
@@ -203,6 +207,10 @@ class CodecRef:
         starving = (self.credit_timeout and running and self.rx_in_packet and
                     self.rx_credit != 0 and not got_nchar)
         err_starved = bool(starving and self.starved == self.credit_timeout - 1)
+        low, high = self._rest
+        err_starved = err_starved or bool(
+            self.credit_audit and running and self.silent == self.credit_audit - 1 and
+            not low < self.tx_credit <= high)
 
         # Link state machine.
         rx_error = err_disc or self.err_parity or self.err_escape
@@ -331,6 +339,13 @@ class CodecRef:
         else:
             self.eep_pending = int(bool(leave_run and rx_in_after))
             self.rx_in_packet = int(bool(rx_in_after))
+
+        # Credit audit: cycles without an N-char sent, saturating at the audit time.
+        if self.credit_audit:
+            if not running or tx_sent:
+                self.silent = 0
+            elif self.silent != self.credit_audit - 1:
+                self.silent += 1
 
         # Transmit-side packet bookkeeping.
         tx_in_after = (tx_kind == _DATA) if tx_take else self.tx_in_packet

@@ -2,8 +2,9 @@
 
 A CONFIG record (:class:`~protocol.regs.Config` id, int32 value; docs/node.md "Packets")
 writes one register at its last byte; a value out of a register's range is ignored (MODE
-≥ 3, TICK 0 or ≥ 2^16, PERIOD and DMP_STEP < 2 or ≥ 2^24, SYNC_WINDOW, COMMIT and STANDSTILL
-≥ 2^24, STANDSTILL_TICKS and STOP_TRAIL ≥ 2^16, DMP not a :class:`~protocol.regs.DmpControl` value).
+≥ 3, TICK 0 or ≥ 2^16, PERIOD and DMP_STEP < 2 or ≥ 2^24, SYNC_WINDOW, COMMIT, STANDSTILL,
+STOP_CYCLES and BRAKE_CYCLES ≥ 2^24, STANDSTILL_TICKS and STOP_TRAIL ≥ 2^16, DMP not a
+:class:`~protocol.regs.DmpControl` value).
 PRESET and PRIME are strobes to the encoder and the VDC sequencer; DMP is one of three
 strobes to the primitive generator's timing (:class:`~hdl.node.dmp_seq.DmpTiming`). Every
 register starts at :data:`~protocol.regs.CONFIG_DEFAULTS`.
@@ -58,7 +59,7 @@ class NodeConfig(wiring.Component):
         CONFIG DMP_STEP: cycles per step of the primitive generator.
     dmp_off, dmp_start, dmp_stop : Out(1)
         Strobes: CONFIG DMP = OFF, START, STOP (:class:`~protocol.regs.DmpControl`).
-    stop_cycles, brake_cycles : Out(32)
+    stop_cycles, brake_cycles : Out(24)
         The watchdog's safe stop: time limit of the hold before the brake, hold with the brake
         engaged (:mod:`~protocol.safe_stop`).
     standstill, standstill_ticks : Out(24), Out(16)
@@ -92,8 +93,8 @@ class NodeConfig(wiring.Component):
     dmp_off:      Out(1)
     dmp_start:    Out(1)
     dmp_stop:     Out(1)
-    stop_cycles:  Out(32, init=CONFIG_DEFAULTS[Config.STOP_CYCLES])
-    brake_cycles: Out(32, init=CONFIG_DEFAULTS[Config.BRAKE_CYCLES])
+    stop_cycles:  Out(24, init=CONFIG_DEFAULTS[Config.STOP_CYCLES])
+    brake_cycles: Out(24, init=CONFIG_DEFAULTS[Config.BRAKE_CYCLES])
     standstill:   Out(WORD, init=CONFIG_DEFAULTS[Config.STANDSTILL])
     standstill_ticks: Out(16, init=CONFIG_DEFAULTS[Config.STANDSTILL_TICKS])
     stop_trail:   Out(16, init=CONFIG_DEFAULTS[Config.STOP_TRAIL])
@@ -151,9 +152,11 @@ class NodeConfig(wiring.Component):
                     with m.If((value >= 2) & (value < (1 << 24))):
                         m.d.sync += self.dmp_step.eq(value)
                 with m.Case(Config.STOP_CYCLES):
-                    m.d.sync += self.stop_cycles.eq(value)
+                    with m.If(value < (1 << 24)):
+                        m.d.sync += self.stop_cycles.eq(value)
                 with m.Case(Config.BRAKE_CYCLES):
-                    m.d.sync += self.brake_cycles.eq(value)
+                    with m.If(value < (1 << 24)):
+                        m.d.sync += self.brake_cycles.eq(value)
                 with m.Case(Config.STANDSTILL):
                     with m.If(value < (1 << WORD)):
                         m.d.sync += self.standstill.eq(value)

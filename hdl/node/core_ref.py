@@ -657,7 +657,7 @@ class NodeModel:
                 self._landing = None
         elif reg == Config.PRIME:
             self.prime = True
-        elif reg in (Config.STOP_CYCLES, Config.BRAKE_CYCLES):
+        elif reg in (Config.STOP_CYCLES, Config.BRAKE_CYCLES) and value < (1 << 24):
             self.config[Config(reg)] = value
         elif reg == Config.STANDSTILL and value < (1 << 24):
             self.config[Config.STANDSTILL] = value

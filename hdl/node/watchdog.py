@@ -45,8 +45,9 @@ class Watchdog(wiring.Component):
         Torque decrement per tick in the tripped state (FORCE LSBs, unsigned).
     tau_min, tau_max : In(signed(24))
         Command limits (FORCE).
-    stop_cycles, brake_cycles : In(32)
-        The safe stop's time limit before the brake, and hold with the brake engaged, cycles.
+    stop_cycles, brake_cycles : In(24)
+        The safe stop's time limit before the brake, and hold with the brake engaged, cycles
+        (24 bits: 0.336 s at 50 MHz; CONFIG ignores larger values).
     velocity : In(signed(24))
         The encoder's velocity word, read at each ``tick`` (the joint engine's sample).
     standstill : In(24)
@@ -82,8 +83,8 @@ class Watchdog(wiring.Component):
     ramp:      In(WORD)
     tau_min:   In(signed(WORD))
     tau_max:   In(signed(WORD))
-    stop_cycles:  In(32)
-    brake_cycles: In(32)
+    stop_cycles:  In(24)
+    brake_cycles: In(24)
     velocity:  In(signed(WORD))
     standstill: In(WORD)
     standstill_ticks: In(16)
@@ -100,8 +101,9 @@ class Watchdog(wiring.Component):
         m = Module()
         silence = Signal(32)
         # cycles since the trip (0 in the first tripped cycle) until the brake engages, then
-        # cycles since the brake's first cycle (one counter for both phases)
-        since   = Signal(32)
+        # cycles since the brake's first cycle (one counter for both phases; as wide as the
+        # 24-bit timers it is compared with, saturating)
+        since   = Signal(24)
         braked  = Signal()              # the brake engaged in this trip
         by_limit = Signal()             # ... at the time limit
         run     = Signal(16)            # consecutive ticks at standstill so far
@@ -149,7 +151,7 @@ class Watchdog(wiring.Component):
                     since.eq(0),
                 ]
             with m.Else():
-                with m.If(since != (1 << 32) - 1):
+                with m.If(since != (1 << 24) - 1):
                     m.d.sync += since.eq(since + 1)
                 with m.If(~braked & self.tick):
                     m.d.sync += run.eq(Mux(still, run + 1, 0))

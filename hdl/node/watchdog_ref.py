@@ -43,9 +43,11 @@ the next cycle with the ``stop_cycles`` / ``brake_cycles`` / ``standstill`` of t
 
 from __future__ import annotations
 
-__all__ = ["SILENCE_MAX", "WatchdogModel"]
+__all__ = ["SILENCE_MAX", "SINCE_MAX", "WatchdogModel"]
 
 SILENCE_MAX = (1 << 32) - 1
+#: ``since`` saturates here: 24 bits, the width of the STOP_CYCLES / BRAKE_CYCLES registers.
+SINCE_MAX = (1 << 24) - 1
 
 
 class WatchdogModel:
@@ -96,7 +98,7 @@ class WatchdogModel:
                 self.braked = True
                 self.since = 0
             else:
-                self.since = min(self.since + 1, SILENCE_MAX)
+                self.since = min(self.since + 1, SINCE_MAX)
                 if not self.braked and tick:
                     self.run = self.run + 1 if still else 0
         if not armed:
