@@ -61,9 +61,11 @@ class Gains:
         once a period (default 1: all, the paper's VDC). The master sends the nodes
         ``q̇_r,1 = q̇_d,1 + w λ (q_d,1 − q_1)`` and propagates joint 1 at
         ``q̇_d,1 + w (q̇_1 − q̇_d,1)``, so ``K (V_r − V)`` and the differenced ``V̇_r`` carry
-        ``w`` times joint 1's error; at 0 the link level is a feedforward of joint 1's
-        desired motion and its feedback is the node's joint law alone (1 µs tick), out of the
-        1 ms sample-and-hold. Joints 2..n are unchanged.
+        ``w`` times joint 1's error; and node 1's uploaded link gains (both links' ``K``)
+        are ``w K`` in a VDC run, so the Link a force node 1 forms from its own measured
+        ``q̇_1`` once a period carries ``w`` of it too. At 0 the link level is a feedforward
+        of joint 1's desired motion and its feedback is the node's joint law alone (1 µs
+        tick), out of the 1 ms sample-and-hold. Joints 2..n are unchanged (nodes 2..n upload ``K``).
     """
 
     lam: float = 50.0
@@ -208,6 +210,11 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
            else hold_gains(safe_stop, _joint_inertia(robot)))
     home_counts = joint_counts(robot.home, counts_per_rad(robot.counts_per_rev))
     shifts = pid_shifts(robot, tick_cycles)
+    # VDC's base-joint share w (Gains.vdc_base_fb): node 1 forms its Link a force from its
+    # own measured joint-1 velocity, so its link gains are w K (w = 1: the paper's upload)
+    link_share = np.ones(robot.n)
+    if controller == "vdc":
+        link_share[0] = gains.vdc_base_fb
     for k, mod in enumerate(robot.modules):
         dest = k + 1
         peak = FORCE.encode(mod.type.peak_torque)
@@ -224,7 +231,8 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
         lo = np.minimum(0.7 * theta, 1.3 * theta)
         hi = np.maximum(0.7 * theta, 1.3 * theta)
         out += [(dest, ref.PacketType.PARAM, p) for p in
-                vdc_upload(theta, np.full((2, 6), gains.K), np.full((2, 13), gains.adapt),
+                vdc_upload(theta, np.full((2, 6), gains.K * link_share[k]),
+                           np.full((2, 13), gains.adapt),
                            lo, hi, period=period_cycles / CLOCK_HZ)]
         spec = ACTUATORS[mod.type.actuator]
         joint = JointParams.from_float(

@@ -1,7 +1,8 @@
 """The base joint's own controller settings (docs/experiments.md "Tuning": on the compliant
 plant joint 1's motor-side encoder sees the motor alone above the gear's anti-resonance):
 the PIDs' base-joint pole reaches joint 1 alone — in the node's uploads and in the master's
-1 kHz PID — VDC's ``vdc_base_fb`` scales joint 1's error in the master's link level alone,
+1 kHz PID — VDC's ``vdc_base_fb`` scales joint 1's error in the master's link level and node
+1's uploaded link gain alone,
 and the defaults are today's controllers."""
 
 from dataclasses import replace
@@ -102,6 +103,25 @@ def test_the_vdc_share_scales_joint_1s_error_in_every_links_velocity_error(seed)
     e1 = err(1.0)[0]
     np.testing.assert_allclose(err(0.3)[0], e0 + 0.3 * (e1 - e0), atol=1e-12)
     assert np.abs(e1 - e0).max() > 1e-3              # joint 1's error is really there at 1
+
+
+def test_the_vdc_share_scales_node_1s_uploaded_link_gain_alone():
+    """Node 1 forms its Link a force ``K (V_rA − V_A)`` from its own measured ``q̇_1``: its
+    uploaded ``K`` (both links) is ``w K``, so at ``w = 0`` none of joint 1's link-level
+    feedback is left; nodes 2–3 upload ``K``, and ``w = 1`` is the paper's upload, byte for
+    byte."""
+    g = replace(Gains(), K=60.0, vdc_base_fb=1.0)
+    paper = node_uploads(ROBOT, "vdc", g)
+    assert node_uploads(ROBOT, "vdc", replace(Gains(), K=60.0)) == paper
+    for w in (0.0, 0.25):
+        got = node_uploads(ROBOT, "vdc", replace(g, vdc_base_fb=w))
+        scaled = node_uploads(ROBOT, "vdc", replace(g, K=60.0 * w))
+        a, b, p = _by_node(got), _by_node(scaled), _by_node(paper)
+        assert a[1] == b[1] != p[1]                  # node 1: the uploads of K = w K
+        assert a[2] == p[2] and a[3] == p[3]         # nodes 2-3: K
+    # the PIDs' uploads do not depend on w
+    for c in ("pid-fpga", "pid-1khz"):
+        assert node_uploads(ROBOT, c, replace(g, vdc_base_fb=0.0)) == node_uploads(ROBOT, c, g)
 
 
 def test_the_settings_load_round_trip_and_default_to_todays_controllers():
