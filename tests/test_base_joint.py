@@ -127,9 +127,9 @@ def test_the_vdc_share_scales_node_1s_uploaded_link_gain_alone():
 def test_the_settings_load_round_trip_and_default_to_todays_controllers():
     d = Gains()
     assert (d.pid_fpga_base_hz, d.pid_1khz_base_hz, d.vdc_base_fb) == (0.0, 0.0, 1.0)
-    g = load(ROOT / "configs" / "table2.toml").gains
+    g = load(ROOT / "configs" / "table2-rigid.toml").gains
     assert (g.pid_fpga_base_hz, g.pid_1khz_base_hz, g.vdc_base_fb) == (0.0, 0.0, 1.0)
-    text = (ROOT / "configs" / "table2.toml").read_text().replace(
+    text = (ROOT / "configs" / "table2-rigid.toml").read_text().replace(
         "[gains]\n", "[gains]\npid_fpga_base_hz = 3.5\npid_1khz_base_hz = 2.0\n"
         "vdc_base_fb = 0.25\n")
     cfg = loads(text)
@@ -163,3 +163,28 @@ def test_the_compliant_table_carries_tuning_run_4s_choices():
                  "pid_fpga_hz = 19.9, pid_fpga_base_hz = 5.02",
                  "lam = 59.8, k_j = 15, K = 59.7, vdc_base_fb = 0.0016"):
         assert line in text
+
+
+def test_the_default_table_is_compliant_with_tuning_run_5s_choices():
+    """configs/table2.toml: the compliant plant and the gains tuning run 5 chose and wrote
+    (``--apply``), feasible for all three controllers, with their provenance; the rigid table
+    stays runnable (configs/table2-rigid.toml, the hand-chosen gains and the defaults)."""
+    cfg = load(ROOT / "configs" / "table2.toml")
+    g = cfg.gains
+    assert cfg.plant.joints == "compliant"
+    assert (g.pid_1khz_hz, g.pid_1khz_base_hz) == (13.2, 2.78)
+    assert (g.pid_fpga_hz, g.pid_fpga_base_hz) == (9.08, 4.46)
+    assert (g.lam, g.k_j, g.K, g.vdc_base_fb) == (20.0, 51.2, 38.9, 0.293)
+    text = (ROOT / "configs" / "table2.toml").read_text()
+    assert text.count(tune.PROVENANCE_MARK) == 1 and "NO FEASIBLE POINT" not in text
+    for line in ("budget 36 evaluations per controller (18 Latin hypercube",
+                 "gains.pid_1khz_hz = 13.2, gains.pid_1khz_base_hz = 2.78",
+                 "gains.pid_fpga_hz = 9.08, gains.pid_fpga_base_hz = 4.46",
+                 "gains.lam = 20, gains.k_j = 51.2, gains.K = 38.9, gains.vdc_base_fb = 0.293"):
+        assert line in text
+    rigid = load(ROOT / "configs" / "table2-rigid.toml")
+    assert rigid.plant.joints == "rigid"
+    assert (rigid.gains.lam, rigid.gains.k_j, rigid.gains.K) == (200.0, 60.0, 50.0)
+    assert (rigid.gains.pid_fpga_hz, rigid.gains.pid_1khz_hz) == (15.0, 5.0)
+    assert tune.load_tune_spec(ROOT / "configs" / "tuning" / "table2-rigid.toml").config[
+        "plant"]["joints"] == "rigid"
