@@ -92,7 +92,9 @@ def _compliant_run(cfg, controller, duration):
     uploads = node_uploads(robot, controller, cfg.gains,
                            period_cycles=cfg.timing.period_cycles)
     master = Master(robot, controller, _trajectory(robot, profile), robot.counts_per_rev,
-                    cfg.timing, lam=cfg.gains.lam, pid=pid_gains(robot, cfg.gains.pid_1khz_hz),
+                    cfg.timing, lam=cfg.gains.lam,
+                    pid=pid_gains(robot, cfg.gains.pid_1khz_hz, cfg.gains.pid_1khz_base_hz),
+                    base_fb=cfg.gains.vdc_base_fb,
                     uploads=uploads)
     plant = make_plant(robot, replace(cfg.plant, joints="compliant"), cfg.seed)
     plant.reset(robot.home)

@@ -10,7 +10,7 @@ folder plus its ``config.toml`` reproduces the run bit for bit::
                    current_bandwidth (Hz, optional), [plant.perturbation] links,
                    rotor_inertia, friction, spring (relative half-widths)
     [gains]        cosim.closed_loop.Gains: lam, k_j, K, adapt, pid_fpga_hz, pid_1khz_hz,
-                   friction_comp
+                   friction_comp, pid_fpga_base_hz, pid_1khz_base_hz, vdc_base_fb
     [timing]       master.cycle.MasterTiming: period_cycles, kinematics_cycles, force_cycles
 
 Every key is optional (defaults are the dataclasses' own); an unknown key, a wrong type or an
@@ -457,7 +457,11 @@ def _current_bandwidth(value) -> float:
 # Upper bounds keep every gain inside the node's fixed-point registers with margin.
 _GAIN_LIMITS = {"lam": (False, 1000.0), "k_j": (True, 500.0), "K": (True, 5000.0),
                 "adapt": (True, 100.0), "pid_fpga_hz": (False, PID_DESIGN_HZ),
-                "pid_1khz_hz": (False, 100.0), "friction_comp": (True, 2.0)}
+                "pid_1khz_hz": (False, 100.0), "friction_comp": (True, 2.0),
+                # the base joint's own PID poles (0: the others' pole) and the VDC link level's
+                # share of joint 1's velocity error (docs/experiments.md "Tuning")
+                "pid_fpga_base_hz": (True, PID_DESIGN_HZ), "pid_1khz_base_hz": (True, 100.0),
+                "vdc_base_fb": (True, 1.0)}
 
 
 def _gains(table: dict) -> Gains:

@@ -212,7 +212,9 @@ def run_probe(config, controller: str, backend: str, duration: float, seed: int,
             return out
 
     master = Probe(robot, controller, _trajectory(robot, profile), robot.counts_per_rev,
-                   timing, lam=gains.lam, pid=pid_gains(robot, gains.pid_1khz_hz),
+                   timing, lam=gains.lam,
+                   pid=pid_gains(robot, gains.pid_1khz_hz, gains.pid_1khz_base_hz),
+                   base_fb=gains.vdc_base_fb,
                    uploads=uploads, on_trip=safety.on_trip, rearm_blend=safety.rearm_blend)
     plant = make_plant(robot, config.plant, seed=seed)
     plant.reset(robot.home)

@@ -149,7 +149,8 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         uploads += dmp_uploads(robot, dmp, dmp_step_cycles, timing.period_cycles)
     # the master checks every Comm A against the uploads (CRC and count per node)
     master = Master(robot, controller, trajectory, robot.counts_per_rev, timing, lam=gains.lam,
-                    pid=pid_gains(robot, gains.pid_1khz_hz), uploads=uploads,
+                    pid=pid_gains(robot, gains.pid_1khz_hz, gains.pid_1khz_base_hz),
+                    base_fb=gains.vdc_base_fb, uploads=uploads,
                     references=references, on_trip=on_trip, rearm_blend=rearm_blend)
     plant = make_plant(robot, plant_config or PlantConfig(), seed=seed)
     plant.reset(robot.home)

@@ -487,7 +487,10 @@ def apply_gains(record: dict, config_path) -> str:
                len(out))
     done = set()
     for i in range(start + 1, end):
-        m = re.match(r"^(\s*)([A-Za-z_]+)(\s*=\s*)([^#\n]*?)(\s*)(#.*)?$", out[i].rstrip("\n"))
+        # a key may hold digits (pid_1khz_hz): without them the line was missed and the
+        # key appended a second time, which the TOML check refused
+        m = re.match(r"^(\s*)([A-Za-z_][A-Za-z0-9_]*)(\s*=\s*)([^#\n]*?)(\s*)(#.*)?$",
+                     out[i].rstrip("\n"))
         if m and m.group(2) in gains:
             value = repr(float(gains[m.group(2)]))
             comment = m.group(6) or ""

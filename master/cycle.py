@@ -53,7 +53,7 @@ from mrm_cosim.protocol.regs import (
     LINK_HEALTH, Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c, upload_check,
 )
 from mrm_cosim.master.recovery import ON_TRIP, Blend, fit_blend
-from mrm_cosim.master.vdc import propagate_forces, propagate_velocities
+from mrm_cosim.master.vdc import propagate_forces, propagate_velocities, required_velocities
 from mrm_cosim.models.robot import Robot
 from mrm_cosim.units import CLOCK_HZ
 
@@ -133,6 +133,9 @@ class Master:
     timing : MasterTiming
     lam : float, 1/s
         λ of the required joint velocity.
+    base_fb : float
+        VDC: the share of joint 1's velocity error the link level feeds back
+        (:attr:`~master.uploads.Gains.vdc_base_fb`; 1: all, the paper's VDC).
     pid : dict, optional
         ``kp``, ``ki``, ``kd`` arrays (N·m/rad, N·m/(rad·s), N·m·s/rad) of the 1 kHz PID.
     clock_hz : float
@@ -156,7 +159,11 @@ class Master:
     def __init__(self, robot: Robot, controller: str, trajectory, counts_per_rev,
                  timing: MasterTiming | None = None, lam: float = 50.0, pid=None,
                  clock_hz: float = float(CLOCK_HZ), uploads=None, references: str = "full",
-                 on_trip: str | None = None, rearm_blend: float = 0.2):
+                 on_trip: str | None = None, rearm_blend: float = 0.2, base_fb: float = 1.0):
+        if not 0.0 <= base_fb <= 1.0:
+            raise ValueError(f"base_fb must lie in [0, 1], not {base_fb!r}")
+        #: share of joint 1's velocity error fed back by the VDC's link level (Gains.vdc_base_fb)
+        self.base_fb = float(base_fb)
         if on_trip is not None and on_trip not in ON_TRIP:
             raise ValueError(f"on_trip must be one of {ON_TRIP} or None, not {on_trip!r}")
         if not rearm_blend > 0.0:
@@ -617,9 +624,9 @@ class Master:
         q_d, qd_d, qdd_d = self._references(t)
         send_at = now + self.timing.kinematics_cycles
         if self.controller == "vdc":
-            qd_r = qd_d + self.lam * (q_d - rec.q)
-            qdd_r = qdd_d + self.lam * (qd_d - rec.qd)
-            kin = propagate_velocities(self.robot, rec.q, rec.qd, qd_r, qdd_r)
+            qd_r, qdd_r, qd = required_velocities(q_d, qd_d, qdd_d, rec.q, rec.qd, self.lam,
+                                                  self.base_fb)
+            kin = propagate_velocities(self.robot, rec.q, qd, qd_r, qdd_r)
             prime = rec.index == 0
             actions = [self._packet(k + 1, PacketType.COMM_B,
                                     pack_comm_b(qd_r[k], kin[k].V_C, kin[k].Vr_C, prime))

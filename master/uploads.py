@@ -50,6 +50,22 @@ class Gains:
         VDC joint friction estimates ``θ̂_J`` (viscous, Coulomb) as this fraction of each
         actuator's nominal (catalogue-level) friction; 0: none. The plant's true friction
         differs from the nominal one by its perturbation, so 1 is a model, not the truth.
+    pid_fpga_base_hz, pid_1khz_base_hz : float
+        The base joint's (joint 1's) own pole for the node's and the master's PID; 0 (the
+        default): the same as the other joints' (``pid_fpga_hz``, ``pid_1khz_hz``). On the
+        compliant plant the motor-side encoder sees joint 1's motor alone above the gear's
+        anti-resonance, 32 x lighter than the motor + link inertia the pole is placed on
+        (docs/experiments.md "Tuning"), so joint 1 may need a pole of its own.
+    vdc_base_fb : float
+        The share (0..1) of joint 1's velocity error that the master's link level feeds back
+        once a period (default 1: all, the paper's VDC). The master sends the nodes
+        ``q̇_r,1 = q̇_d,1 + w λ (q_d,1 − q_1)`` and propagates joint 1 at
+        ``q̇_d,1 + w (q̇_1 − q̇_d,1)``, so ``K (V_r − V)`` and the differenced ``V̇_r`` carry
+        ``w`` times joint 1's error; and node 1's uploaded link gains (both links' ``K``)
+        are ``w K`` in a VDC run, so the Link a force node 1 forms from its own measured
+        ``q̇_1`` once a period carries ``w`` of it too. At 0 the link level is a feedforward
+        of joint 1's desired motion and its feedback is the node's joint law alone (1 µs
+        tick), out of the 1 ms sample-and-hold. Joints 2..n are unchanged (nodes 2..n upload ``K``).
     """
 
     lam: float = 50.0
@@ -59,6 +75,9 @@ class Gains:
     pid_fpga_hz: float = 15.0
     pid_1khz_hz: float = 5.0
     friction_comp: float = 0.0
+    pid_fpga_base_hz: float = 0.0
+    pid_1khz_base_hz: float = 0.0
+    vdc_base_fb: float = 1.0
 
 
 def _joint_inertia(robot: Robot) -> np.ndarray:
@@ -85,9 +104,13 @@ def hold_gains(params: SafeStopParams, inertia) -> dict:
     return triple_pole_gains(inertia, params.hold_hz)
 
 
-def pid_gains(robot: Robot, hz: float) -> dict:
-    """PID gains placing a triple pole at ``−2π·hz`` for each joint's nominal inertia."""
-    return triple_pole_gains(_joint_inertia(robot), hz)
+def pid_gains(robot: Robot, hz: float, base_hz: float = 0.0) -> dict:
+    """PID gains placing a triple pole at ``−2π·hz`` for each joint's nominal inertia; joint 1
+    (the base joint) at ``−2π·base_hz`` instead when ``base_hz`` is positive (0: ``hz``)."""
+    poles = np.full(robot.n, float(hz))
+    if base_hz > 0:
+        poles[0] = base_hz
+    return triple_pole_gains(_joint_inertia(robot), poles)
 
 
 #: The closed-loop bandwidth the nodes' PID gain words are sized for (Hz): the largest triple
@@ -183,10 +206,15 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
     # The PID words: the node's PID where it runs it, else the safe stop's hold gains (a
     # tracking gain a run never uses must not stop it: gains.pid_fpga_hz is bounded for the
     # pid-fpga runs alone).
-    pid = (pid_gains(robot, gains.pid_fpga_hz) if controller == "pid-fpga"
+    pid = (pid_gains(robot, gains.pid_fpga_hz, gains.pid_fpga_base_hz) if controller == "pid-fpga"
            else hold_gains(safe_stop, _joint_inertia(robot)))
     home_counts = joint_counts(robot.home, counts_per_rad(robot.counts_per_rev))
     shifts = pid_shifts(robot, tick_cycles)
+    # VDC's base-joint share w (Gains.vdc_base_fb): node 1 forms its Link a force from its
+    # own measured joint-1 velocity, so its link gains are w K (w = 1: the paper's upload)
+    link_share = np.ones(robot.n)
+    if controller == "vdc":
+        link_share[0] = gains.vdc_base_fb
     for k, mod in enumerate(robot.modules):
         dest = k + 1
         peak = FORCE.encode(mod.type.peak_torque)
@@ -203,7 +231,8 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
         lo = np.minimum(0.7 * theta, 1.3 * theta)
         hi = np.maximum(0.7 * theta, 1.3 * theta)
         out += [(dest, ref.PacketType.PARAM, p) for p in
-                vdc_upload(theta, np.full((2, 6), gains.K), np.full((2, 13), gains.adapt),
+                vdc_upload(theta, np.full((2, 6), gains.K * link_share[k]),
+                           np.full((2, 13), gains.adapt),
                            lo, hi, period=period_cycles / CLOCK_HZ)]
         spec = ACTUATORS[mod.type.actuator]
         joint = JointParams.from_float(

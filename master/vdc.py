@@ -31,8 +31,8 @@ from mrm_cosim.models.robot import load_robot
 from mrm_cosim.models.spatial import rigid_body_wrench
 from mrm_cosim.errors import InputError
 
-__all__ = ["ModuleKinematics", "propagate_velocities", "link_required_forces",
-           "propagate_forces", "inverse_dynamics", "BASE_ACCELERATION"]
+__all__ = ["ModuleKinematics", "required_velocities", "propagate_velocities",
+           "link_required_forces", "propagate_forces", "inverse_dynamics", "BASE_ACCELERATION"]
 
 BASE_ACCELERATION = np.array([0.0, 0.0, 9.81, 0.0, 0.0, 0.0])
 
@@ -76,6 +76,30 @@ class ModuleKinematics:
     Vr_A: np.ndarray
     dVr_C: np.ndarray
     dVr_A: np.ndarray
+
+
+def required_velocities(q_d, qd_d, qdd_d, q, qd, lam: float, base_fb: float = 1.0):
+    """The master's required joint velocities and accelerations for the link level, and the
+    actual velocities it propagates: ``(q̇_r, q̈_r, q̇)``, each shape (n,).
+
+    ``q̇_r = q̇_d + λ (q_d − q)``, ``q̈_r = q̈_d + λ (q̇_d − q̇)`` and ``q̇`` the measured one
+    (the paper's VDC) — except joint 1 (the base joint) when ``base_fb`` (``w``, 0..1,
+    ``Gains.vdc_base_fb``) is below 1: ``q̇_r,1 = q̇_d,1 + w λ (q_d,1 − q_1)``,
+    ``q̈_r,1 = q̈_d,1 + w λ (q̇_d,1 − q̇_1)`` and the propagated ``q̇_1 = q̇_d,1 + w (q̇_1 −
+    q̇_d,1)``, so every link's ``V_r − V`` (and the nodes' differenced ``V̇_r``) carries ``w``
+    times joint 1's error. At ``w = 0`` the link level is a feedforward of joint 1's desired
+    motion: joint 1's feedback is the node's joint law alone, every 1 µs, not through the
+    master's 1 ms sample-and-hold (docs/experiments.md "Tuning")."""
+    qd_r = qd_d + lam * (q_d - q)
+    qdd_r = qdd_d + lam * (qd_d - qd)
+    if base_fb == 1.0:
+        return qd_r, qdd_r, qd
+    w = base_fb
+    qd_r, qdd_r, qd_p = qd_r.copy(), qdd_r.copy(), np.array(qd, dtype=float)
+    qd_r[0] = qd_d[0] + w * lam * (q_d[0] - q[0])
+    qdd_r[0] = qdd_d[0] + w * lam * (qd_d[0] - qd[0])
+    qd_p[0] = qd_d[0] + w * (qd[0] - qd_d[0])
+    return qd_r, qdd_r, qd_p
 
 
 def propagate_velocities(robot, q, qd, qd_r, qdd_r) -> list[ModuleKinematics]:

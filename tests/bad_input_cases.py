@@ -155,6 +155,9 @@ CONFIG_FIELDS = [
     ("gains", "adapt", ["-1", "1e9"]),
     ("gains", "pid_fpga_hz", ["0", "1e6"]),
     ("gains", "friction_comp", ["-1", "3"]),
+    ("gains", "pid_fpga_base_hz", ["-1", "1e6", '"5"']),
+    ("gains", "pid_1khz_base_hz", ["-1", "1e6"]),
+    ("gains", "vdc_base_fb", ["-0.1", "1.5", "nan"]),
     ("timing", "period_cycles", ["0", "-50000", "1.5", "25250"]),
 ]
 for section, key, values in CONFIG_FIELDS:

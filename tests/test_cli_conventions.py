@@ -52,8 +52,8 @@ def _config_file(tmp_path, controllers=("pid-fpga", "vdc")) -> Path:
 # --- mrm run track is the vdc row of mrm run table2 ------------------------------------
 def test_track_with_the_default_config_is_the_vdc_row_of_table2(tmp_path, capsys):
     """Same duration and seed, model backend: the same trace hash. ``track`` reads the
-    same configs/table2.toml as ``table2`` (gains λ = 200, k_j = 60, K = 50, not the code's
-    defaults), and writes the resolved configuration, which loads back equal."""
+    same configs/table2.toml as ``table2`` (the tuned gains λ = 20, k_j = 51.2, K = 38.9, not
+    the code's defaults), and writes the resolved configuration, which loads back equal."""
     vdc_only = tmp_path / "vdc.toml"
     vdc_only.write_text(ec.load().to_toml().replace(
         'controllers = ["pid-1khz", "pid-fpga", "vdc"]', 'controllers = ["vdc"]'))
@@ -66,7 +66,7 @@ def test_track_with_the_default_config_is_the_vdc_row_of_table2(tmp_path, capsys
     assert track["trace_sha256"] == table["trace_sha256"]
     resolved = ec.load(tmp_path / "track" / "config.toml")
     assert resolved == ec.load(tmp_path / "t2" / "config.toml")
-    assert resolved.gains == ec.load().gains and resolved.gains.lam == 200.0
+    assert resolved.gains == ec.load().gains and resolved.gains.lam == 20.0
 
 
 def test_track_takes_its_experiment_from_config(tmp_path, monkeypatch):

@@ -191,3 +191,21 @@ def test_a_two_seed_sweep_prints_the_distribution_table(tmp_path):
         assert float(cell) == pytest.approx(np.percentile(rho, q), rel=1e-3)
     for r in rows:                          # the tuning's figures are kept for every point
         assert {"max_torque_ratio", "hold_error_rad", "hold_ripple_rad"} <= set(r["figures"])
+
+
+def test_apply_replaces_a_key_with_digits_in_place(tmp_path):
+    """``pid_1khz_hz`` (a digit in its name) is rewritten on its own line, its comment kept:
+    the key pattern once missed it and appended it a second time, an invalid TOML."""
+    config = tmp_path / "table2.toml"
+    shutil.copy(TABLE2, config)
+    chosen = {"gains": {"gains.pid_1khz_hz": 13.2, "gains.pid_1khz_base_hz": 2.78},
+              "objective": -2.0, "feasible": True, "k": 0}
+    record = {"spec": "t", "spec_path": str(tmp_path / "t.toml"), "date": "d", "commit": "c",
+              "seeds": [3000], "held_out_seeds": [0], "amplitudes": [0.04],
+              "trajectory_duration": 0.4, "hold": 0.2, "set": {}, "budget": 1, "initial": 1,
+              "constraints": {}, "controllers": {"pid-1khz": {"chosen": chosen}}}
+    text = tune.apply_gains(record, config)
+    assert [line.split("#")[0].strip() for line in text.splitlines()
+            if line.startswith("pid_1khz_hz")] == ["pid_1khz_hz = 13.2"]
+    g = load(config).gains
+    assert (g.pid_1khz_hz, g.pid_1khz_base_hz) == (13.2, 2.78)
