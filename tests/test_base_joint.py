@@ -149,16 +149,22 @@ def test_the_shipped_tuning_space_gives_every_controller_one_base_joint_setting(
     assert spec.space["vdc"]["gains.vdc_base_fb"] == (0.0, 1.0)
 
 
+def _compliant_table(name: str):
+    """A shipped Table 2 config on the compliant plant: its gains as ``((1 kHz PID pole, base
+    pole), (FPGA PID pole, base pole), (λ, k_j, K, w))`` and its text."""
+    path = ROOT / "configs" / name
+    cfg = load(path)
+    assert cfg.plant.joints == "compliant", name
+    g = cfg.gains
+    return (((g.pid_1khz_hz, g.pid_1khz_base_hz), (g.pid_fpga_hz, g.pid_fpga_base_hz),
+             (g.lam, g.k_j, g.K, g.vdc_base_fb)), path.read_text())
+
+
 def test_the_compliant_table_carries_tuning_run_4s_choices():
     """configs/table2-compliant.toml: the gains its provenance block names (docs/experiments.md
     "What the tuning found on the compliant plant", run 4), on the compliant plant."""
-    cfg = load(ROOT / "configs" / "table2-compliant.toml")
-    g = cfg.gains
-    assert cfg.plant.joints == "compliant"
-    assert (g.pid_1khz_hz, g.pid_1khz_base_hz) == (8.73, 2.74)
-    assert (g.pid_fpga_hz, g.pid_fpga_base_hz) == (19.9, 5.02)
-    assert (g.lam, g.k_j, g.K, g.vdc_base_fb) == (59.8, 15.0, 59.7, 0.0016)
-    text = (ROOT / "configs" / "table2-compliant.toml").read_text()
+    gains, text = _compliant_table("table2-compliant.toml")
+    assert gains == ((8.73, 2.74), (19.9, 5.02), (59.8, 15.0, 59.7, 0.0016))
     for line in ("pid_1khz_hz = 8.73, pid_1khz_base_hz = 2.74", "FEASIBLE (7 of 24)",
                  "pid_fpga_hz = 19.9, pid_fpga_base_hz = 5.02",
                  "lam = 59.8, k_j = 15, K = 59.7, vdc_base_fb = 0.0016"):
@@ -169,13 +175,8 @@ def test_the_default_table_is_compliant_with_tuning_run_5s_choices():
     """configs/table2.toml: the compliant plant and the gains tuning run 5 chose and wrote
     (``--apply``), feasible for all three controllers, with their provenance; the rigid table
     stays runnable (configs/table2-rigid.toml, the hand-chosen gains and the defaults)."""
-    cfg = load(ROOT / "configs" / "table2.toml")
-    g = cfg.gains
-    assert cfg.plant.joints == "compliant"
-    assert (g.pid_1khz_hz, g.pid_1khz_base_hz) == (13.2, 2.78)
-    assert (g.pid_fpga_hz, g.pid_fpga_base_hz) == (9.08, 4.46)
-    assert (g.lam, g.k_j, g.K, g.vdc_base_fb) == (20.0, 51.2, 38.9, 0.293)
-    text = (ROOT / "configs" / "table2.toml").read_text()
+    gains, text = _compliant_table("table2.toml")
+    assert gains == ((13.2, 2.78), (9.08, 4.46), (20.0, 51.2, 38.9, 0.293))
     assert text.count(tune.PROVENANCE_MARK) == 1 and "NO FEASIBLE POINT" not in text
     for line in ("budget 36 evaluations per controller (18 Latin hypercube",
                  "gains.pid_1khz_hz = 13.2, gains.pid_1khz_base_hz = 2.78",
