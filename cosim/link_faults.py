@@ -10,10 +10,13 @@ the codec at hand that is faster per fault (docs/faults.md says why not the Veri
 
 Traffic: each side streams frames back to back (2-byte sequence number, 1-byte length, 8-40
 random bytes, CRC-16, EOP) and reads everything it receives; a sends a time-code every
-``TC_PERIOD`` cycles. A receiving host keeps a frame that ends in EOP with a good CRC
-(*accepted*), drops the others; an accepted frame that is not exactly the frame sent under its
-sequence number is *corrupted-accepted*, the failure that must never happen. A time-code that is
-not the last one plus 1 (mod 64) is counted by the host (§8.12's rule, which our nodes apply).
+``TC_PERIOD`` cycles. Each fault's window ends with a silence (both hosts end their frames and
+offer nothing for the credit audit + ``AUDIT_MARGIN`` cycles), as the control cycle's links
+fall silent between phases, so the codecs' credit audit looks at what the fault left. A
+receiving host keeps a frame that ends in EOP with a good CRC (*accepted*), drops the others;
+an accepted frame that is not exactly the frame sent under its sequence number is
+*corrupted-accepted*, the failure that must never happen. A time-code that is not the last one
+plus 1 (mod 64) is counted by the host (§8.12's rule, which our nodes apply).
 
 A fault starts on a quiet link (both in Run for ``SETTLE`` cycles), on one line (a → b or
 b → a), as masks on the line samples (``(clear, set, flip)`` per slot for D and S, like
