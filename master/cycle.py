@@ -52,8 +52,11 @@ from mrm_cosim.protocol.fixed import FORCE, VEL
 from mrm_cosim.protocol.regs import (
     LINK_HEALTH, Status, pack_comm_b, pack_comm_d, parse_comm_a, parse_comm_c, upload_check,
 )
+from mrm_cosim.errors import InputError
 from mrm_cosim.master.recovery import ON_TRIP, Blend, fit_blend
-from mrm_cosim.master.vdc import propagate_forces, propagate_velocities, required_velocities
+from mrm_cosim.master.vdc import (
+    force_chain, joint_rotations, required_velocities, velocity_chain,
+)
 from mrm_cosim.models.robot import Robot
 from mrm_cosim.units import CLOCK_HZ
 
@@ -69,6 +72,9 @@ CONTROLLERS = ("vdc", "pid-fpga", "pid-1khz")
 REFERENCES = ("full", "hold", "dmp")
 #: Comm A fields that count problems in a node (cumulative since its reset)
 NODE_COUNTERS = ("overruns", "sync_errors", "late_d", "errors", "dmp_overruns")
+#: Comm A status bits of a node that tripped (as an int: one ``&`` a reply, not three enum ops)
+_TRIP_BITS = int(Status.TRIPPED | Status.HOLD | Status.BRAKE)
+_FRESH = int(Status.FRESH)
 
 
 @dataclass(frozen=True)
@@ -472,7 +478,7 @@ class Master:
         self._a[src] = a
         self.node_counters[src] = {k: a[k] for k in NODE_COUNTERS}
         self.node_link[src] = {k: a[k] for k in LINK_HEALTH}
-        if a["status"] & (Status.TRIPPED | Status.HOLD | Status.BRAKE):
+        if int(a["status"]) & _TRIP_BITS:
             self.tripped.add(src)
         exp = self.expected_uploads
         if exp is not None and (a["upload_crc"], a["upload_count"]) != exp[src]:
@@ -624,13 +630,18 @@ class Master:
         q_d, qd_d, qdd_d = self._references(t)
         send_at = now + self.timing.kinematics_cycles
         if self.controller == "vdc":
-            qd_r, qdd_r, qd = required_velocities(q_d, qd_d, qdd_d, rec.q, rec.qd, self.lam,
-                                                  self.base_fb)
-            kin = propagate_velocities(self.robot, rec.q, qd, qd_r, qdd_r)
+            qd_r, qdd_r, qd = (x.tolist() for x in required_velocities(
+                q_d, qd_d, qdd_d, rec.q, rec.qd, self.lam, self.base_fb))
+            for name, x in (("qd", qd), ("qd_r", qd_r), ("qdd_r", qdd_r)):
+                if not all(map(math.isfinite, x)):      # (the trajectory's values)
+                    raise InputError(name, "must be finite")
+            chain = velocity_chain(self.robot, rec.q, qd, qd_r, qdd_r)
             prime = rec.index == 0
-            actions = [self._packet(k + 1, PacketType.COMM_B,
-                                    pack_comm_b(qd_r[k], kin[k].V_C, kin[k].Vr_C, prime))
-                       for k in range(self.n)]
+            actions = []
+            for k, (C, _) in enumerate(chain):
+                V_C, Vr_C, _ = C.tolist()
+                actions.append(self._packet(k + 1, PacketType.COMM_B,
+                                            pack_comm_b(qd_r[k], V_C, Vr_C, prime)))
             request = self._packet(BROADCAST, PacketType.COMM_C, b"\0")
             self._req[PacketType.COMM_C] = request.seq
             actions.append(request)
@@ -651,15 +662,17 @@ class Master:
 
     def _after_c(self, now: int) -> None:
         rec = self._rec
-        F = np.array([[FORCE.decode(w) for w in self._c[k + 1][0] + self._c[k + 1][1]]
-                      for k in range(self.n)])
-        for k in range(self.n):
-            if not self._c[k + 1][2] & Status.FRESH:
+        c = [self._c[k + 1] for k in range(self.n)]
+        # every FORCE word decoded at once (FORCE.decode's value: a power-of-two scale, exact)
+        F = np.ldexp(np.array([F_a + F_b for F_a, F_b, _, _ in c], dtype=float), FORCE.lsb)
+        for _, _, status, _ in c:
+            if not int(status) & _FRESH:
                 self.unexpected += 1       # forces not computed from this period's Comm B
-        _, tau_lr = propagate_forces(self.robot, rec.q, F[:, :6], F[:, 6:])
+        # the required force at every {A_k}; τ_Lr its z moment (propagate_forces, unchecked)
+        F_A = force_chain(self.robot, joint_rotations(rec.q), F[:, :6], F[:, 6:])
         # The counterbalance springs of Type II modules are part of the joint: their nominal
         # torque is known, so the joint needs τ_Lr less what the spring already gives.
-        tau_lr = tau_lr - self.robot.spring_torque(rec.q)
+        tau_lr = F_A[:, 5] - self.robot.spring_torque(rec.q)
         t = rec.index * self.dt
         q_d, qd_d, qdd_d = self._references(t)
         send_at = now + self.timing.force_cycles
@@ -669,17 +682,33 @@ class Master:
 
     def gravity_in_C(self, q) -> np.ndarray:
         """Upward gravity ``[0, 0, 9.81]`` expressed in every {C_k} at joint angles ``q``."""
-        frames = self.robot.link_frames(q)
-        # R_Cᵀ (0, 0, 9.81) is 9.81 times R_C's third row (the other products are zeros)
-        return np.array([T_C[2, :3] * 9.81 for T_C, _ in frames])
+        # R_Cᵀ (0, 0, 9.81) is 9.81 times R_C's third row (the other products are zeros).
+        # R_C by Robot.link_frames' products (T_C = T_A,k−1 · mount_k, T_A = T_C · Rz(q_k)),
+        # its joint transforms built at once
+        robot = self.robot
+        c, s = [math.cos(x) for x in q], [math.sin(x) for x in q]    # (robot.rot_z's)
+        H = np.zeros((self.n, 4, 4))
+        H[:, 0, 0] = c
+        H[:, 0, 1] = [-x for x in s]
+        H[:, 1, 0] = s
+        H[:, 1, 1] = c
+        H[:, 2, 2] = H[:, 3, 3] = 1.0
+        T = np.eye(4)
+        rows = []
+        for k in range(self.n):
+            T_C = T @ robot.mount_transform(k)
+            rows.append(T_C[2, :3])
+            T = T_C @ H[k]
+        return np.array(rows) * 9.81
 
     def _comm_d(self, tau, q, q_d, qd_d, qdd_d) -> list[Send]:
         # Gravity for the next period's VDC run, at the angles expected then.
-        g = self.gravity_in_C(q + self.dt * (qd_d + self.lam * (q_d - q)))
+        g = self.gravity_in_C(q + self.dt * (qd_d + self.lam * (q_d - q))).tolist()
+        tau, q_d, qd_d, qdd_d = (np.asarray(x, dtype=float).tolist()
+                                 for x in (tau, q_d, qd_d, qdd_d))
         return [self._packet(k + 1, PacketType.COMM_D,
-                             pack_comm_d(tau[k], g[k], q_d[k], qd_d[k], qdd_d[k],
-                                         int(self.counts_per_rev[k])))
-                for k in range(self.n)]
+                             pack_comm_d(tau[k], g[k], q_d[k], qd_d[k], qdd_d[k], int(cpr)))
+                for k, cpr in enumerate(self.counts_per_rev.tolist())]
 
     def initial_packets(self, q0) -> list[Send]:
         """Comm D before period 0: gravity for the first VDC run, zero torque, rest."""

@@ -31,8 +31,9 @@ from mrm_cosim.models.robot import load_robot
 from mrm_cosim.models.spatial import rigid_body_wrench
 from mrm_cosim.errors import InputError
 
-__all__ = ["ModuleKinematics", "required_velocities", "propagate_velocities",
-           "link_required_forces", "propagate_forces", "inverse_dynamics", "BASE_ACCELERATION"]
+__all__ = ["ModuleKinematics", "required_velocities", "propagate_velocities", "velocity_chain",
+           "link_required_forces", "propagate_forces", "force_chain", "joint_rotations",
+           "inverse_dynamics", "BASE_ACCELERATION"]
 
 BASE_ACCELERATION = np.array([0.0, 0.0, 9.81, 0.0, 0.0, 0.0])
 
@@ -116,26 +117,40 @@ def propagate_velocities(robot, q, qd, qd_r, qdd_r) -> list[ModuleKinematics]:
     robot = load_robot(robot)
     q, qd, qd_r, qdd_r = (_vec(robot, x, name) for x, name in
                           ((q, "q"), (qd, "qd"), (qd_r, "qd_r"), (qdd_r, "qdd_r")))
-    # The master runs this every period: the three chains (V, V_r, V̇_r) go through each
-    # mount as one 3×6 product (rows are the vectors: ``S @ U = (Uᵀ Sᵀ)ᵀ``) and through each
-    # joint as a 6×3 product with Rz (``diag(Rz, Rz)ᵀ`` on each [v; ω]), not as nine 6×6 ones.
+    return [ModuleKinematics(C[0], A[0], C[1], A[1], C[2], A[2])
+            for C, A in velocity_chain(robot, q, qd.tolist(), qd_r.tolist(), qdd_r.tolist())]
+
+
+def velocity_chain(robot, q, qd, qd_r, qdd_r) -> list[tuple[np.ndarray, np.ndarray]]:
+    """:func:`propagate_velocities` without its checks, for the master's once-a-period call:
+    per module the rows ``(V_C, Vr_C, dVr_C)`` and ``(V_A, Vr_A, dVr_A)`` as two 3×6 arrays.
+
+    ``q`` an array (rad), ``qd``, ``qd_r``, ``qdd_r`` sequences of floats, all of ``robot.n``
+    finite values.
+    """
+    # The three chains (V, V_r, V̇_r) go through each mount as one 3×6 product (rows are the
+    # vectors: ``S @ U = (Uᵀ Sᵀ)ᵀ``) and through each joint as a 6×3 product with Rz
+    # (``diag(Rz, Rz)ᵀ`` on each [v; ω]), not as nine 6×6 ones. (The products stay numpy's:
+    # BLAS may fuse and order their sums its own way, and the nodes get these floats.)
+    Rz = joint_rotations(q)
     S = np.zeros((3, 6))
     S[2] = BASE_ACCELERATION
     out = []
     for k in range(robot.n):
         C = S @ _mount_U_of(robot, k)                   # rows V_C, Vr_C, dVr_C
-        A = (C.reshape(6, 3) @ _rot_z(q[k])).reshape(3, 6)  # Uqᵀ of each row
+        A = (C.reshape(6, 3) @ Rz[k]).reshape(3, 6)     # Uqᵀ of each row
         qd_k = qd[k]
-        a0, a1, a3, a4 = A[1, 0], A[1, 1], A[1, 3], A[1, 4]  # Uqᵀ Vr_C, for the Z term
+        a0, a1, _, a3, a4, _ = A[1].tolist()            # Uqᵀ Vr_C, for the Z term
+        # + z q̇ (q̇_r, q̈_r) on each row's ω_z, and − q̇ Z Uqᵀ Vr_C with
+        # Z Uqᵀ Vr_C = (−a1, a0, 0, −a4, a3, 0) on the last
         A[0, 5] += qd_k
         A[1, 5] += qd_r[k]
-        # − q̇ Z Uqᵀ Vr_C with Z Uqᵀ Vr_C = (−a1, a0, 0, −a4, a3, 0)
         A[2, 0] -= qd_k * -a1
         A[2, 1] -= qd_k * a0
         A[2, 3] -= qd_k * -a4
         A[2, 4] -= qd_k * a3
         A[2, 5] += qdd_r[k]
-        out.append(ModuleKinematics(C[0], A[0], C[1], A[1], C[2], A[2]))
+        out.append((C, A))
         S = A
     return out
 
@@ -143,6 +158,20 @@ def propagate_velocities(robot, q, qd, qd_r, qdd_r) -> list[ModuleKinematics]:
 def _rot_z(q: float) -> np.ndarray:
     c, s = np.cos(q), np.sin(q)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def joint_rotations(q) -> np.ndarray:
+    """Every joint's ``Rz(q_k)``, as one (n, 3, 3) array: ``[_rot_z(q_k) for k]``, built with
+    one ``cos`` and one ``sin`` over ``q`` (the same floats: each element is the same ufunc's
+    result)."""
+    c, s = np.cos(q), np.sin(q)
+    R = np.zeros((len(c), 3, 3))
+    R[:, 0, 0] = c
+    R[:, 0, 1] = -s
+    R[:, 1, 0] = s
+    R[:, 1, 1] = c
+    R[:, 2, 2] = 1.0
+    return R
 
 
 def link_required_forces(theta_a, theta_b, kin: ModuleKinematics, K_a=None, K_b=None):
@@ -192,16 +221,24 @@ def propagate_forces(robot, q, F_a, F_b):
     robot = load_robot(robot)
     q = _vec(robot, q, "q")
     F_a, F_b = np.asarray(F_a, dtype=float), np.asarray(F_b, dtype=float)
-    F_A = np.zeros((robot.n, 6))
-    F_C_next = np.zeros(6)
-    for k in reversed(range(robot.n)):
+    F_A = force_chain(robot, joint_rotations(q), F_a, F_b)
+    return F_A, F_A[:, 5].copy()
+
+
+def force_chain(robot, Rz, F_a, F_b) -> np.ndarray:
+    """:func:`propagate_forces`'s ``F_A`` without its checks, for the master's once-a-period
+    call: ``Rz`` the joints' rotations (``joint_rotations(q)``), ``F_a``, ``F_b`` (n, 6) arrays."""
+    n = robot.n
+    F_A = np.zeros((n, 6))
+    F_C_next = None
+    for k in reversed(range(n)):
         F = F_a[k].copy()
-        if k + 1 < robot.n:
+        if F_C_next is not None:
             F += _mount_U_of(robot, k + 1) @ F_C_next
         F_A[k] = F
         # U_q F = [Rz f; Rz m]: the rows of F as 3-vectors times Rzᵀ
-        F_C_next = F_b[k] + (F.reshape(2, 3) @ _rot_z(q[k]).T).ravel()
-    return F_A, F_A[:, 5].copy()
+        F_C_next = F_b[k] + (F.reshape(2, 3) @ Rz[k].T).ravel()
+    return F_A
 
 
 def inverse_dynamics(robot, q, qd, qdd) -> np.ndarray:
