@@ -55,7 +55,7 @@ from mrm_cosim.protocol.regs import (
 from mrm_cosim.errors import InputError
 from mrm_cosim.master.recovery import ON_TRIP, Blend, fit_blend
 from mrm_cosim.master.vdc import (
-    force_chain, joint_rotations, required_velocities, velocity_chain,
+    force_chain, joint_rotations, mounts, required_velocities, velocity_chain,
 )
 from mrm_cosim.models.robot import Robot
 from mrm_cosim.units import CLOCK_HZ
@@ -683,9 +683,8 @@ class Master:
     def gravity_in_C(self, q) -> np.ndarray:
         """Upward gravity ``[0, 0, 9.81]`` expressed in every {C_k} at joint angles ``q``."""
         # R_Cᵀ (0, 0, 9.81) is 9.81 times R_C's third row (the other products are zeros).
-        # R_C by Robot.link_frames' products (T_C = T_A,k−1 · mount_k, T_A = T_C · Rz(q_k)),
-        # its joint transforms built at once
-        robot = self.robot
+        # R_C by Robot.link_frames' products (T_C = T_A,k−1 · mount_k, T_A = T_C · Rz(q_k),
+        # BLAS's, through ndarray.dot), the joint transforms built at once
         c, s = [math.cos(x) for x in q], [math.sin(x) for x in q]    # (robot.rot_z's)
         H = np.zeros((self.n, 4, 4))
         H[:, 0, 0] = c
@@ -695,10 +694,10 @@ class Master:
         H[:, 2, 2] = H[:, 3, 3] = 1.0
         T = np.eye(4)
         rows = []
-        for k in range(self.n):
-            T_C = T @ robot.mount_transform(k)
+        for M, H_k in zip(mounts(self.robot)[0], H, strict=True):
+            T_C = T.dot(M)
             rows.append(T_C[2, :3])
-            T = T_C @ H[k]
+            T = T_C.dot(H_k)
         return np.array(rows) * 9.81
 
     def _comm_d(self, tau, q, q_d, qd_d, qdd_d) -> list[Send]:

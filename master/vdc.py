@@ -60,6 +60,19 @@ def _mount_U_of(robot, k: int) -> np.ndarray:
     return hit[1]
 
 
+def mounts(robot) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Every mount's transform and its 6×6 velocity transform:
+    ``([robot.mount_transform(k)], [_mount_U_of(robot, k)])`` for k = 0 … n−1, memoised on
+    what the mounts are made of (the base's value, the modules: frozen), so the master's
+    chains look them up once a call (read them, do not write them)."""
+    key = (robot.base.tobytes(), *robot.modules)
+    hit = robot.__dict__.get("_mounts_all")
+    if hit is None or hit[0] != key:
+        Ts = [robot.mount_transform(k) for k in range(robot.n)]
+        hit = robot.__dict__["_mounts_all"] = (key, Ts, [_mount_U(T) for T in Ts])
+    return hit[1], hit[2]
+
+
 @dataclass
 class ModuleKinematics:
     """Actual and required 6-D velocities (and required accelerations) of one module's frames.
@@ -130,28 +143,27 @@ def velocity_chain(robot, q, qd, qd_r, qdd_r) -> list[tuple[np.ndarray, np.ndarr
     """
     # The three chains (V, V_r, V̇_r) go through each mount as one 3×6 product (rows are the
     # vectors: ``S @ U = (Uᵀ Sᵀ)ᵀ``) and through each joint as a 6×3 product with Rz
-    # (``diag(Rz, Rz)ᵀ`` on each [v; ω]), not as nine 6×6 ones. (The products stay numpy's:
-    # BLAS may fuse and order their sums its own way, and the nodes get these floats.)
+    # (``diag(Rz, Rz)ᵀ`` on each [v; ω]), not as nine 6×6 ones. The products stay BLAS's
+    # (which may fuse and order the sums its own way: the nodes get these floats), called
+    # through ``ndarray.dot``, the same BLAS call as ``@`` with less of numpy around it.
     Rz = joint_rotations(q)
     S = np.zeros((3, 6))
     S[2] = BASE_ACCELERATION
     out = []
-    for k in range(robot.n):
-        C = S @ _mount_U_of(robot, k)                   # rows V_C, Vr_C, dVr_C
-        A = (C.reshape(6, 3) @ Rz[k]).reshape(3, 6)     # Uqᵀ of each row
+    for k, U in enumerate(mounts(robot)[1]):
+        C = S.dot(U)                                    # rows V_C, Vr_C, dVr_C
+        V, Vr, dVr = C.reshape(6, 3).dot(Rz[k]).reshape(3, 6).tolist()   # Uqᵀ of each row
         qd_k = qd[k]
-        a0, a1, _, a3, a4, _ = A[1].tolist()            # Uqᵀ Vr_C, for the Z term
-        # + z q̇ (q̇_r, q̈_r) on each row's ω_z, and − q̇ Z Uqᵀ Vr_C with
-        # Z Uqᵀ Vr_C = (−a1, a0, 0, −a4, a3, 0) on the last
-        A[0, 5] += qd_k
-        A[1, 5] += qd_r[k]
-        A[2, 0] -= qd_k * -a1
-        A[2, 1] -= qd_k * a0
-        A[2, 3] -= qd_k * -a4
-        A[2, 4] -= qd_k * a3
-        A[2, 5] += qdd_r[k]
-        out.append((C, A))
-        S = A
+        # − q̇ Z Uqᵀ Vr_C with Z Uqᵀ Vr_C = (−a1, a0, 0, −a4, a3, 0), a = Uqᵀ Vr_C
+        dVr[0] -= qd_k * -Vr[1]
+        dVr[1] -= qd_k * Vr[0]
+        dVr[3] -= qd_k * -Vr[4]
+        dVr[4] -= qd_k * Vr[3]
+        V[5] += qd_k                                    # + z q̇, z q̇_r, z q̈_r
+        Vr[5] += qd_r[k]
+        dVr[5] += qdd_r[k]
+        S = np.array((V, Vr, dVr))                      # rows V_A, Vr_A, dVr_A
+        out.append((C, S))
     return out
 
 
@@ -228,16 +240,17 @@ def propagate_forces(robot, q, F_a, F_b):
 def force_chain(robot, Rz, F_a, F_b) -> np.ndarray:
     """:func:`propagate_forces`'s ``F_A`` without its checks, for the master's once-a-period
     call: ``Rz`` the joints' rotations (``joint_rotations(q)``), ``F_a``, ``F_b`` (n, 6) arrays."""
+    Us = mounts(robot)[1]
     n = robot.n
     F_A = np.zeros((n, 6))
     F_C_next = None
-    for k in reversed(range(n)):
+    for k in reversed(range(n)):                # (BLAS's products, as velocity_chain's)
         F = F_a[k].copy()
         if F_C_next is not None:
-            F += _mount_U_of(robot, k + 1) @ F_C_next
+            F += Us[k + 1].dot(F_C_next)
         F_A[k] = F
         # U_q F = [Rz f; Rz m]: the rows of F as 3-vectors times Rzᵀ
-        F_C_next = F_b[k] + (F.reshape(2, 3) @ Rz[k].T).ravel()
+        F_C_next = F_b[k] + F.reshape(2, 3).dot(Rz[k].T).ravel()
     return F_A
 
 
