@@ -225,6 +225,7 @@ class Master:
         self.node_link: dict[int, dict] = {}
         self._seq = 0
         self._pending: list[tuple[int, list[Send]]] = []   # (cycle, actions)
+        self._due: int | None = None    # the earliest cycle in _pending (None: it is empty)
         self._wake = 0           # no poll before this cycle has anything to do
         self._ref_at = None      # (t, references) of the last trajectory evaluation
         self._integral = np.zeros(self.n)
@@ -275,7 +276,7 @@ class Master:
         if now < self._wake:
             return []
         if self.ended is not None:
-            self._pending = []
+            self._pending, self._due = [], None
             self._wake = 1 << 62        # silent for good
             return []
         out = []
@@ -284,15 +285,19 @@ class Master:
             index = (now - self.start) // period
             if self._rec is None or index > self._rec.index:
                 out += self._new_period(index, self.start + index * period)
-        due = [a for c, a in self._pending if c <= now]
-        self._pending = [(c, a) for c, a in self._pending if c > now]
-        for actions in due:
-            out += actions
+        pending, due = [], None          # what stays, and the earliest of it
+        for c, actions in self._pending:
+            if c <= now:
+                out += actions
+            else:
+                pending.append((c, actions))
+                if due is None or c < due:
+                    due = c
+        self._pending, self._due = pending, due
         wake = None if self.start is None else (
             self.start + (max(now - self.start, -1) // period + 1) * period)
-        for c, _ in self._pending:
-            if wake is None or c < wake:
-                wake = c
+        if due is not None and (wake is None or due < wake):
+            wake = due
         self._wake = now + 1 if wake is None else wake
         return out
 
@@ -301,18 +306,19 @@ class Master:
         and splitting its steps at :meth:`next_due`: the latest end cycle up to which no step
         needs the master (its poll has nothing to do, no packet is due inside). Valid until the
         master is next called."""
-        due = self.next_due()
+        due = self._due
         end = self._wake - 1 + step
         return end if due is None or due > end else due
 
     def next_due(self) -> int | None:
         """The earliest cycle a computed packet is waiting for (None: none waits). A harness
         that polls on a coarser grid splits its step there, so packets leave when due."""
-        pending = self._pending
-        return min([c for c, _ in pending]) if pending else None
+        return self._due
 
     def _later(self, cycle: int, actions: list[Send]) -> None:
         self._pending.append((cycle, actions))
+        if self._due is None or cycle < self._due:
+            self._due = cycle
         if cycle < self._wake:
             self._wake = cycle
 
@@ -352,7 +358,7 @@ class Master:
         if self.ended is None:
             self.ended = reason
             self.recovery_log.append((now, f"ended: {reason}"))
-            self._pending = []
+            self._pending, self._due = [], None
 
     def finish(self, now: int) -> None:
         """The run ends at cycle ``now`` (both harnesses call this once, after their last
@@ -372,7 +378,7 @@ class Master:
         self._rec = PeriodRecord(index, start)
         self.records.append(self._rec)
         self._a, self._c = {}, {}
-        self._pending = []
+        self._pending, self._due = [], None
         request = self._packet(BROADCAST, PacketType.COMM_A, b"\0")
         self._req = {PacketType.COMM_A: request.seq}
         if getattr(self, "_expect_next", False):     # the uploads sent last period are in
@@ -403,26 +409,26 @@ class Master:
         if start is None:
             return
         period = self.timing.period_cycles
-        rec = None
+        lo = hi = start         # the period [lo, hi) whose record's strobes are ``seen``
+        seen = None
         for now, node, name in events:
-            if now < start:
-                continue
-            index = (now - start) // period
-            if rec is None or rec.index != index:
-                rec = None
+            if not lo <= now < hi:
+                if now < start:
+                    continue
+                index = (now - start) // period
+                lo = start + index * period
+                hi = lo + period
+                seen = None
                 for r in reversed(self.records):
                     if r.index == index:
-                        rec = r
+                        seen = r.node_events
                         break
                     if r.index < index:
                         break
-                if rec is None:
-                    continue
-            seen = rec.node_events
-            key = (name, node)
-            first = seen.get(key)
-            if first is None or now < first:
-                seen[key] = now
+            if seen is not None:
+                key = (name, node)
+                if seen.setdefault(key, now) > now:     # the first strobe in the period
+                    seen[key] = now
 
     # --- replies ---------------------------------------------------------------------------
     def stale(self, ptype: int, seq: int) -> bool:

@@ -86,7 +86,8 @@ class QuinticProfile:
         object.__setattr__(self, "qf", qf)
         object.__setattr__(self, "tf", tf)
         # for :meth:`at`, the master's once-a-period call: the constants of its formulas
-        object.__setattr__(self, "_at_consts", (delta, delta / tf, delta / tf**2, delta / tf**3))
+        object.__setattr__(self, "_at_consts", tuple(
+            x.tolist() for x in (delta, delta / tf, delta / tf**2, delta / tf**3)))
 
     @property
     def n_dof(self) -> int:
@@ -150,13 +151,14 @@ class QuinticProfile:
         each.
 
         The master evaluates its reference once a period: there the array machinery of
-        :meth:`evaluate` (a 1×n_dof broadcast, ``where``, ``clip``) costs more than the
-        arithmetic. This is the same formulas, in the same order of operations, on a scalar
-        ``τ`` — so the same floats (tests/test_quintic.py checks them bit for bit).
+        :meth:`evaluate` (a 1×n_dof broadcast, ``where``, ``clip``, an array operation per
+        factor) costs more than the arithmetic. This is the same formulas, in the same order of
+        operations, on a scalar ``τ`` and each joint's floats — elementwise, so the same floats
+        (tests/test_quintic.py checks them bit for bit).
         """
         t = float(t)
         tf = self.tf
-        d, d_tf, d_tf2, d_tf3 = self._at_consts
+        d, d_tf, d_tf2, d_tf3 = self._at_consts            # Δ, Δ/tf, Δ/tf², Δ/tf³ per joint
         tau = min(max(t / tf, 0.0), 1.0)
         u = 1.0 - tau
         # numpy's array ** 2 is a product; its array ** 3 is its own vectorised pow(), which
@@ -164,13 +166,18 @@ class QuinticProfile:
         tau2 = tau * tau
         tau3 = float((np.array([tau]) ** 3)[0])
         shape = tau3 * (10.0 - 15.0 * tau + 6.0 * tau2)
-        q = self.qf.copy() if tau >= 1.0 else self.q0 + d * shape
-        qd = d_tf * 30.0 * tau2 * (u * u)
-        qdd = d_tf2 * 60.0 * tau * u * (1.0 - 2.0 * tau)
-        if 0.0 <= t <= tf:                     # the jerk's one-sided values at 0 and tf
-            qddd = d_tf3 * (60.0 - 360.0 * tau + 360.0 * tau2)
+        if tau >= 1.0:
+            q = self.qf.copy()
         else:
-            qddd = np.zeros_like(d)
+            q = np.array([q0 + dk * shape for q0, dk in zip(self.q0.tolist(), d, strict=True)])
+        uu, v = u * u, 1.0 - 2.0 * tau
+        qd = np.array([c * 30.0 * tau2 * uu for c in d_tf])
+        qdd = np.array([c * 60.0 * tau * u * v for c in d_tf2])
+        if 0.0 <= t <= tf:                     # the jerk's one-sided values at 0 and tf
+            j = 60.0 - 360.0 * tau + 360.0 * tau2
+            qddd = np.array([c * j for c in d_tf3])
+        else:
+            qddd = np.zeros(len(d))
         return q, qd, qdd, qddd
 
     def summary(self) -> dict:
