@@ -163,8 +163,19 @@ class FastNode(NodeModel):
         runs only pieces that end before it. A step of the primitive generator is one, and so
         is the safe stop (:meth:`safe_stop_near`): the margin before a predicted trip, or −1
         while it may act (no plain piece at all)."""
-        special = self._special_plain()
+        # (the model backend asks every node before every plain piece: one call, locals)
         cfg = self.config
+        nb = self._nb
+        special = nb
+        lb = self._lb
+        if self._commit_seen != lb:
+            commit = lb + cfg[_COMMIT]
+            if commit < special:
+                special = commit
+        if self.arm_pending and self._pre_seen != nb and nb - 1 < special:
+            special = nb - 1
+        if self.dmp_running and self._dmp_due < special:
+            special = self._dmp_due                     # a step of the generator
         if cfg[_STOP] or cfg[_BRAKE]:
             if self.tripped:
                 return -1
@@ -173,19 +184,6 @@ class FastNode(NodeModel):
                         - _CYCLES_MAX - 2)
                 if near < special:
                     return near
-        return special
-
-    def _special_plain(self) -> int:
-        nb = self._nb
-        special = nb
-        if self._commit_seen != self._lb:
-            commit = self._lb + self.config[_COMMIT]
-            if commit < special:
-                special = commit
-        if self.arm_pending and self._pre_seen != nb and nb - 1 < special:
-            special = nb - 1
-        if self.dmp_running and self._dmp_due < special:
-            special = self._dmp_due                     # a step of the generator
         return special
 
     def _dead_run(self, first: int, k: int, step: int, cyc: int) -> None:
