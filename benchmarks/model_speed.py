@@ -11,11 +11,18 @@ CPU µs per simulated 1 ms period spent in the fast steps (the compiled path's p
 steps, plant and nodes together: :meth:`cosim.model.ModelBackend.fast_path`), the general
 steps' plant step, the master, the general steps' gateware side (nodes, encoders, link) and
 the rest of the loop. The timers add a little to each part.
+
+``--master`` times the master alone instead: the window's calls into it (``poll``,
+``on_packet``, ``on_node_events``, ``next_due``, ``quiet_end``, ``stale``) recorded once, then
+replayed on fresh masters with nothing else running between them; CPU µs per period, best of
+the rounds, and whether every call returned what it returned in the loop (the packets it
+sends, bit for bit).
 """
 
 from __future__ import annotations
 
 import argparse
+import pickle
 import statistics
 import time
 
@@ -100,18 +107,75 @@ def run(robot_name: str, kernel: str, cycles: int, breakdown: bool = False):
     return cpu / (cycles / CLOCK_HZ), result.trace_sha256, acc, result.violations
 
 
+_MASTER_CALLS = ("poll", "on_packet", "on_node_events", "next_due", "quiet_end", "stale")
+
+
+def master_alone(robot_name: str, cycles: int, rounds: int):
+    """The master's calls of one window replayed alone: ``(CPU s per round, best first; all
+    replies equal)``."""
+    from mrm_cosim.cosim.bench import bench_master_and_plant
+
+    robot = load_robot(robot_name)
+    loop = _loop(robot, "numba")
+    master = loop.master
+    log, state = [], {}
+    begin = master.begin
+
+    def mark(cycle):                # the master as period 0 finds it, and its calls from then
+        out = begin(cycle)
+        state["s"] = pickle.dumps({k: v for k, v in master.__dict__.items()
+                                   if k not in ("robot", "trajectory", "begin")})
+        depth = [0]                 # (the harness's calls only, not the master's own)
+        for name in _MASTER_CALLS:
+            f = getattr(master, name)
+
+            def logged(*a, _f=f, _name=name):
+                depth[0] += 1
+                try:
+                    out = _f(*a)
+                finally:
+                    depth[0] -= 1
+                if not depth[0]:
+                    log.append((_name, a, out))
+                return out
+            setattr(master, name, logged)
+        return out
+
+    master.begin = mark
+    loop.run(cycles)
+    times, same = [], True
+    for _ in range(rounds):
+        fresh, _ = bench_master_and_plant(robot)
+        fresh.__dict__.update(pickle.loads(state["s"]))
+        calls = [(getattr(fresh, name), a) for name, a, _ in log]
+        t = time.process_time()
+        outs = [f(*a) for f, a in calls]
+        times.append(time.process_time() - t)
+        same = same and all(o == e for o, (_, _, e) in zip(outs, log, strict=True))
+    return sorted(times), same
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robot", action="append", help="robot(s) (default mrm3 and mrm6)")
     ap.add_argument("--cycles", type=int, default=2_500_000, help="window after period 0")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--no-breakdown", action="store_true")
+    ap.add_argument("--master", action="store_true", help="time the master alone")
     args = ap.parse_args(argv)
     robots = args.robot or ["mrm3", "mrm6"]
+    periods = args.cycles / (CLOCK_HZ / 1000)
+    if args.master:
+        for robot in robots:
+            times, same = master_alone(robot, args.cycles, max(args.rounds, 3))
+            print(f"{robot}: the master alone, CPU µs per period: best "
+                  f"{times[0] / periods * 1e6:.1f}, median "
+                  f"{statistics.median(times) / periods * 1e6:.1f} "
+                  f"({len(times)} replays; replies {'equal' if same else 'DIFFERENT'})")
+        return 0
     for robot in robots:                        # compile / load the kernel, warm caches
         run(robot, "numba", 100_000)
         run(robot, "python", 100_000)
-    periods = args.cycles / (CLOCK_HZ / 1000)
     for robot in robots:
         rtf = {"numba": [], "python": []}
         hashes = {}
