@@ -65,12 +65,14 @@ def mounts(robot) -> tuple[list[np.ndarray], list[np.ndarray]]:
     ``([robot.mount_transform(k)], [_mount_U_of(robot, k)])`` for k = 0 … n−1, memoised on
     what the mounts are made of (the base's value, the modules: frozen), so the master's
     chains look them up once a call (read them, do not write them)."""
-    key = (robot.base.tobytes(), *robot.modules)
+    base, modules = robot.base.tobytes(), robot.modules
     hit = robot.__dict__.get("_mounts_all")
-    if hit is None or hit[0] != key:
+    if hit is None or hit[0] != base or len(hit[1]) != len(modules) or \
+            any(a is not b for a, b in zip(hit[1], modules, strict=True)):
         Ts = [robot.mount_transform(k) for k in range(robot.n)]
-        hit = robot.__dict__["_mounts_all"] = (key, Ts, [_mount_U(T) for T in Ts])
-    return hit[1], hit[2]
+        hit = robot.__dict__["_mounts_all"] = (base, tuple(modules), Ts,
+                                               [_mount_U(T) for T in Ts])
+    return hit[2], hit[3]
 
 
 @dataclass

@@ -17,7 +17,7 @@ import pytest
 
 from mrm_cosim.cosim.bench import bench_master_and_plant
 from mrm_cosim.master.vdc import (
-    _mount_U_of, force_chain, joint_rotations, propagate_forces, propagate_velocities,
+    _mount_U_of, force_chain, joint_rotations, mounts, propagate_forces, propagate_velocities,
     velocity_chain,
 )
 from mrm_cosim.models.robot import load_robot, robot_from_dict
@@ -105,3 +105,18 @@ def test_joint_rotations_are_rot_z():
     q = np.random.default_rng(3).uniform(-math.pi, math.pi, 1000)
     R = joint_rotations(q)
     assert all(np.array_equal(R[k], _rot_z(q[k])) for k in range(q.size))
+
+
+def test_mounts_follow_the_robot():
+    """The master's memo of the mounts follows a base moved in place and a module replaced."""
+    import dataclasses
+
+    robot = load_robot("mrm3")
+    before = mounts(robot)[0][0].copy()
+    robot.base[0, 3] += 0.25
+    robot.modules = [dataclasses.replace(robot.modules[0], twist=0.3)] + robot.modules[1:]
+    Ts, Us = mounts(robot)
+    assert not np.array_equal(Ts[0], before)
+    for k in range(robot.n):
+        assert np.array_equal(Ts[k], robot.mount_transform(k))
+        assert np.array_equal(Us[k], _mount_U_of(robot, k))
