@@ -17,6 +17,12 @@ the rest of the loop. The timers add a little to each part.
 replayed on fresh masters with nothing else running between them; CPU µs per period, best of
 the rounds, and whether every call returned what it returned in the loop (the packets it
 sends, bit for bit).
+
+``--against PYTHON`` measures this tree against another one, side by side in one run: the
+other tree's interpreter (its venv's ``python``, whose ``mrm_cosim`` is that tree) runs this
+script as a worker, and the windows alternate between the two processes, ABBA, so both see
+the same load; it prints each side's CPU RTF (best, median) and the median of the ratios pair
+by pair, with both trace hashes — on a shared machine the steadiest before/after figure.
 """
 
 from __future__ import annotations
@@ -24,6 +30,8 @@ from __future__ import annotations
 import argparse
 import pickle
 import statistics
+import subprocess
+import sys
 import time
 
 from mrm_cosim.cosim.closed_loop import ClosedLoop
@@ -155,6 +163,63 @@ def master_alone(robot_name: str, cycles: int, rounds: int):
     return sorted(times), same
 
 
+def _worker() -> int:
+    """``--worker``: warm up, say ``ready``, then one window per robot name read from stdin."""
+    for robot in ("mrm3", "mrm6"):
+        run(robot, "numba", 100_000)
+    print("ready", flush=True)
+    for line in sys.stdin:
+        if not line.strip():
+            break
+        robot, cycles = line.split()
+        rtf, digest, _, _ = run(robot, "numba", int(cycles))
+        print(f"{rtf!r} {digest}", flush=True)
+    return 0
+
+
+def against(python: str, robots, cycles: int, pairs: int) -> None:
+    """This tree and the one of interpreter ``python``, windows alternated ABBA (numba path)."""
+    other = subprocess.Popen([python, __file__, "--worker"], stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, text=True)
+    if other.stdout.readline().strip() != "ready":
+        raise SystemExit(f"{python}: the worker did not start")
+    for robot in ("mrm3", "mrm6"):
+        run(robot, "numba", 100_000)
+
+    def theirs(robot):
+        other.stdin.write(f"{robot} {cycles}\n")
+        other.stdin.flush()
+        rtf, digest = other.stdout.readline().split()
+        return float(rtf), digest
+
+    def ours(robot):
+        rtf, digest, _, _ = run(robot, "numba", cycles)
+        return rtf, digest
+
+    try:
+        for robot in robots:
+            rtf = {"this": [], "other": []}
+            hashes = {"this": set(), "other": set()}
+            ratios = []
+            for i in range(pairs):
+                got = {}
+                for side in (("other", "this") if i % 2 == 0 else ("this", "other")):
+                    got[side], h = (ours if side == "this" else theirs)(robot)
+                    rtf[side].append(got[side])
+                    hashes[side].add(h[:16])
+                ratios.append(got["this"] / got["other"])
+            q1, _, q3 = statistics.quantiles(ratios, n=4)
+            print(f"{robot}: {pairs} pairs of windows, CPU RTF best / median: other "
+                  f"{min(rtf['other']):.3f} / {statistics.median(rtf['other']):.3f}, this "
+                  f"{min(rtf['this']):.3f} / {statistics.median(rtf['this']):.3f}; this / other "
+                  f"pair by pair: median {statistics.median(ratios):.3f} (quartiles {q1:.3f}–"
+                  f"{q3:.3f}); trace hashes {sorted(hashes['other'])} / {sorted(hashes['this'])}")
+    finally:
+        other.stdin.write("\n")
+        other.stdin.flush()
+        other.wait()
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robot", action="append", help="robot(s) (default mrm3 and mrm6)")
@@ -162,9 +227,17 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--no-breakdown", action="store_true")
     ap.add_argument("--master", action="store_true", help="time the master alone")
+    ap.add_argument("--against", metavar="PYTHON",
+                    help="side by side with the tree of this interpreter (its venv's python)")
+    ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.worker:
+        return _worker()
     robots = args.robot or ["mrm3", "mrm6"]
     periods = args.cycles / (CLOCK_HZ / 1000)
+    if args.against:
+        against(args.against, robots, args.cycles, max(args.rounds, 2))
+        return 0
     if args.master:
         for robot in robots:
             times, same = master_alone(robot, args.cycles, max(args.rounds, 3))
