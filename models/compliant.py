@@ -313,9 +313,10 @@ class CompliantPlant(Plant):
         """For a compiled caller that runs :meth:`step` itself (the model backend's fast
         path, :meth:`cosim.model.ModelBackend.fast_path`), after :meth:`use_kernel`: ``(S, C,
         model, data, qm, vm, force, noise, stepped)``: the state and constant arrays,
-        pinocchio's model and data and the rows ``pin.aba`` reads, ``noise()`` (the next
-        step's current-sensor draw from the plant's stream) and :meth:`_stepped_by`. A step
-        is :meth:`_step_compiled`'s sequence: ``pre(S, C, cmd, noise(), dt, dt / 2,
+        pinocchio's model and data and the rows ``pin.aba`` reads, ``noise(k)`` (the next
+        ``k`` steps' current-sensor draws from the plant's stream, shape (k, n): the values
+        ``k`` steps draw one after the other) and :meth:`_stepped_by`. A step is
+        :meth:`_step_compiled`'s sequence: ``pre(S, C, cmd, noise(1)[0], dt, dt / 2,
         friction_on)`` (:func:`models.compliant_kernel_src.pre`), ``finish`` on ``pin.aba(model,
         data, qm, vm, force)``; and ``stepped(k)`` after ``k`` such steps, the brakes idle
         (:attr:`brake_idle`: the brake timers have nothing to advance)."""
@@ -324,8 +325,8 @@ class CompliantPlant(Plant):
         n, rng = self.n, self._rng
         S = self._S
 
-        def noise():
-            return rng.standard_normal(n)
+        def noise(steps: int):
+            return rng.standard_normal((steps, n))
 
         return (S, self._C, self._model, self._data, self._qm, self._vm, self._lf, noise,
                 self._stepped_by)
