@@ -333,7 +333,8 @@ class ModelBackend(GatewareSide):
         at the end of that step (the master is quiet in it: it learns of them at the step's
         end on either path). The same operations as :meth:`_run_kernel` and
         :meth:`Plant.step <models.plant.Plant.step>` in the same order, so the same results bit
-        for bit (tests/test_model_backend.py)."""
+        for bit (tests/test_model_backend.py, tests/test_model_kernel.py). The compliant plant
+        (:class:`~models.compliant.CompliantPlant`) has its own: :meth:`_fast_compliant`."""
         from mrm_cosim.models.compliant import CompliantPlant, compiled_kernel
         from mrm_cosim.models.plant import Plant
 
