@@ -427,7 +427,7 @@ _LANES = {"VDC": (-0.38, 0.36), "adapt": (-0.38, 0.36), "A↓": (0.02, 0.36),
 
 
 def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
-                  clock_hz: float = float(CLOCK_HZ)):
+                  clock_hz: float = float(CLOCK_HZ), skew: dict | None = None):
     """Gantt chart of one period's time-code/A/B/C/D exchange per node.
 
     Parameters
@@ -438,6 +438,9 @@ def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
         Length of the period (for the slack annotation: the period's end less the latest end
         of any bar or Comm D sent — with the nodes' events, the last Comm D taken by a node or
         the last VDC program ending, whichever is later).
+    skew : dict, optional
+        The run's period-start skew (:func:`cosim.skew.period_skew`), written under the title:
+        the nodes' period starts against the master's and against each other, max and RMS.
 
     Returns
     -------
@@ -480,9 +483,23 @@ def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
     ax.set_xlim(-0.02 * right - 1.0, 1.08 * right + 1.0)
     ax.grid(True, axis="x", lw=0.3)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
-    ax.set_title(title)
+    ax.set_title(title if skew is None else f"{title}\n{skew_line(skew)}", fontsize=10)
     _save(fig, path)
     return fig
+
+
+def skew_line(skew: dict) -> str:
+    """One line of a run's period-start skew (:func:`cosim.skew.period_skew`)."""
+    nm, bn = skew["node_vs_master"], skew["between_nodes"]
+    if nm["max_abs_cycles"] is None:
+        return "period starts: no node boundary seen"
+    text = (f"period starts over {skew['periods']} periods — nodes vs master: max "
+            f"{nm['max_abs_ns']:.0f} ns, RMS {nm['rms_ns']:.1f} ns")
+    if bn["max_cycles"] is not None:
+        text += f"; between nodes: max {bn['max_ns']:.0f} ns, RMS {bn['rms_ns']:.1f} ns"
+    if skew.get("missing"):
+        text += f"; {skew['missing']} unseen"
+    return text
 
 
 def plot_dmp_paths(path, results: dict, period_ms: int, title: str):

@@ -171,6 +171,20 @@ def test_timeline_plot_rows_bars_and_slack(tmp_path):
         x0, x1 = coll.get_paths()[0].vertices[:, 0].min(), coll.get_paths()[0].vertices[:, 0].max()
         assert (x0, x1) == pytest.approx((bar.start_us, bar.end_us))
     assert "slack to the period end 931.98 µs" in ax.get_xlabel()
+    assert ax.get_title() == "period 7"
+
+
+def test_timeline_plot_states_the_runs_period_start_skew(tmp_path):
+    from mrm_cosim.cosim.skew import period_skew
+
+    recs = [PeriodRecord(i, 1000 + 50_000 * i) for i in range(3)]
+    strobes = [(1000, 1), (1003, 2), (51_000 - 5, 1), (51_002, 2), (101_000, 1), (101_000, 2)]
+    skew = period_skew(recs, 2, 50_000, strobes=strobes)
+    fig = plots.plot_timeline(tmp_path / "g.png", _vdc_record(), 3, 50_000, "period 7",
+                              skew=skew)
+    title = fig.axes[0].get_title()
+    assert title.startswith("period 7\nperiod starts over 3 periods")
+    assert "nodes vs master: max 100 ns" in title and "between nodes: max 140 ns" in title
 
 
 def test_pick_period_prefers_the_requested_time_among_complete_ones():
