@@ -6,6 +6,13 @@ its own cycle a boundary (re-synchronisation), counted while armed (``sync_error
 Comm A). Nothing here depends on when a packet arrived, only on what it said (docs/node.md
 "Timing").
 
+With CONFIG TC_DISCIPLINE on (:mod:`~protocol.discipline`, issue 21 item 3) a time-code inside
+the window runs one step of a digital PLL: the signed phase error ``e = phase − target`` sets
+this period's last phase to ``PERIOD − 1 + adj``, ``adj`` a bounded share of ``e`` plus the
+carry of a fractional rate accumulator that integrates ``e``; ``tail`` then marks the last
+TICK cycles before the boundary (no control tick there). Off (0, the default), ``adj`` stays
+0 and ``tail`` 0: the free-running timer.
+
 At every boundary the timer keeps a :class:`Snapshot` of the node's live values — what a
 Comm A reports, and the velocity the VDC is given for the period.
 """
@@ -14,9 +21,20 @@ from amaranth import *
 from amaranth.lib import data, wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.discipline import (E_BITS, FRAC, GAIN_BITS, RATE_BITS, STEP_MAX,
+                                           TARGET_BITS)
 from mrm_cosim.protocol.fixed import WORD
 
-__all__ = ["PeriodTimer", "Snapshot"]
+__all__ = ["PeriodTimer", "Snapshot", "DisciplineWord"]
+
+
+class DisciplineWord(data.Struct):
+    """CONFIG TC_DISCIPLINE (:class:`~protocol.discipline.Discipline`)."""
+
+    target: TARGET_BITS     # phase the time-code should arrive at
+    kp:     GAIN_BITS       # phase gain 2^-kp
+    ki:     GAIN_BITS       # rate gain 2^-ki
+    enable: 1
 
 
 class Snapshot(data.Struct):
@@ -60,6 +78,13 @@ class PeriodTimer(wiring.Component):
     sync_errors : Out(16)
         Re-synchronisations while armed up to the last boundary, saturating (a
         re-synchronising boundary counts itself).
+    discipline : In(DisciplineWord)
+        CONFIG TC_DISCIPLINE; ``restart`` (In(1)) its write strobe, which clears the loop.
+    tick : In(16)
+        CONFIG TICK.
+    tail : Out(1)
+        The loop on and fewer than TICK cycles to the boundary (``phase + TICK > last + 1``):
+        no control tick.
     """
 
     period:       In(24)
@@ -74,20 +99,29 @@ class PeriodTimer(wiring.Component):
     live:         In(Snapshot)
     snapshot:     Out(Snapshot)
     sync_errors:  Out(16)
+    discipline:   In(DisciplineWord)
+    restart:      In(1)
+    tick:         In(16)
+    tail:         Out(1)
 
     def elaborate(self, platform):
         m = Module()
         phase = self.phase
         count = Signal(16)              # re-synchronisations while armed
+        adj   = Signal(signed(E_BITS + 2))      # this period's length − PERIOD
+        last  = Signal(24)                      # this period's last phase
         m.d.comb += [
+            last.eq(self.period - 1 + adj),
             self.resync.eq(self.time_code & (phase >= self.window)),
             self.boundary.eq((phase == 0) | self.resync),
-            self.pre_boundary.eq(phase == self.period - 1),
+            self.pre_boundary.eq(phase == last),
             self.elapsed.eq(Mux(self.boundary, 0, phase)),
+            self.tail.eq(self.discipline.enable & (phase + self.tick > last + 1)),
         ]
+        self._loop(m, adj)
         with m.If(self.boundary):
             m.d.sync += phase.eq(1)
-        with m.Elif(phase >= self.period - 1):
+        with m.Elif(phase >= last):
             m.d.sync += phase.eq(0)
         with m.Else():
             m.d.sync += phase.eq(phase + 1)
@@ -101,3 +135,36 @@ class PeriodTimer(wiring.Component):
                 self.sync_errors.eq(Mux(counted, count + 1, count)),
             ]
         return m
+
+    def _loop(self, m, adj):
+        """The discipline's step at an in-window time-code
+        (:func:`~protocol.discipline.loop_step`)."""
+        d = self.discipline
+        e_max = 1 << (E_BITS - 1)
+        f_max = 1 << (RATE_BITS - 1)
+        raw  = Signal(signed(26))
+        e    = Signal(signed(E_BITS))
+        pe   = Signal(signed(E_BITS))
+        p    = Signal(signed(E_BITS))
+        f    = Signal(signed(RATE_BITS))        # rate estimate, FRAC fraction bits
+        a    = Signal(FRAC)                     # the accumulator's fraction
+        fsum = Signal(signed(RATE_BITS + 1))
+        f2   = Signal(signed(RATE_BITS))
+        s    = Signal(signed(RATE_BITS + 1))
+        m.d.comb += [
+            raw.eq(self.phase - d.target),
+            e.eq(Mux(raw < -e_max, -e_max, Mux(raw >= e_max, e_max - 1, raw))),
+            pe.eq(e >> d.kp),
+            p.eq(Mux(pe < -STEP_MAX, -STEP_MAX, Mux(pe > STEP_MAX, STEP_MAX, pe))),
+            fsum.eq(f + ((e << FRAC) >> d.ki)),
+            f2.eq(Mux(fsum < -f_max, -f_max, Mux(fsum >= f_max, f_max - 1, fsum))),
+            s.eq(a + f2),
+        ]
+        with m.If(self.restart):
+            m.d.sync += [f.eq(0), a.eq(0), adj.eq(0)]
+        with m.Elif(self.time_code & ~self.resync & d.enable):
+            m.d.sync += [
+                f.eq(f2),
+                a.eq(s[:FRAC]),
+                adj.eq((s >> FRAC) + p),
+            ]
