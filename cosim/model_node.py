@@ -82,7 +82,7 @@ class FastNode(NodeModel):
     def _config(self, now: int, reg: int, value: int) -> None:
         if reg == Config.TC_DISCIPLINE and value:
             # the fast paths (and the compiled kernel) keep PERIOD-cycle periods and every tick
-            raise InputError("config.TC_DISCIPLINE",
+            raise InputError("config.tc_discipline",
                              f"{value:#x}: the model backend does not model the disciplined "
                              "period timer (issue 21 item 3); use the pysim or compiled "
                              "backend, or 0")
