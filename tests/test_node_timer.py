@@ -110,6 +110,19 @@ def test_off_is_the_free_running_timer():
     assert all(y - x == PERIOD - 5 for x, y in steps if y in ref.resyncs)
 
 
+def test_a_resync_with_the_loop_on_restarts_at_the_target_and_locks():
+    """A slow node (the master's period 5 cycles shorter) that left reset 100 cycles late: off,
+    it re-synchronises at every time-code (test above); on, the first time-code re-synchronises
+    it with the phase restarted at the target, and from then on every time-code arrives in
+    the window and the loop takes up the drift."""
+    w = Discipline(target=10, kp=1, ki=4).word
+    tcs = [c - 100 for c in arrivals(24, -5, 10, [0, 3, 1, 2])]
+    rtl, exp, ref = run_both(25 * PERIOD, tcs, {2: w}, 40)
+    assert_same(rtl, exp)
+    assert ref.resyncs == tcs[:1]
+    assert max(abs(e) for e in ref.errors[-10:]) <= 3
+
+
 @pytest.mark.parametrize("drift", [-5, 5])
 def test_locked_loop_holds_the_arrival_at_the_target(drift):
     """With the loop on, a drift of ±5 cycles per period (100 ppm of a 50,000-cycle period)

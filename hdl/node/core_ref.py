@@ -318,7 +318,9 @@ class NodeModel:
         self.cos_q, self.sin_q = sin_cos(count, self.encoder.counts_per_rev)
         self.fresh = False
         self._lb = c
-        self._nb = c + self._period_len()
+        if resync and self._disciplined:   # the arrival counts as phase `target` (acquisition)
+            self._lb = c - Discipline.from_word(self.config[Config.TC_DISCIPLINE]).target
+        self._nb = self._lb + self._period_len()
         self.boundaries.append(c)
         if self.events is not None:
             self.events.append((c, Ev.BOUNDARY))

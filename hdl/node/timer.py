@@ -10,8 +10,12 @@ With CONFIG TC_DISCIPLINE on (:mod:`~protocol.discipline`, issue 21 item 3) a ti
 the window runs one step of a digital PLL: the signed phase error ``e = phase − target`` sets
 this period's last phase to ``PERIOD − 1 + adj``, ``adj`` a bounded share of ``e`` plus the
 carry of a fractional rate accumulator that integrates ``e``; ``tail`` then marks the last
-TICK cycles before the boundary (no control tick there). Off (0, the default), ``adj`` stays
-0 and ``tail`` 0: the free-running timer.
+TICK cycles before the boundary (no control tick there). A re-synchronising time-code is
+still a boundary, but the phase restarts at ``target + 1`` instead of 1: the arrival cycle
+counts as phase ``target``, so the next boundary comes where the master's is (acquisition in
+one period; restarting at 1 a slow node's next time-code would arrive before its boundary and
+re-synchronise it again, every period). Off (0, the default), ``adj`` stays 0 and ``tail`` 0:
+the free-running timer.
 
 At every boundary the timer keeps a :class:`Snapshot` of the node's live values — what a
 Comm A reports, and the velocity the VDC is given for the period.
@@ -119,7 +123,9 @@ class PeriodTimer(wiring.Component):
             self.tail.eq(self.discipline.enable & (phase + self.tick > last + 1)),
         ]
         self._loop(m, adj)
-        with m.If(self.boundary):
+        with m.If(self.resync & self.discipline.enable):
+            m.d.sync += phase.eq(self.discipline.target + 1)     # acquisition at the target
+        with m.Elif(self.boundary):
             m.d.sync += phase.eq(1)
         with m.Elif(phase >= last):
             m.d.sync += phase.eq(0)

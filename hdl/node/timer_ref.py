@@ -34,8 +34,9 @@ class TimerModel:
         ones.
     f, a, adj : int
         The loop's rate estimate, fraction and this period's adjustment.
-    errors : list of int
-        The phase error ``phase − target`` of every time-code the loop took.
+    errors, rates : list of int
+        The phase error ``phase − target`` of every time-code the loop took, and the rate
+        estimate ``f`` after it.
     """
 
     period: int = 50_000
@@ -46,6 +47,7 @@ class TimerModel:
     boundaries: list = field(default_factory=list)
     resyncs: list = field(default_factory=list)
     errors: list = field(default_factory=list)
+    rates: list = field(default_factory=list)
     sync_errors: int = 0
     f: int = 0
     a: int = 0
@@ -89,13 +91,18 @@ class TimerModel:
         resync = p >= self.window
         if resync:
             self.nb = now
+        self.advance(now + 1)
+        if resync:
             self.resyncs.append(now)
             if self.armed:
                 self.sync_errors = min(self.sync_errors + 1, 0xFFFF)
-        self.advance(now + 1)
-        if not resync and self.enabled:
+            if self.enabled:        # the arrival cycle counts as phase `target`
+                self.lb = now - Discipline.from_word(self.word).target
+                self.nb = self.lb + self.last + 1
+        elif self.enabled:
             self.errors.append(p - Discipline.from_word(self.word).target)
             self.f, self.a, self.adj = loop_step(self.word, p, self.f, self.a)
+            self.rates.append(self.f)
             self._relength(now)
         return resync
 
