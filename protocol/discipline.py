@@ -1,16 +1,22 @@
 """The node's period timer disciplined by the time-code: CONFIG TC_DISCIPLINE's word and the
 loop's constants (docs/node.md "Timing", "Discipline"; issue 21 item 3).
 
-A digital PLL on the period, run once per time-code that arrives inside the sync window. Its
-input is the signed phase error ``e = phase − target`` (the timer's phase in the strobe's
+A digital PLL on the period, run once per time-code that arrives inside the sync window,
+which the loop makes two-sided: ``SYNC_WINDOW`` cycles after a boundary or before the next.
+Its input is the signed phase error ``e = phase − target`` (the timer's phase in the strobe's
 cycle minus the phase the time-code should arrive at: the link latency from the master, so
-that the node's boundary falls on the master's period start). Its outputs set the length of
+that the node's boundary falls on the master's period start); for a time-code before the
+boundary ``e = phase − (last + 1) − target``, ``last = PERIOD − 1 + adj`` the period's last
+phase. Its outputs set the length of
 the period the time-code arrived in, ``PERIOD + adj`` cycles, ``adj = r + p``:
 
 * **phase** ``p = clamp(e >> kp, ±STEP_MAX)``: a bounded share of the error, once;
 * **rate** ``r``: the integer part of a fractional accumulator. The rate estimate ``f``
   (cycles per period, :data:`FRAC` fraction bits) integrates the error,
-  ``f ← sat(f + ((e · 2^FRAC) >> ki))``; each time-code adds ``f`` to the fraction ``a``
+  ``f ← sat(f + ((e · 2^FRAC) >> ki))``, but only while the phase step is not clamped
+  (conditional integration: an error the step cannot take up in one period, a node far off
+  the master's grid, would wind the rate up by tens of cycles per period, and the node
+  would overshoot out of the window); each time-code adds ``f`` to the fraction ``a``
   (``FRAC`` bits) and the carry out is ``r``: ``s = a + f``, ``r = s >> FRAC``, ``a = s mod
   2^FRAC``. A node whose oscillator is δ fast needs ``PERIOD·δ`` more cycles per period (5 at
   100 ppm); the accumulator gives it as a mix of ⌊·⌋ and ⌈·⌉ periods.
@@ -18,7 +24,8 @@ the period the time-code arrived in, ``PERIOD + adj`` cycles, ``adj = r + p``:
 ``e`` is first saturated to ``[−2^(E_BITS−1), 2^(E_BITS−1))``, ``f`` to :data:`RATE_BITS`
 signed bits (± 2,048 cycles per period). Shifts are arithmetic (floor). Writing the register
 clears ``f``, ``a`` and ``adj``; the value 0 (the default) is today's free-running timer. A
-time-code outside the window still re-synchronises the timer (acquisition) and leaves the
+time-code outside the window still re-synchronises the timer (acquisition: the phase then
+restarts at ``target + 1``, so the arrival cycle counts as phase ``target``) and leaves the
 loop as it is. While the loop is on, no control tick comes within TICK cycles before a
 boundary: the period's last tick interval may then be up to TICK + |adj| cycles, never
 shorter than TICK, so the joint engine is idle at the boundary whatever ``adj`` is.
@@ -38,7 +45,7 @@ from dataclasses import dataclass
 from mrm_cosim.errors import InputError
 
 __all__ = ["FRAC", "RATE_BITS", "E_BITS", "STEP_MAX", "TARGET_BITS", "GAIN_BITS", "WORD_BITS",
-           "Discipline", "loop_step", "period_length"]
+           "Discipline", "loop_step", "period_length", "arrival"]
 
 #: fraction bits of the rate estimate ``f`` and of the accumulator ``a``
 FRAC = 8
@@ -97,7 +104,8 @@ def _clamp(x: int, lo: int, hi: int) -> int:
 
 
 def loop_step(word: int, phase: int, f: int, a: int) -> tuple[int, int, int]:
-    """One update of the loop for a time-code at ``phase`` (inside the window, the loop on).
+    """One update of the loop for a time-code at ``phase`` (inside the window, the loop on;
+    before a boundary: ``phase − (last + 1)``, negative).
 
     Returns
     -------
@@ -108,9 +116,11 @@ def loop_step(word: int, phase: int, f: int, a: int) -> tuple[int, int, int]:
     d = Discipline.from_word(word)
     e_max = 1 << (E_BITS - 1)
     e = _clamp(phase - d.target, -e_max, e_max - 1)
-    p = _clamp(e >> d.kp, -STEP_MAX, STEP_MAX)
+    pe = e >> d.kp
+    p = _clamp(pe, -STEP_MAX, STEP_MAX)
     f_max = 1 << (RATE_BITS - 1)
-    f = _clamp(f + ((e << FRAC) >> d.ki), -f_max, f_max - 1)
+    if p == pe:                                 # the step not clamped: integrate
+        f = _clamp(f + ((e << FRAC) >> d.ki), -f_max, f_max - 1)
     s = a + f
     return f, s & ((1 << FRAC) - 1), (s >> FRAC) + p
 
@@ -119,3 +129,14 @@ def period_length(period: int, adj: int) -> int:
     """Cycles from a boundary to the next: the timer's last phase is ``PERIOD − 1 + adj``
     modulo 2^24 (its width)."""
     return ((period - 1 + adj) % (1 << _PERIOD_BITS)) + 1
+
+
+def arrival(word: int, phase: int, window: int, last: int) -> tuple[bool, int]:
+    """A time-code at ``phase`` of a period whose last phase is ``last``: ``(resync,
+    loop_phase)``. ``resync``: outside the window (with the loop on, outside both sides of
+    it); ``loop_phase``: the phase the loop takes, ``phase − (last + 1)`` for an early one."""
+    if phase < window:
+        return False, phase
+    if Discipline.from_word(word).enable and phase + window > last:
+        return False, phase - last - 1
+    return True, phase

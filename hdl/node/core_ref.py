@@ -58,7 +58,7 @@ from functools import cache
 from mrm_cosim.hdl.link.codec_ref import saturating_sum_ref
 from mrm_cosim.protocol.crc import CRC16_INIT, crc16
 from mrm_cosim.protocol.discipline import WORD_BITS as DISCIPLINE_BITS
-from mrm_cosim.protocol.discipline import Discipline, loop_step, period_length
+from mrm_cosim.protocol.discipline import Discipline, arrival, loop_step, period_length
 from mrm_cosim.protocol.encoder import EncoderParams
 from mrm_cosim.protocol.fixed import POS, saturate
 from mrm_cosim.protocol.joint_program import MODES as JOINT_MODES
@@ -479,11 +479,14 @@ class NodeModel:
             self.events.append((now, Ev.TIMECODE))
         sample = self._sample or (lambda c: (0, 0, 0))
         phase = self.phase(now)
+        word = self.config[Config.TC_DISCIPLINE]
         resync = phase >= self.config[Config.SYNC_WINDOW]
+        if resync and word:                 # the loop's window is two-sided
+            resync, phase = arrival(word, phase, self.config[Config.SYNC_WINDOW],
+                                    self._period_len() - 1)
         if resync:
             self._boundary(now, sample, resync=True)
         self.run(now + 1)
-        word = self.config[Config.TC_DISCIPLINE]
         if not resync and word and self._disciplined:
             f, a, _ = self.tc_loop
             self.tc_loop = loop_step(word, phase, f, a)

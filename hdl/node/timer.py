@@ -10,7 +10,9 @@ With CONFIG TC_DISCIPLINE on (:mod:`~protocol.discipline`, issue 21 item 3) a ti
 the window runs one step of a digital PLL: the signed phase error ``e = phase − target`` sets
 this period's last phase to ``PERIOD − 1 + adj``, ``adj`` a bounded share of ``e`` plus the
 carry of a fractional rate accumulator that integrates ``e``; ``tail`` then marks the last
-TICK cycles before the boundary (no control tick there). A re-synchronising time-code is
+TICK cycles before the boundary (no control tick there). The window is then two-sided: a
+time-code up to SYNC_WINDOW cycles *before* a boundary is an early one, its error
+``phase − (last + 1) − target`` (negative), not a resync. A re-synchronising time-code is
 still a boundary, but the phase restarts at ``target + 1`` instead of 1: the arrival cycle
 counts as phase ``target``, so the next boundary comes where the master's is (acquisition in
 one period; restarting at 1 a slow node's next time-code would arrive before its boundary and
@@ -114,15 +116,19 @@ class PeriodTimer(wiring.Component):
         count = Signal(16)              # re-synchronisations while armed
         adj   = Signal(signed(E_BITS + 2))      # this period's length − PERIOD
         last  = Signal(24)                      # this period's last phase
+        late  = Signal()                        # past the window after the boundary
+        early = Signal()                        # the loop on and within the window before one
         m.d.comb += [
             last.eq(self.period - 1 + adj),
-            self.resync.eq(self.time_code & (phase >= self.window)),
+            late.eq(phase >= self.window),
+            early.eq(self.discipline.enable & late & (phase + self.window > last)),
+            self.resync.eq(self.time_code & late & ~early),
             self.boundary.eq((phase == 0) | self.resync),
             self.pre_boundary.eq(phase == last),
             self.elapsed.eq(Mux(self.boundary, 0, phase)),
             self.tail.eq(self.discipline.enable & (phase + self.tick > last + 1)),
         ]
-        self._loop(m, adj)
+        self._loop(m, adj, last, early)
         with m.If(self.resync & self.discipline.enable):
             m.d.sync += phase.eq(self.discipline.target + 1)     # acquisition at the target
         with m.Elif(self.boundary):
@@ -142,7 +148,7 @@ class PeriodTimer(wiring.Component):
             ]
         return m
 
-    def _loop(self, m, adj):
+    def _loop(self, m, adj, last, early):
         """The discipline's step at an in-window time-code
         (:func:`~protocol.discipline.loop_step`)."""
         d = self.discipline
@@ -152,18 +158,23 @@ class PeriodTimer(wiring.Component):
         e    = Signal(signed(E_BITS))
         pe   = Signal(signed(E_BITS))
         p    = Signal(signed(E_BITS))
+        lo   = Signal()                         # the phase step clamped
+        hi   = Signal()
         f    = Signal(signed(RATE_BITS))        # rate estimate, FRAC fraction bits
         a    = Signal(FRAC)                     # the accumulator's fraction
         fsum = Signal(signed(RATE_BITS + 1))
         f2   = Signal(signed(RATE_BITS))
         s    = Signal(signed(RATE_BITS + 1))
         m.d.comb += [
-            raw.eq(self.phase - d.target),
+            raw.eq(Mux(early, self.phase - last - 1, self.phase) - d.target),
             e.eq(Mux(raw < -e_max, -e_max, Mux(raw >= e_max, e_max - 1, raw))),
             pe.eq(e >> d.kp),
-            p.eq(Mux(pe < -STEP_MAX, -STEP_MAX, Mux(pe > STEP_MAX, STEP_MAX, pe))),
+            lo.eq(pe < -STEP_MAX),
+            hi.eq(pe > STEP_MAX),
+            p.eq(Mux(lo, -STEP_MAX, Mux(hi, STEP_MAX, pe))),
             fsum.eq(f + ((e << FRAC) >> d.ki)),
-            f2.eq(Mux(fsum < -f_max, -f_max, Mux(fsum >= f_max, f_max - 1, fsum))),
+            f2.eq(Mux(lo | hi, f,           # the step clamped: no integration
+                      Mux(fsum < -f_max, -f_max, Mux(fsum >= f_max, f_max - 1, fsum)))),
             s.eq(a + f2),
         ]
         with m.If(self.restart):

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from mrm_cosim.protocol.discipline import Discipline, loop_step, period_length
+from mrm_cosim.protocol.discipline import Discipline, arrival, loop_step, period_length
 
 __all__ = ["TimerModel"]
 
@@ -88,7 +88,7 @@ class TimerModel:
     def timecode(self, now: int) -> bool:
         """A time-code strobe in cycle ``now``; returns whether it re-synchronised."""
         p = self.phase(now)
-        resync = p >= self.window
+        resync, lp = arrival(self.word, p, self.window, self.last)
         if resync:
             self.nb = now
         self.advance(now + 1)
@@ -100,8 +100,8 @@ class TimerModel:
                 self.lb = now - Discipline.from_word(self.word).target
                 self.nb = self.lb + self.last + 1
         elif self.enabled:
-            self.errors.append(p - Discipline.from_word(self.word).target)
-            self.f, self.a, self.adj = loop_step(self.word, p, self.f, self.a)
+            self.errors.append(lp - Discipline.from_word(self.word).target)
+            self.f, self.a, self.adj = loop_step(self.word, lp, self.f, self.a)
             self.rates.append(self.f)
             self._relength(now)
         return resync
