@@ -6,14 +6,15 @@ which the loop makes two-sided: ``SYNC_WINDOW`` cycles after a boundary or befor
 Its input is the signed phase error ``e = phase − target`` (the timer's phase in the strobe's
 cycle minus the phase the time-code should arrive at: the link latency from the master, so
 that the node's boundary falls on the master's period start); for a time-code before the
-boundary ``e = phase − (last + 1) − target``, ``last = PERIOD − 1 + adj`` the period's last
-phase. Its outputs set the length of
-the period the time-code arrived in, ``PERIOD + adj`` cycles, ``adj = r + p``:
+boundary ``e = −rem − target``, ``rem = PERIOD + adj − phase`` the cycles to the boundary.
+Its outputs set the length of the period the time-code arrived in, ``PERIOD + adj`` cycles,
+``adj = r + p``:
 
-* **phase** ``p = clamp(e >> kp, ±STEP_MAX)``: a bounded share of the error, once;
+* **phase** ``p = e >> kp``: a share of the error, once, bounded by the error's saturation
+  (``|e| ≤ 128``: ``|p| ≤ 128 >> kp`` cycles);
 * **rate** ``r``: the integer part of a fractional accumulator. The rate estimate ``f``
   (cycles per period, :data:`FRAC` fraction bits) integrates the error,
-  ``f ← sat(f + ((e · 2^FRAC) >> ki))``, but only while the phase step is not clamped
+  ``f ← sat(f + ((e · 2^FRAC) >> ki))``, but only while ``e`` is not saturated
   (conditional integration: an error the step cannot take up in one period, a node far off
   the master's grid, would wind the rate up by tens of cycles per period, and the node
   would overshoot out of the window); each time-code adds ``f`` to the fraction ``a``
@@ -21,8 +22,9 @@ the period the time-code arrived in, ``PERIOD + adj`` cycles, ``adj = r + p``:
   2^FRAC``. A node whose oscillator is δ fast needs ``PERIOD·δ`` more cycles per period (5 at
   100 ppm); the accumulator gives it as a mix of ⌊·⌋ and ⌈·⌉ periods.
 
-``e`` is first saturated to ``[−2^(E_BITS−1), 2^(E_BITS−1))``, ``f`` to :data:`RATE_BITS`
-signed bits (± 2,048 cycles per period). Shifts are arithmetic (floor). Writing the register
+``e`` is first saturated to ``[−2^(E_BITS−1), 2^(E_BITS−1))`` = ``[−128, 128)``, ``f`` to
+:data:`RATE_BITS` signed bits (± 128 cycles per period: ± 2,560 ppm at 50,000 cycles). Shifts
+are arithmetic (floor). Writing the register
 clears ``f``, ``a`` and ``adj``; the value 0 (the default) is today's free-running timer. A
 time-code outside the window still re-synchronises the timer (acquisition: the phase then
 restarts at ``target + 1``, so the arrival cycle counts as phase ``target``) and leaves the
@@ -30,12 +32,12 @@ loop as it is. While the loop is on, no control tick comes within TICK cycles be
 boundary: the period's last tick interval may then be up to TICK + |adj| cycles, never
 shorter than TICK, so the joint engine is idle at the boundary whatever ``adj`` is.
 
-The word (u32; a value with bits above bit 20 set is ignored)::
+The word (u32; a value with bits above bit 18 set is ignored)::
 
     bits  0–11  target   phase the time-code should arrive at (cycles)
-    bits 12–15  kp       phase gain 2^−kp
-    bits 16–19  ki       rate gain 2^−ki
-    bit  20     enable
+    bits 12–14  kp       phase gain 2^−kp
+    bits 15–17  ki       rate gain 2^−ki
+    bit  18     enable
 """
 
 from __future__ import annotations
@@ -49,16 +51,15 @@ __all__ = ["FRAC", "RATE_BITS", "E_BITS", "STEP_MAX", "TARGET_BITS", "GAIN_BITS"
 
 #: fraction bits of the rate estimate ``f`` and of the accumulator ``a``
 FRAC = 8
-#: signed width of ``f`` (with its FRAC fraction bits)
-RATE_BITS = 20
+#: signed width of ``f`` (with its FRAC fraction bits): ± 128 cycles per period
+RATE_BITS = 16
 #: signed width the phase error is saturated to
-E_BITS = 12
-#: largest phase step of one period (cycles)
-STEP_MAX = 64
+E_BITS = 8
+#: largest phase step of one period (cycles; kp = 0): the saturated error
+STEP_MAX = 1 << (E_BITS - 1)
 TARGET_BITS = 12
-GAIN_BITS = 4
+GAIN_BITS = 3
 WORD_BITS = TARGET_BITS + 2 * GAIN_BITS + 1
-_PERIOD_BITS = 24
 
 
 @dataclass(frozen=True)
@@ -75,8 +76,8 @@ class Discipline:
     """
 
     target: int = 0
-    kp: int = 2
-    ki: int = 6
+    kp: int = 1
+    ki: int = 4
     enable: bool = True
 
     def __post_init__(self):
@@ -105,7 +106,7 @@ def _clamp(x: int, lo: int, hi: int) -> int:
 
 def loop_step(word: int, phase: int, f: int, a: int) -> tuple[int, int, int]:
     """One update of the loop for a time-code at ``phase`` (inside the window, the loop on;
-    before a boundary: ``phase − (last + 1)``, negative).
+    before a boundary: minus the cycles to it, :func:`arrival`).
 
     Returns
     -------
@@ -115,28 +116,29 @@ def loop_step(word: int, phase: int, f: int, a: int) -> tuple[int, int, int]:
     """
     d = Discipline.from_word(word)
     e_max = 1 << (E_BITS - 1)
-    e = _clamp(phase - d.target, -e_max, e_max - 1)
-    pe = e >> d.kp
-    p = _clamp(pe, -STEP_MAX, STEP_MAX)
-    f_max = 1 << (RATE_BITS - 1)
-    if p == pe:                                 # the step not clamped: integrate
+    raw = phase - d.target
+    e = _clamp(raw, -e_max, e_max - 1)
+    if e == raw:                                # not saturated: integrate
+        f_max = 1 << (RATE_BITS - 1)
         f = _clamp(f + ((e << FRAC) >> d.ki), -f_max, f_max - 1)
     s = a + f
-    return f, s & ((1 << FRAC) - 1), (s >> FRAC) + p
+    return f, s & ((1 << FRAC) - 1), (s >> FRAC) + (e >> d.kp)
 
 
 def period_length(period: int, adj: int) -> int:
-    """Cycles from a boundary to the next: the timer's last phase is ``PERIOD − 1 + adj``
-    modulo 2^24 (its width)."""
-    return ((period - 1 + adj) % (1 << _PERIOD_BITS)) + 1
+    """Cycles from a boundary to the next: ``PERIOD + adj``, at least 2 (the timer ends a
+    period when the cycles to its end, ``PERIOD + adj − phase``, are ≤ 1, phase 1 at the
+    earliest)."""
+    return max(period + adj, 2)
 
 
-def arrival(word: int, phase: int, window: int, last: int) -> tuple[bool, int]:
-    """A time-code at ``phase`` of a period whose last phase is ``last``: ``(resync,
+def arrival(word: int, phase: int, window: int, length: int) -> tuple[bool, int]:
+    """A time-code at ``phase`` of a period of ``length = PERIOD + adj`` cycles: ``(resync,
     loop_phase)``. ``resync``: outside the window (with the loop on, outside both sides of
-    it); ``loop_phase``: the phase the loop takes, ``phase − (last + 1)`` for an early one."""
+    it); ``loop_phase``: the phase the loop takes, ``phase − length`` (minus the cycles to the
+    boundary) for an early one."""
     if phase < window:
         return False, phase
-    if Discipline.from_word(word).enable and phase + window > last:
-        return False, phase - last - 1
+    if Discipline.from_word(word).enable and length - phase <= window:
+        return False, phase - length
     return True, phase

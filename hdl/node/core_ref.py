@@ -251,7 +251,8 @@ class NodeModel:
             pre = nb - 1 if self.arm_pending and self._pre_seen != nb else _NEVER
             ds = self._dmp_due if self.dmp_running and self._dmp_due < nb else _NEVER
             nt = self._nt
-            if nt + cfg[Config.TICK] > nb and cfg[Config.TC_DISCIPLINE] and self._disciplined:
+            if nt + cfg[Config.TICK] > self._lb + cfg[Config.PERIOD] + self.tc_loop[2] and \
+                    cfg[Config.TC_DISCIPLINE] and self._disciplined:
                 nt = _NEVER                     # the disciplined period's tail: no tick
             c = min(nb, nt, commit, pre, ds)
             if c >= until:
@@ -483,7 +484,7 @@ class NodeModel:
         resync = phase >= self.config[Config.SYNC_WINDOW]
         if resync and word:                 # the loop's window is two-sided
             resync, phase = arrival(word, phase, self.config[Config.SYNC_WINDOW],
-                                    self._period_len() - 1)
+                                    self.config[Config.PERIOD] + self.tc_loop[2])
         if resync:
             self._boundary(now, sample, resync=True)
         self.run(now + 1)

@@ -60,15 +60,19 @@ class TimerModel:
         return Discipline.from_word(self.word).enable
 
     @property
-    def last(self) -> int:
-        """The period's last phase (the gateware's ``PERIOD − 1 + adj``, 24 bits)."""
-        return period_length(self.period, self.adj) - 1
+    def length(self) -> int:
+        """The period's length (cycles), :func:`~protocol.discipline.period_length`."""
+        return period_length(self.period, self.adj)
+
+    def rem(self, now: int) -> int:
+        """The gateware's ``rem = PERIOD + adj − phase`` in cycle ``now``."""
+        return self.period + self.adj - self.phase(now)
 
     def advance(self, now: int) -> None:
         """Process the boundaries of cycles before ``now``."""
         while self.nb < now:
             self.lb = self.nb
-            self.nb = self.lb + self.last + 1
+            self.nb = self.lb + self.length
             self.boundaries.append(self.lb)
 
     def phase(self, now: int) -> int:
@@ -78,17 +82,17 @@ class TimerModel:
 
     def tail(self, now: int) -> bool:
         """No control tick in cycle ``now``: the loop on and fewer than TICK cycles to the
-        boundary (``phase + TICK > last + 1``)."""
-        return self.enabled and self.phase(now) + self.tick > self.last + 1
+        boundary (``rem < TICK``)."""
+        return self.enabled and self.rem(now) < self.tick
 
     def _relength(self, now: int) -> None:
         if now + 1 < self.nb:       # the gateware compares with the new length from now + 1
-            self.nb = max(self.lb + self.last + 1, now + 2)
+            self.nb = max(self.lb + self.length, now + 2)
 
     def timecode(self, now: int) -> bool:
         """A time-code strobe in cycle ``now``; returns whether it re-synchronised."""
         p = self.phase(now)
-        resync, lp = arrival(self.word, p, self.window, self.last)
+        resync, lp = arrival(self.word, p, self.window, self.period + self.adj)
         if resync:
             self.nb = now
         self.advance(now + 1)
@@ -98,7 +102,7 @@ class TimerModel:
                 self.sync_errors = min(self.sync_errors + 1, 0xFFFF)
             if self.enabled:        # the arrival cycle counts as phase `target`
                 self.lb = now - Discipline.from_word(self.word).target
-                self.nb = self.lb + self.last + 1
+                self.nb = self.lb + self.length
         elif self.enabled:
             self.errors.append(lp - Discipline.from_word(self.word).target)
             self.f, self.a, self.adj = loop_step(self.word, lp, self.f, self.a)
