@@ -85,6 +85,7 @@ _NEVER = 1 << 62
                                      Status.PRIME, Status.DMP, Status.HOLD, Status.BRAKE,
                                      Status.STOP_LIMIT))
 _CFG_MODE = Config.MODE
+_CFG_TC = Config.TC_DISCIPLINE
 
 
 @cache
@@ -251,8 +252,8 @@ class NodeModel:
             pre = nb - 1 if self.arm_pending and self._pre_seen != nb else _NEVER
             ds = self._dmp_due if self.dmp_running and self._dmp_due < nb else _NEVER
             nt = self._nt
-            if nt + cfg[Config.TICK] > self._lb + cfg[Config.PERIOD] + self.tc_loop[2] and \
-                    cfg[Config.TC_DISCIPLINE] and self._disciplined:
+            if cfg[_CFG_TC] and self._disciplined and \
+                    nt + cfg[Config.TICK] > self._lb + cfg[Config.PERIOD] + self.tc_loop[2]:
                 nt = _NEVER                     # the disciplined period's tail: no tick
             c = min(nb, nt, commit, pre, ds)
             if c >= until:
