@@ -13,14 +13,13 @@ bounded) plus the carry of a fractional rate accumulator that integrates ``e``; 
 marks the last TICK cycles before the boundary (no control tick there). One subtraction,
 ``rem = PERIOD + adj − phase`` (the cycles to the boundary), serves the end of the period
 (``rem ≤ 1``), its last phase, the tail, the window before the boundary and that side's
-error. The window is then two-sided: a
-time-code up to SYNC_WINDOW cycles *before* a boundary is an early one, its error
-``−rem − target`` (negative), not a resync. A re-synchronising time-code is
-still a boundary, but the phase restarts at ``target + 1`` instead of 1: the arrival cycle
-counts as phase ``target``, so the next boundary comes where the master's is (acquisition in
-one period; restarting at 1 a slow node's next time-code would arrive before its boundary and
-re-synchronise it again, every period). Off (0, the default), ``adj`` stays 0 and ``tail`` 0:
-the free-running timer.
+error. The window is then two-sided: a time-code up to SYNC_WINDOW cycles *before* a
+boundary is an early one, its error ``−rem − target`` (negative), not a resync. A
+re-synchronising time-code is still a boundary, but the phase restarts at ``target + 1``
+instead of 1: the arrival cycle counts as phase ``target``, so the next boundary comes where
+the master's does (acquisition in one period; restarting at 1, a slow node's next time-code
+would arrive before its boundary and re-synchronise it again, every period). Off (0, the
+default), ``adj`` stays 0 and ``tail`` 0: the free-running timer.
 
 At every boundary the timer keeps a :class:`Snapshot` of the node's live values — what a
 Comm A reports, and the velocity the VDC is given for the period.
