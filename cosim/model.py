@@ -333,14 +333,18 @@ class ModelBackend(GatewareSide):
         at the end of that step (the master is quiet in it: it learns of them at the step's
         end on either path). The same operations as :meth:`_run_kernel` and
         :meth:`Plant.step <models.plant.Plant.step>` in the same order, so the same results bit
-        for bit (tests/test_model_backend.py)."""
+        for bit (tests/test_model_backend.py, tests/test_model_kernel.py). The compliant plant
+        (:class:`~models.compliant.CompliantPlant`) has its own: :meth:`_fast_compliant`."""
+        from mrm_cosim.models.compliant import CompliantPlant, compiled_kernel
         from mrm_cosim.models.plant import Plant
 
         if self._kern is None or getattr(plant, "_kern", None) is None:
             return None
         cls = type(plant)
-        if cls.step is not Plant.step or cls._step_kernel is not Plant._step_kernel or \
-                cls.kernel_parts is not Plant.kernel_parts:
+        compliant = cls is CompliantPlant and plant._kern is compiled_kernel()
+        if not compliant and (cls.step is not Plant.step or
+                              cls._step_kernel is not Plant._step_kernel or
+                              cls.kernel_parts is not Plant.kernel_parts):
             return None                 # a plant whose step is not this one's: its own step
         if plant.cycles_per_step > ksrc.CHANGE_CAP or \
                 rec.shape[0] != 2 or rec.shape[2] != self.n or rec.dtype != np.float64:
@@ -353,9 +357,10 @@ class ModelBackend(GatewareSide):
         self._arrays.IB[ksrc.H_CYCLES] = plant.cycles_per_step
         pk = load_plant()
         step = plant.cycles_per_step
+        run = self._fast_compliant if compliant else self._fast
 
         def fast(i: int, stop: int, cycle: int, end_limit: int) -> int:
-            return self._fast(plant, pk, rec, step, i, stop, cycle, end_limit)
+            return run(plant, pk, rec, step, i, stop, cycle, end_limit)
 
         return fast
 
@@ -386,22 +391,59 @@ class ModelBackend(GatewareSide):
         seen, self._fast_seen = self._fast_seen, None
         return seen
 
-    def _fast(self, plant, pk, rec, s: int, i: int, stop: int, cycle: int, lim: int) -> int:
-        """:meth:`fast_path`'s callable."""
-        hz = self._horizon_end
-        if hz is None:
-            hz = self._horizon_end = self._horizon()
-        hard, soon = hz
-        if hard < lim:
-            lim = hard
+    def _fast_compliant(self, plant, pk, rec, s: int, i: int, stop: int, cycle: int,
+                        lim: int) -> int:
+        """:meth:`fast_path`'s callable on the compliant plant (:meth:`CompliantPlant.step
+        <models.compliant.CompliantPlant.step>` compiled, :func:`cosim.model_kernel_src.
+        fast_step_compliant`): every step completes in two calls — ``pin.aba`` and the kernel —
+        and the current-sensor noise of the run's steps is drawn from the plant's stream in
+        one call before them (the same values, in the order the plant's own step draws
+        them)."""
+        lim, soon = self._fast_limits(lim)
         if i >= stop or cycle + s > lim:
             return 0
-        self._send_at = None
-        if cycle != self.cycle or cycle != self._fed:
-            raise ValueError(f"fast path at cycle {cycle}, the backend at {self.cycle}")
-        for node in self.nodes:
-            if not node.in_kernel:
-                node.push()
+        self._fast_begin(cycle)
+        S, C, model, data, qm, vm, force, noise, stepped = plant.kernel_parts()
+        ck = plant._kern
+        IB, F, tau = self._arrays.IB, self._F, self._torque
+        h, hh = float(F[ksrc.F_H]), float(F[ksrc.F_HH])
+        friction = F[ksrc.F_FRICTION] != 0.0
+        fast_step, aba, pre = self._kern.fast_step_compliant, pin.aba, ck.pre
+        # the steps this run takes unless one fails (the loop's own bounds), and their noise in
+        # one draw: the stream's next values in the order the plant's step draws them
+        m = min(stop - i, (lim - cycle) // s, max(0, soon - cycle) // s + 1)
+        z = noise(m)
+        j = i
+        r = 0
+        ready = False           # the step's pre done (by the last fast_step_compliant call)
+        while j < stop and cycle + s <= lim:
+            if not ready and not pre(S, C, tau, z[j - i], h, hh, friction):
+                raise InputError("tau_cmd", f"must be finite, not {tau.tolist()!r}")
+            more = j + 1 < stop and cycle + 2 * s <= lim and cycle + s <= soon
+            r = fast_step(IB, F, S, aba(model, data, qm, vm, force), rec, j, cycle, C,
+                          z[j - i + 1] if more else self._no_a, more)
+            j += 1
+            cycle += s
+            if r == 8:
+                raise InputError("tau_cmd", f"must be finite, not {tau.tolist()!r}")
+            if r == 24:
+                ready = True
+                continue
+            ready = False
+            if r or cycle > soon:
+                break
+        stepped(j - i)
+        self.fast_steps["free"] += j - i
+        if j - i != m and r not in (2, 3):
+            raise AssertionError(f"model kernel: {j - i} compliant steps run, {m} drawn")
+        return self._fast_end_run(plant, r, cycle, soon, j - i)
+
+    def _fast(self, plant, pk, rec, s: int, i: int, stop: int, cycle: int, lim: int) -> int:
+        """:meth:`fast_path`'s callable."""
+        lim, soon = self._fast_limits(lim)
+        if i >= stop or cycle + s > lim:
+            return 0
+        self._fast_begin(cycle)
         S, C, model, data, qm, vm, force, solve, stepped = plant.kernel_parts()
         IB, F, tau = self._arrays.IB, self._F, self._torque
         hh = float(F[ksrc.F_HH])
@@ -451,6 +493,34 @@ class ModelBackend(GatewareSide):
         counts["free"] += j - i - n_stick
         counts["stick-slip"] += n_stick - n_solve
         counts["solve"] += n_solve
+        return self._fast_end_run(plant, r, cycle, soon, j - i)
+
+    def _fast_limits(self, lim: int) -> tuple[int, int]:
+        """A fast run offered: ``(lim, soon)``, the run's last end cycle (``lim``
+        or the horizon's, if earlier) and the first cycle of something for the master
+        (:meth:`_horizon`)."""
+        hz = self._horizon_end
+        if hz is None:
+            hz = self._horizon_end = self._horizon()
+        hard, soon = hz
+        if hard < lim:
+            lim = hard
+        return lim, soon
+
+    def _fast_begin(self, cycle: int) -> None:
+        """A fast run starts at ``cycle``: the nodes' rows pushed into the kernel. Raises if
+        the backend is not at ``cycle``."""
+        self._send_at = None
+        if cycle != self.cycle or cycle != self._fed:
+            raise ValueError(f"fast path at cycle {cycle}, the backend at {self.cycle}")
+        for node in self.nodes:
+            if not node.in_kernel:
+                node.push()
+
+    def _fast_end_run(self, plant, r: int, cycle: int, soon: int, steps: int) -> int:
+        """The end of a fast run of ``steps`` steps ending at ``cycle``, the last kernel call
+        having returned ``r``: its errors raised, the backend at ``cycle``, what reached the
+        master in the last step kept for :meth:`fast_observed`."""
         if r == 2:                      # the plant stepped, the nodes did not
             PlantLines(plant).changes()         # the reference raises EncoderOverspeed
             raise AssertionError("model kernel: an overspeed the reference missed")
@@ -467,7 +537,7 @@ class ModelBackend(GatewareSide):
             self._fast_seen = Observed(out, [
                 Reply(c, src, ptype, seq, bytes(payload))
                 for c, src, ptype, payload, seq in self._link.replies_before(cycle)])
-        return j - i
+        return steps
 
     def _sync_done(self) -> None:
         """After fast steps: the nodes' ``_done``, as :meth:`_run_kernel` leaves it."""

@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from mrm_cosim.hdl.node.encoder_ref import VEL_LATENCY as _VEL_LATENCY
+from mrm_cosim.models import compliant_kernel_src as compliant_src
 from mrm_cosim.models import plant_kernel_src as plant_src
 from mrm_cosim.models.encoder import _FEW_CHANGES
 from mrm_cosim.protocol.encoder import AGE_MAX as _AGE_MAX
@@ -1086,6 +1087,56 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
         return 8 * (plant_src.pre_free(S, C, tau, hh, F[F_FRICTION]) + 2)
     return 0
 
+
+
+def fast_step_compliant(IB, F, S, acc, rec, i, start, C, noise, pre_next):
+    """:func:`fast_step` for the compliant plant (:class:`models.compliant.CompliantPlant`,
+    :meth:`ModelBackend.fast_path <cosim.model.ModelBackend.fast_path>`): one whole plant step
+    with no event in it, after :func:`models.compliant_kernel_src.pre` and ``pin.aba``'s
+    accelerations ``acc`` on the link: :func:`~models.compliant_kernel_src.finish`, the trace
+    row ``i`` (the link angles, the torques that drove the step), the motor-side encoder's
+    count changes (its motion ``θ``: the plant's :meth:`motion
+    <models.compliant.CompliantPlant.motion>`) and every node's plain ticks to the step's last
+    cycle with the torques they output there.
+
+    The compliant step has no set-valued solve through pinocchio (the motor side's friction is
+    solved per joint inside ``pre``), so a step always completes here. With ``pre_next`` (the
+    caller runs the next step on this path too and has drawn its current-sensor ``noise`` from
+    the plant's stream, as :meth:`CompliantPlant.step` would at its start), the next step's
+    ``pre`` on the torques the nodes output.
+
+    Returns 0; 2 if a joint moved more than one count in a cycle (the plant has stepped, the
+    nodes have not); 3 as :func:`plain_step`'s True; with ``pre_next``, ``8 · (code + 2)`` with
+    ``code`` 1 (``pre`` done) or −1 (a torque was not finite, nothing done)."""
+    n = IB[H_N]
+    cycles = IB[H_CYCLES]
+    h = F[F_H]
+    hh = F[F_HH]
+    compliant_src.finish(S, acc, h, hh)
+    N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR = blob_views(IB)
+    K = F[F_SIZE:F_SIZE + n]
+    tau = F[F_SIZE + n:F_SIZE + 2 * n]
+    M = np.empty((4, n))
+    for j in range(n):
+        M[0, j] = S[compliant_src.TH_START, j]
+        M[1, j] = S[compliant_src.W_START, j]
+        M[2, j] = S[compliant_src.AM_PREV, j]
+        M[3, j] = S[compliant_src.TH, j]
+        rec[0, i, j] = S[compliant_src.Q, j]
+        rec[1, i, j] = tau[j]
+    if step_changes(M, K, h, cycles, CHC, CHN, NCH):
+        return 2
+    plain = np.ones(n, dtype=np.bool_)
+    for k in range(n):
+        CUR[k] = 0
+    if plain_step(N, P, E, VIS, PIPE, DUE, PEND, plain, start, cycles, 0, CHC, CHN, NCH, CUR,
+                  tau):
+        return 3
+    if pre_next:
+        if compliant_src.pre(S, C, tau, noise, h, hh, F[F_FRICTION] != 0.0):
+            return 24
+        return 8
+    return 0
 
 # --- the boundary's sine/cosine unit (hdl/node/trig_ref.py) ---------------------------------
 _ATAN = np.array(_ATAN_LIST, dtype=np.int64)

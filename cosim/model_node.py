@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from mrm_cosim.errors import InputError
 from mrm_cosim.hdl.node.core_ref import _NEVER, _TIME_MAX, NodeModel
 from mrm_cosim.hdl.node.encoder_ref import (
     AGE_MAX,
@@ -77,6 +78,15 @@ class FastNode(NodeModel):
     def _param(self, bank: int, addr: int, w: int) -> None:
         self._materialize()                 # a host write comes after the Part B before it
         NodeModel._param(self, bank, addr, w)
+
+    def _config(self, now: int, reg: int, value: int) -> None:
+        if reg == Config.TC_DISCIPLINE and value:
+            # the fast paths (and the compiled kernel) keep PERIOD-cycle periods and every tick
+            raise InputError("config.tc_discipline",
+                             f"{value:#x}: the model backend does not model the disciplined "
+                             "period timer (issue 21 item 3); use the pysim or compiled "
+                             "backend, or 0")
+        NodeModel._config(self, now, reg, value)
 
     def _tick(self, now, sample, tt, ramped=False, hold=None):   # the event loop's ticks
         if hold or self.safe_stop_near(now + 1):

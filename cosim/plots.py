@@ -33,6 +33,54 @@ def _save(fig, path) -> None:
     fig.savefig(path, dpi=110)
 
 
+#: Samples a time series keeps on a plot (:func:`envelope`): 2,000 columns, more than twice a
+#: figure's 880-pixel width at 110 dpi.
+ENVELOPE_COLUMNS = 2000
+
+
+def envelope(t, y, columns: int = ENVELOPE_COLUMNS):
+    """``(t, y)`` reduced for drawing: where a series is longer than ``4 · columns`` samples,
+    each of ``columns`` runs of consecutive samples keeps its first, last, lowest and highest
+    sample, in time order (M4 aggregation, Jugel et al., VLDB 2014): a line through them
+    draws the same pixels as the whole series at up to ``columns`` pixels of width, every
+    peak and step kept. A 1.2 s run has 120,000 plant steps per joint; drawing them all made
+    the figures most of ``mrm run table2``'s time. Shorter series are returned as given.
+
+    Parameters
+    ----------
+    t : ndarray, shape (n,)
+    y : ndarray, shape (n,)
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        The kept samples' times and values (views of the inputs where nothing is dropped).
+    """
+    t = np.asarray(t)
+    y = np.asarray(y)
+    n = len(y)
+    if n <= 4 * columns or len(t) != n or y.ndim != 1 or \
+            (y.dtype.kind == "f" and np.isnan(y).any()):
+        return t, y             # (a gap in the series: drawn whole, its breaks where they are)
+    edges = (np.arange(columns + 1) * n) // columns         # run k: [edges[k], edges[k + 1])
+    starts = edges[:-1]
+    run_len = np.diff(edges)
+    width = int(run_len.max())
+    # each run's samples as one row (the shorter runs padded with their last sample)
+    idx = np.minimum(starts[:, None] + np.arange(width)[None, :], (edges[1:] - 1)[:, None])
+    rows = y[idx]
+    lo, hi = rows.argmin(axis=1), rows.argmax(axis=1)
+    keep = np.concatenate([starts, edges[1:] - 1, starts + lo, starts + hi])
+    keep = np.unique(keep)                                  # sorted: time order
+    return t[keep], y[keep]
+
+
+def _plot(ax, t, y, *args, **kwargs):
+    """``ax.plot(t, y, …)`` of a time series through :func:`envelope`."""
+    te, ye = envelope(t, y)
+    return ax.plot(te, ye, *args, **kwargs)
+
+
 def plot_tracking(path, t, q_d, q, tau, title: str):
     """Joint tracking (Fig. 4), tracking errors (Fig. 5) and torque commands of one run.
 
@@ -51,11 +99,11 @@ def plot_tracking(path, t, q_d, q, tau, title: str):
     t, q_d, q, tau = (np.asarray(a, dtype=float) for a in (t, q_d, q, tau))
     fig, axes = _figure(3, 3.0)
     for k in range(q.shape[1]):
-        (line,) = axes[0].plot(t, q[:, k], label=f"q{k + 1}")
-        axes[0].plot(t, q_d[:, k], "--", color=line.get_color(), lw=0.8,
+        (line,) = _plot(axes[0], t, q[:, k], label=f"q{k + 1}")
+        _plot(axes[0], t, q_d[:, k], "--", color=line.get_color(), lw=0.8,
                      label=f"q{k + 1} desired")
-        axes[1].plot(t, 1e3 * (q_d[:, k] - q[:, k]), label=f"e{k + 1}")
-        axes[2].plot(t, tau[:, k], label=f"τ{k + 1}")
+        _plot(axes[1], t, 1e3 * (q_d[:, k] - q[:, k]), label=f"e{k + 1}")
+        _plot(axes[2], t, tau[:, k], label=f"τ{k + 1}")
     axes[0].set_ylabel("joint position (rad)\n— actual, -- desired")
     axes[1].set_ylabel("tracking error (mrad)")
     axes[2].set_ylabel("torque command (N·m)")
@@ -86,9 +134,9 @@ def plot_joint_tracking(path, t, q_d, runs: dict, title: str):
     q_d = np.asarray(q_d, dtype=float)
     fig, axes = _figure(q_d.shape[1], 2.2)
     for k, ax in enumerate(axes):
-        ax.plot(t, q_d[:, k], "k--", lw=1.2, label="desired")
+        _plot(ax, t, q_d[:, k], "k--", lw=1.2, label="desired")
         for name, q in runs.items():
-            ax.plot(t, np.asarray(q)[:, k], color=_COLORS.get(name), lw=0.9, label=name)
+            _plot(ax, t, np.asarray(q)[:, k], color=_COLORS.get(name), lw=0.9, label=name)
         ax.set_ylabel(f"q{k + 1} (rad)")
         ax.grid(True, lw=0.3)
         ax.legend(loc="lower right", fontsize=7)
@@ -119,9 +167,9 @@ def plot_error_comparison(path, t, errors: dict, tip_errors: dict, title: str):
     for name, e in errors.items():
         e = np.asarray(e, dtype=float)
         for k in range(n):
-            axes[k].plot(t, 1e3 * e[:, k], color=_COLORS.get(name), lw=0.9, label=name)
+            _plot(axes[k], t, 1e3 * e[:, k], color=_COLORS.get(name), lw=0.9, label=name)
     for name, e in tip_errors.items():
-        axes[n].plot(t, 1e3 * np.asarray(e, dtype=float), color=_COLORS.get(name), lw=0.9,
+        _plot(axes[n], t, 1e3 * np.asarray(e, dtype=float), color=_COLORS.get(name), lw=0.9,
                      label=name)
     for k in range(n):
         axes[k].set_ylabel(f"e{k + 1} (mrad)")
@@ -150,7 +198,7 @@ def plot_torques(path, t, torques: dict, title: str, peak=None):
     for name, tau in torques.items():
         tau = np.asarray(tau, dtype=float)
         for k in range(n):
-            axes[k].plot(t, tau[:, k], color=_COLORS.get(name), lw=0.8, label=name)
+            _plot(axes[k], t, tau[:, k], color=_COLORS.get(name), lw=0.8, label=name)
     for k, ax in enumerate(axes):
         if peak is not None:
             for s in (1, -1):
@@ -181,9 +229,9 @@ def plot_tool_errors(path, errors: dict, title: str):
     """
     fig, axes = _figure(3, 2.4)
     for name, (t, e) in errors.items():
-        axes[0].plot(t, e.position_mm, lw=0.9, label=name)
-        axes[1].plot(t, e.orientation_mrad, lw=0.9, label=name)
-        axes[2].plot(t, e.se3, lw=0.9, label=name)
+        _plot(axes[0], t, e.position_mm, lw=0.9, label=name)
+        _plot(axes[1], t, e.orientation_mrad, lw=0.9, label=name)
+        _plot(axes[2], t, e.se3, lw=0.9, label=name)
     axes[0].set_ylabel("position error (mm)")
     axes[1].set_ylabel("orientation error\n(mrad)")
     axes[2].set_ylabel("‖log(T_d⁻¹ T_a)‖")
@@ -251,7 +299,7 @@ def plot_parameters(path, t=None, theta=None, names=None, title: str = "",
         rel = np.divide(theta, first, out=np.ones_like(theta), where=first != 0)
         names = names or [f"θ{k + 1}" for k in range(theta.shape[1])]
         for k in range(theta.shape[1]):
-            ax.plot(t, rel[:, k], lw=0.8, label=names[k])
+            _plot(ax, t, rel[:, k], lw=0.8, label=names[k])
         ax.set_ylabel("estimate / initial")
         ax.set_xlabel("time (s)")
         ax.grid(True, lw=0.3)
@@ -379,7 +427,7 @@ _LANES = {"VDC": (-0.38, 0.36), "adapt": (-0.38, 0.36), "A↓": (0.02, 0.36),
 
 
 def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
-                  clock_hz: float = float(CLOCK_HZ)):
+                  clock_hz: float = float(CLOCK_HZ), skew: dict | None = None):
     """Gantt chart of one period's time-code/A/B/C/D exchange per node.
 
     Parameters
@@ -390,6 +438,9 @@ def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
         Length of the period (for the slack annotation: the period's end less the latest end
         of any bar or Comm D sent — with the nodes' events, the last Comm D taken by a node or
         the last VDC program ending, whichever is later).
+    skew : dict, optional
+        The run's period-start skew (:func:`cosim.skew.period_skew`), written under the title:
+        the nodes' period starts against the master's and against each other, max and RMS.
 
     Returns
     -------
@@ -432,9 +483,23 @@ def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
     ax.set_xlim(-0.02 * right - 1.0, 1.08 * right + 1.0)
     ax.grid(True, axis="x", lw=0.3)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
-    ax.set_title(title)
+    ax.set_title(title if skew is None else f"{title}\n{skew_line(skew)}", fontsize=10)
     _save(fig, path)
     return fig
+
+
+def skew_line(skew: dict) -> str:
+    """One line of a run's period-start skew (:func:`cosim.skew.period_skew`)."""
+    nm, bn = skew["node_vs_master"], skew["between_nodes"]
+    if nm["max_abs_cycles"] is None:
+        return "period starts: no node boundary seen"
+    text = (f"period starts over {skew['periods']} periods — nodes vs master: max "
+            f"{nm['max_abs_ns']:.0f} ns, RMS {nm['rms_ns']:.1f} ns")
+    if bn["max_cycles"] is not None:
+        text += f"; between nodes: max {bn['max_ns']:.0f} ns, RMS {bn['rms_ns']:.1f} ns"
+    if skew.get("missing"):
+        text += f"; {skew['missing']} unseen"
+    return text
 
 
 def plot_dmp_paths(path, results: dict, period_ms: int, title: str):
@@ -522,7 +587,7 @@ def plot_safe_stop(path, t, runs: dict, t_cut: float, title: str, bound: float |
     styles = ["-", "--", ":", "-."]
     for k, ax in enumerate(axes):
         for j, (label, (q, engaged)) in enumerate(runs.items()):
-            ax.plot(t, 1e3 * (q[:, k] - q[i_cut, k]), styles[j % 4], lw=1.0, label=label)
+            _plot(ax, t, 1e3 * (q[:, k] - q[i_cut, k]), styles[j % 4], lw=1.0, label=label)
             held = engaged[:, k]
             if held.any():
                 e = int(np.argmax(held))

@@ -10,6 +10,7 @@ from mrm_cosim.cosim.backends import CompiledBackend, PysimBackend
 from mrm_cosim.cosim.closed_loop import ClosedLoop
 from mrm_cosim.cosim.experiment_config import MAX_DURATION, check_period_on_plant_grid
 from mrm_cosim.cosim.preview import paper_test_profile
+from mrm_cosim.cosim.skew import period_skew
 from mrm_cosim.master.cycle import Master, MasterTiming
 from mrm_cosim.master.kinematics import tip_points
 from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains, pid_shifts
@@ -208,6 +209,8 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         "link_errors": link_total,
         "link_error_detail": link_detail,
         "phases_us": phases,
+        "period_skew": period_skew(master.records, robot.n, timing.period_cycles,
+                                   strobes=getattr(master, "boundary_strobes", None)),
         "trace_sha256": result.trace_sha256,
         "wall_s": wall,
         "rtf": wall / (duration + start / CLOCK_HZ),

@@ -309,6 +309,28 @@ class CompliantPlant(Plant):
             setattr(self, name, S[row])
         self._qm, self._vm, self._lf = S[k.QM], S[k.VM], S[k.LF]
 
+    def kernel_parts(self) -> tuple:
+        """For a compiled caller that runs :meth:`step` itself (the model backend's fast
+        path, :meth:`cosim.model.ModelBackend.fast_path`), after :meth:`use_kernel`: ``(S, C,
+        model, data, qm, vm, force, noise, stepped)``: the state and constant arrays,
+        pinocchio's model and data and the rows ``pin.aba`` reads, ``noise(k)`` (the next
+        ``k`` steps' current-sensor draws from the plant's stream, shape (k, n): the values
+        ``k`` steps draw one after the other) and :meth:`_stepped_by`. A step is
+        :meth:`_step_compiled`'s sequence: ``pre(S, C, cmd, noise(1)[0], dt, dt / 2,
+        friction_on)`` (:func:`models.compliant_kernel_src.pre`), ``finish`` on ``pin.aba(model,
+        data, qm, vm, force)``; and ``stepped(k)`` after ``k`` such steps, the brakes idle
+        (:attr:`brake_idle`: the brake timers have nothing to advance)."""
+        if self._kern is None:
+            raise RuntimeError("kernel_parts needs use_kernel first")
+        n, rng = self.n, self._rng
+        S = self._S
+
+        def noise(steps: int):
+            return rng.standard_normal((steps, n))
+
+        return (S, self._C, self._model, self._data, self._qm, self._vm, self._lf, noise,
+                self._stepped_by)
+
     def _step_compiled(self, arr: np.ndarray) -> None:
         """:meth:`step` on the compiled functions (:meth:`use_kernel`)."""
         k, S, h = self._kern, self._S, self.dt

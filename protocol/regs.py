@@ -94,6 +94,7 @@ class Config(enum.IntEnum):
     #                    rule, the brake at STOP_CYCLES)
     STANDSTILL_TICKS = 18  # safe stop: consecutive ticks at standstill that engage the brake
     STOP_TRAIL   = 19  # safe stop: counts the hold's target may trail the count while stopping
+    TC_DISCIPLINE = 20  # the period timer's loop on the time-code (:mod:`.discipline`; 0 off)
 
 
 CONFIG_DEFAULTS = {Config.MODE: 0, Config.TICK: 50, Config.TIMEOUT: 100_000, Config.RAMP: 0,
@@ -101,7 +102,7 @@ CONFIG_DEFAULTS = {Config.MODE: 0, Config.TICK: 50, Config.TIMEOUT: 100_000, Con
                    Config.SYNC_WINDOW: 2_500, Config.COMMIT: 10_000, Config.DMP: 0,
                    Config.DMP_STEP: 50_000, Config.STOP_CYCLES: 0, Config.BRAKE_CYCLES: 0,
                    Config.STANDSTILL: 0, Config.STANDSTILL_TICKS: 0,
-                   Config.STOP_TRAIL: 0}
+                   Config.STOP_TRAIL: 0, Config.TC_DISCIPLINE: 0}
 # (STOP_CYCLES = BRAKE_CYCLES = 0: a trip goes straight to STO, the torque ramp of a node that
 # has no safe-stop upload; protocol/safe_stop.py gives the master's values.)
 

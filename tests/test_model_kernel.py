@@ -126,12 +126,12 @@ def _wiggle(robot):
     return trajectory
 
 
-def _run(robot_name, controller, kernel, cycles):
+def _run(robot_name, controller, kernel, cycles, joints="rigid"):
     from mrm_cosim.cosim.closed_loop import ClosedLoop
     from mrm_cosim.cosim.model import ModelBackend
     from mrm_cosim.master.cycle import Master, MasterTiming
     from mrm_cosim.master.uploads import Gains, node_uploads, pid_gains, pid_shifts
-    from mrm_cosim.models.plant import Plant
+    from mrm_cosim.models.plant import PlantConfig, make_plant
     from mrm_cosim.models.robot import load_robot
 
     robot = load_robot(robot_name)
@@ -146,7 +146,7 @@ def _run(robot_name, controller, kernel, cycles):
         on_packet(now, src_, ptype, payload)
 
     master.on_packet = record
-    plant = Plant(robot, seed=1)
+    plant = make_plant(robot, PlantConfig(joints=joints), seed=1)
     plant.reset(robot.home)
     backend = ModelBackend(kernel=kernel, pid_shift=pid_shifts(robot))
     loop = ClosedLoop(robot, backend, master, plant, 50_000,
@@ -156,7 +156,7 @@ def _run(robot_name, controller, kernel, cycles):
               n.joint.v_des, n.joint.i_lo, n.joint.i_hi, n.tripped, n.prime)
              for n in backend.nodes]
     enc = [(e.count, e.velocity, e.errors) for e in backend.encoders]
-    return result, payloads, state, enc, backend
+    return result, payloads, state, enc, backend, plant
 
 
 @needs_numba
@@ -257,6 +257,37 @@ def test_compiled_and_python_paths_give_the_same_trace(robot, controller):
         (5 if controller == "pid-1khz" else 15)
 
 
+@needs_numba
+@pytest.mark.parametrize("robot", ["mrm3", "mrm6"])
+@pytest.mark.parametrize("controller", ["vdc", "pid-fpga", "pid-1khz"])
+def test_compiled_and_python_paths_give_the_same_trace_on_the_compliant_plant(robot,
+                                                                               controller):
+    """The same on the compliant plant (two-inertia joints, gear curve with Dahl hysteresis,
+    current-sensor noise, ripple; the encoder on the motor): its plain steps run
+    :func:`fast_step_compliant` with the noise drawn between the kernel calls, and the trace,
+    replies, node and encoder state are the pure-Python path's."""
+    cycles = 400_000
+    fast = _run(robot, controller, "numba", cycles, joints="compliant")
+    slow = _run(robot, controller, "python", cycles, joints="compliant")
+    assert type(fast[4].nodes[0]).__name__ == "KernelNode"
+    assert fast[0].violations == slow[0].violations == []
+    assert fast[0].trace_sha256 == slow[0].trace_sha256
+    steps = fast[4].fast_steps      # (a compliant step has no stick-slip solve through ABA)
+    assert steps["free"] > 0.8 * cycles / 500 and steps["stick-slip"] == steps["solve"] == 0
+    assert fast[4].fast_handovers > 0
+    assert fast[1] == slow[1] and len(fast[1]) > 0
+    assert fast[2] == slow[2]
+    assert fast[3] == slow[3]
+    # every link moved by counts of its motor-side encoder (≈ 1.3e5 counts/rad; mrm6's heavy
+    # links follow their gears' 25 Hz swing by 1e-5 rad in 8 ms)
+    assert np.ptp(fast[0].q, axis=0).min() > 5e-6
+    # and the plant's own state (motor side, hysteresis, the noise stream) ended the same
+    fp, sp = fast[5], slow[5]
+    for name in ("theta", "theta_d", "gear_torques", "q", "qd"):
+        np.testing.assert_array_equal(getattr(fp, name), getattr(sp, name), err_msg=name)
+    assert fp._rng.bit_generator.state == sp._rng.bit_generator.state
+
+
 def test_without_numba_the_python_path_runs_with_one_warning(monkeypatch):
     """numba missing (or failing): one warning line, then the pure-Python path."""
     from mrm_cosim.cosim.model import ModelBackend
@@ -332,9 +363,11 @@ def test_compiled_vdc_link_equals_the_reference(link, th, K, rho, bounds, V, Vr,
 
 @needs_numba
 def test_a_plant_with_its_own_step_gets_no_fast_path():
-    """The fast path runs :class:`~models.plant.Plant`'s step in pieces; a plant class that
-    steps otherwise (a subclass overriding ``step``) keeps its own step: no fast path."""
+    """The fast path runs :class:`~models.plant.Plant`'s and
+    :class:`~models.compliant.CompliantPlant`'s steps in pieces; a plant class that steps
+    otherwise (a subclass overriding ``step``) keeps its own step: no fast path."""
     from mrm_cosim.cosim.model import ModelBackend
+    from mrm_cosim.models.compliant import CompliantPlant
     from mrm_cosim.models.plant import Plant
     from mrm_cosim.models.robot import load_robot
 
@@ -342,9 +375,14 @@ def test_a_plant_with_its_own_step_gets_no_fast_path():
         def step(self, tau_cmd):
             Plant.step(self, tau_cmd)
 
+    class OwnCompliantStep(CompliantPlant):
+        def step(self, tau_cmd):
+            CompliantPlant.step(self, tau_cmd)
+
     robot = load_robot("mrm3")
     rec = np.zeros((2, 4, robot.n))
-    for cls, expect in ((Plant, True), (OwnStep, False)):
+    for cls, expect in ((Plant, True), (OwnStep, False), (CompliantPlant, True),
+                        (OwnCompliantStep, False)):
         plant = cls(robot)
         backend = ModelBackend(kernel="numba")
         backend.power_on(plant.encoder_counts())

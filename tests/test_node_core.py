@@ -11,6 +11,7 @@ from amaranth.sim import Simulator
 
 from mrm_cosim.hdl.link.chain import get_packet, put_packet
 from mrm_cosim.protocol.crc import crc16
+from mrm_cosim.protocol.discipline import Discipline, loop_step
 from mrm_cosim.protocol.packet import Header, PacketType
 from mrm_cosim.hdl.node.core import NodeCore
 from mrm_cosim.hdl.node.core_ref import NodeModel
@@ -159,7 +160,25 @@ def test_a_joint_driven_through_the_trail_drags_the_target_to_the_limit(monkeypa
     assert model.hold_pos >> 4 > trace[trip][0] + 5           # it moved ~11 counts
 
 
-def _exchange(mode, n_periods, end, safe):
+def test_disciplined_timer_equals_the_reference_and_never_overruns():
+    """CONFIG TC_DISCIPLINE on (target phase 40, the time-codes at phase 20: e = −20, kp 0 and
+    ki 2 shorten the period by about 25 cycles, :func:`~protocol.discipline.loop_step`): torque,
+    status, replies and every strobe equal the reference's in every cycle; the boundaries
+    move off the PERIOD grid by the loop's adjustment; and no control tick is skipped, though
+    the last tick of a period so shortened would still be running at its boundary (the tail
+    rule: no tick within TICK cycles before a disciplined boundary)."""
+    word = Discipline(target=40, kp=0, ki=2).word
+    trace, model, replies = _exchange(1, 2, 11_500, None, discipline=word)
+    tc = min(c for c, f in model.events if f == NodeEvent.TIMECODE)
+    b = model.boundaries
+    k = max(i for i, x in enumerate(b) if x <= tc)
+    _, _, adj = loop_step(word, tc - b[k], 0, 0)
+    assert b[k + 1] - b[k] == PERIOD + adj and adj < -2
+    assert all(parse_comm_a(r[2])["overruns"] == 0 for r in replies
+               if r[0] == PacketType.COMM_A)
+
+
+def _exchange(mode, n_periods, end, safe, discipline=None):
     """mode 0 VDC, 1 PID, 2 torque-only. Periods of 2000 cycles on the node's own timer; the
     time-codes arrive inside the window, the last period has a late Comm D and an
     out-of-window time-code (a resynchronisation), then the master falls silent. With
@@ -216,8 +235,11 @@ def _exchange(mode, n_periods, end, safe):
 
     async def master(ctx):
         ctx.set(dut.period, 0)
+        timing = timing_config()
+        if discipline is not None:
+            timing[Config.TC_DISCIPLINE] = discipline
         for ptype, payload in [(PacketType.CONFIG, p) for p in
-                               config_payloads(timing_config())] + uploads(mode, safe):
+                               config_payloads(timing)] + uploads(mode, safe):
             await send(ctx, ptype, payload)
         marks["armed_sent"] = ctx.get(dut_cycle)
         first = (ctx.get(dut_cycle) // PERIOD + 1) * PERIOD
@@ -309,6 +331,8 @@ def _exchange(mode, n_periods, end, safe):
         assert {NodeEvent.RX_B, NodeEvent.VDC_START, NodeEvent.VDC_DONE, NodeEvent.VDC_END,
                 NodeEvent.RX_C, NodeEvent.TX_C} <= kinds
     assert NodeEvent.RESYNC in kinds
+    if discipline is not None:
+        return trace, model, replies
 
     # Boundaries on the timer's grid from reset, plus the resynchronisation.
     resync = max(c for c, kind in events if kind == "timecode")

@@ -1,7 +1,10 @@
-"""Plots: each writes a PNG and draws exactly the data it was given (checked on the axes)."""
+"""Plots: each writes a PNG and draws exactly the data it was given (checked on the axes);
+a time series longer than four samples per drawn column through its M4 envelope."""
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from numpy.testing import assert_allclose, assert_array_equal
 
 from mrm_cosim.cosim import plots
@@ -168,6 +171,20 @@ def test_timeline_plot_rows_bars_and_slack(tmp_path):
         x0, x1 = coll.get_paths()[0].vertices[:, 0].min(), coll.get_paths()[0].vertices[:, 0].max()
         assert (x0, x1) == pytest.approx((bar.start_us, bar.end_us))
     assert "slack to the period end 931.98 µs" in ax.get_xlabel()
+    assert ax.get_title() == "period 7"
+
+
+def test_timeline_plot_states_the_runs_period_start_skew(tmp_path):
+    from mrm_cosim.cosim.skew import period_skew
+
+    recs = [PeriodRecord(i, 1000 + 50_000 * i) for i in range(3)]
+    strobes = [(1000, 1), (1003, 2), (51_000 - 5, 1), (51_002, 2), (101_000, 1), (101_000, 2)]
+    skew = period_skew(recs, 2, 50_000, strobes=strobes)
+    fig = plots.plot_timeline(tmp_path / "g.png", _vdc_record(), 3, 50_000, "period 7",
+                              skew=skew)
+    title = fig.axes[0].get_title()
+    assert title.startswith("period 7\nperiod starts over 3 periods")
+    assert "nodes vs master: max 100 ns" in title and "between nodes: max 140 ns" in title
 
 
 def test_pick_period_prefers_the_requested_time_among_complete_ones():
@@ -210,3 +227,48 @@ def test_safe_stop_plot_shows_each_joint_from_the_cut_and_the_engagement(tmp_pat
     np.testing.assert_allclose(line.get_ydata(), 1e3 * (q[:, 1] - q[50, 1]))
     xs = sorted(float(np.atleast_1d(v.get_xdata())[0]) for v in ax.get_lines()[1:])
     assert xs == [0.05, t[60]]
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(1, 30_000), columns=st.integers(1, 700), seed=st.integers(0, 2**32 - 1))
+def test_the_envelope_keeps_every_runs_extremes_in_time_order(n, columns, seed):
+    """:func:`envelope` (M4): a long series keeps, for each of ``columns`` runs of consecutive
+    samples, its first, last, lowest and highest sample, and nothing else, in time order; a
+    series of at most ``4 · columns`` samples is drawn whole."""
+    from mrm_cosim.cosim.plots import envelope
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 1e-5
+    y = np.cumsum(rng.standard_normal(n))
+    te, ye = envelope(t, y, columns)
+    if n <= 4 * columns:
+        assert te is t and ye is y
+        return
+    assert len(te) <= 4 * columns
+    kept = np.rint(te / 1e-5).astype(int)
+    assert np.all(np.diff(kept) > 0)                        # time order, no repeats
+    assert_array_equal(ye, y[kept])
+    edges = (np.arange(columns + 1) * n) // columns
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        inside = ye[(kept >= a) & (kept < b)]
+        assert {a, b - 1} <= set(kept.tolist())
+        assert inside.min() == y[a:b].min() and inside.max() == y[a:b].max()
+        assert len(inside) <= 4
+
+
+def test_a_long_run_is_drawn_through_its_envelope(tmp_path):
+    """A 1.2 s run (120,000 plant steps) is drawn as its envelope: at most 4 samples per
+    column, every extreme of the error kept."""
+    from mrm_cosim.cosim.plots import ENVELOPE_COLUMNS, envelope
+
+    n = 120_000
+    t = np.arange(n) * 1e-5
+    q_d = np.outer(np.sin(2 * np.pi * t), [1.0, 2.0])
+    q = q_d + 1e-4 * np.outer(np.sin(2 * np.pi * 977 * t), [1.0, -1.0])
+    q[54_321, 1] += 0.01                                    # one spike
+    tau = np.outer(np.cos(t), [1.0, 1.0])
+    fig = plots.plot_tracking(tmp_path / "t.png", t, q_d, q, tau, "long")
+    err = fig.axes[1].lines[1]
+    assert len(err.get_xdata()) <= 4 * ENVELOPE_COLUMNS
+    assert err.get_ydata().min() == (1e3 * (q_d[:, 1] - q[:, 1])).min()     # the spike
+    assert_array_equal(err.get_ydata(), envelope(t, 1e3 * (q_d[:, 1] - q[:, 1]))[1])

@@ -3,8 +3,8 @@
 A CONFIG record (:class:`~protocol.regs.Config` id, int32 value; docs/node.md "Packets")
 writes one register at its last byte; a value out of a register's range is ignored (MODE
 ≥ 3, TICK 0 or ≥ 2^16, PERIOD and DMP_STEP < 2 or ≥ 2^24, SYNC_WINDOW, COMMIT, STANDSTILL,
-STOP_CYCLES and BRAKE_CYCLES ≥ 2^24, STANDSTILL_TICKS and STOP_TRAIL ≥ 2^16, DMP not a
-:class:`~protocol.regs.DmpControl` value).
+STOP_CYCLES and BRAKE_CYCLES ≥ 2^24, STANDSTILL_TICKS and STOP_TRAIL ≥ 2^16, TC_DISCIPLINE
+≥ 2^21, DMP not a :class:`~protocol.regs.DmpControl` value).
 PRESET and PRIME are strobes to the encoder and the VDC sequencer; DMP is one of three
 strobes to the primitive generator's timing (:class:`~hdl.node.dmp_seq.DmpTiming`). Every
 register starts at :data:`~protocol.regs.CONFIG_DEFAULTS`.
@@ -20,10 +20,12 @@ from amaranth import *
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.discipline import WORD_BITS as DISCIPLINE_BITS
 from mrm_cosim.protocol.fixed import WORD
 from mrm_cosim.protocol.regs import CONFIG_DEFAULTS, MODES, Config, DmpControl
 
 from .decoder import ConfigRecord
+from .timer import DisciplineWord
 
 __all__ = ["NodeConfig"]
 
@@ -67,6 +69,9 @@ class NodeConfig(wiring.Component):
     stop_trail : Out(16)
         The safe stop's trail: how far (counts) the hold's target may trail the count while
         the joint stops (:class:`~hdl.node.ticks.ControlTicks`).
+    discipline, discipline_set : Out(DisciplineWord), Out(1)
+        CONFIG TC_DISCIPLINE (:mod:`~protocol.discipline`) and its write strobe (the period
+        timer clears its loop).
     """
 
     config:       In(stream.Signature(ConfigRecord, always_ready=True))
@@ -98,6 +103,8 @@ class NodeConfig(wiring.Component):
     standstill:   Out(WORD, init=CONFIG_DEFAULTS[Config.STANDSTILL])
     standstill_ticks: Out(16, init=CONFIG_DEFAULTS[Config.STANDSTILL_TICKS])
     stop_trail:   Out(16, init=CONFIG_DEFAULTS[Config.STOP_TRAIL])
+    discipline:   Out(DisciplineWord)        # reset 0: off (CONFIG_DEFAULTS)
+    discipline_set: Out(1)
 
     def elaborate(self, platform):
         m = Module()
@@ -166,6 +173,10 @@ class NodeConfig(wiring.Component):
                 with m.Case(Config.STOP_TRAIL):
                     with m.If(value < (1 << 16)):
                         m.d.sync += self.stop_trail.eq(value)
+                with m.Case(Config.TC_DISCIPLINE):
+                    with m.If(value < (1 << DISCIPLINE_BITS)):
+                        m.d.sync += self.discipline.eq(value)
+                        m.d.comb += self.discipline_set.eq(1)
 
         # ARM at the next boundary, the integral cleared in its cycle and the one before;
         # disarming wins over both.

@@ -208,6 +208,7 @@ class NodeCore(wiring.Component):
             vseq.hold.eq(dec.words.valid),
         ]
         jrefs, jref_time, dmp_select, dmp_overruns, dmp_step = self._dmp(m, dec, cfg, timer, refs)
+        self._timer(m, cfg, timer, ticks, wd)
 
         # --- encoder, period timer and its snapshot, CORDIC -----------------------------------
         status = Signal(16)
@@ -219,10 +220,6 @@ class NodeCore(wiring.Component):
             enc.preset_count.eq(cfg.preset_count),
             self.count.eq(enc.count),
             self.velocity.eq(enc.velocity),
-            timer.period.eq(cfg.period),
-            timer.window.eq(cfg.window),
-            timer.time_code.eq(self.period_start),
-            timer.armed.eq(wd.armed),
             timer.live.count.eq(enc.count),
             timer.live.velocity.eq(enc.velocity),
             timer.live.torque.eq(wd.torque),
@@ -323,6 +320,19 @@ class NodeCore(wiring.Component):
 
         self._events(m, dec.ends, timer, vdc, reply, refs, dmp_step)
         return m
+
+    def _timer(self, m, cfg, timer, ticks, wd):
+        """The period timer's settings and time-code; its tail gates the control ticks."""
+        m.d.comb += [
+            timer.period.eq(cfg.period),
+            timer.window.eq(cfg.window),
+            timer.time_code.eq(self.period_start),
+            timer.armed.eq(wd.armed),
+            timer.discipline.eq(cfg.discipline),
+            timer.restart.eq(cfg.discipline_set),
+            timer.tick.eq(cfg.tick),
+            ticks.tail.eq(timer.tail),
+        ]
 
     def _link_health(self, m, reply):
         """Comm A's link health: the two codecs' error classes and the drops, each summed

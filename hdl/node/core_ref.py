@@ -10,10 +10,13 @@ long runs (the ``model`` backend, :mod:`cosim.model`).
 
 Internal events follow the node's period timer (free-running from reset, phase 0 = boundary):
 
-* boundary (phase 0, or a time-code outside the sync window): snapshot of everything the
+* boundary (phase 0, or a time-code outside the sync window; with CONFIG TC_DISCIPLINE on, the
+  period is ``PERIOD + adj`` cycles, ``adj`` set by the last in-window time-code,
+  :mod:`~mrm_cosim.protocol.discipline`): snapshot of everything the
   Comm A reply carries (count, velocity, torque, status, encoder errors, counters), CORDIC of
   the count; an ARM received before the previous cycle takes effect here (PID integral cleared);
-* control ticks every ``TICK`` cycles from each boundary; a tick's command lands
+* control ticks every ``TICK`` cycles from each boundary (with the discipline on, none within
+  ``TICK`` cycles before the next boundary); a tick's command lands
   ``cycles(mode)`` cycles later (:meth:`~mrm_cosim.protocol.isa.Microcode.cycles`), then the
   limits and the watchdog apply;
 * commit point (phase ``COMMIT``): an armed node's last full Comm D becomes the joint
@@ -54,6 +57,8 @@ from functools import cache
 
 from mrm_cosim.hdl.link.codec_ref import saturating_sum_ref
 from mrm_cosim.protocol.crc import CRC16_INIT, crc16
+from mrm_cosim.protocol.discipline import WORD_BITS as DISCIPLINE_BITS
+from mrm_cosim.protocol.discipline import Discipline, arrival, loop_step, period_length
 from mrm_cosim.protocol.encoder import EncoderParams
 from mrm_cosim.protocol.fixed import POS, saturate
 from mrm_cosim.protocol.joint_program import MODES as JOINT_MODES
@@ -80,6 +85,7 @@ _NEVER = 1 << 62
                                      Status.PRIME, Status.DMP, Status.HOLD, Status.BRAKE,
                                      Status.STOP_LIMIT))
 _CFG_MODE = Config.MODE
+_CFG_TC = Config.TC_DISCIPLINE
 
 
 @cache
@@ -219,6 +225,7 @@ class NodeModel:
     _prime_due: int | None = None
     _pre_seen: int = -1                   # boundary whose previous cycle was examined
     _sample: object = None
+    tc_loop: tuple = (0, 0, 0)            # the discipline's rate f, fraction a, adjustment adj
 
     # --- internal events ----------------------------------------------------------------------
     def phase(self, now: int) -> int:
@@ -244,7 +251,11 @@ class NodeModel:
                 commit = _NEVER
             pre = nb - 1 if self.arm_pending and self._pre_seen != nb else _NEVER
             ds = self._dmp_due if self.dmp_running and self._dmp_due < nb else _NEVER
-            c = min(nb, self._nt, commit, pre, ds)
+            nt = self._nt
+            if cfg[_CFG_TC] and self._disciplined and \
+                    nt + cfg[Config.TICK] > self._lb + cfg[Config.PERIOD] + self.tc_loop[2]:
+                nt = _NEVER                     # the disciplined period's tail: no tick
+            c = min(nb, nt, commit, pre, ds)
             if c >= until:
                 break
             if c == pre:
@@ -253,11 +264,11 @@ class NodeModel:
                     self.joint.i_lo = 0
                     self.arm_pending = False
                     self.arming = True
-                if c != min(nb, self._nt, commit, ds):
+                if c != min(nb, nt, commit, ds):
                     continue
             if c == nb:
                 self._boundary(c, sample)
-            elif c == self._nt:
+            elif c == nt:
                 self._tick(c, sample, c - self.d_base)
             if c == commit:
                 self._commit_seen = self._lb
@@ -309,7 +320,9 @@ class NodeModel:
         self.cos_q, self.sin_q = sin_cos(count, self.encoder.counts_per_rev)
         self.fresh = False
         self._lb = c
-        self._nb = c + self.config[Config.PERIOD]
+        if resync and self._disciplined:   # the arrival counts as phase `target` (acquisition)
+            self._lb = c - Discipline.from_word(self.config[Config.TC_DISCIPLINE]).target
+        self._nb = self._lb + self._period_len()
         self.boundaries.append(c)
         if self.events is not None:
             self.events.append((c, Ev.BOUNDARY))
@@ -327,6 +340,20 @@ class NodeModel:
         self._tick(c, sample, c - self.d_base, ramped=arm, hold=hold)
         if self.dmp_waiting or self.dmp_running:
             self._dmp_step(c)
+
+    @property
+    def _disciplined(self) -> bool:
+        return Discipline.from_word(self.config[Config.TC_DISCIPLINE]).enable
+
+    def _period_len(self) -> int:
+        """Cycles of a period starting now: PERIOD, with the discipline's adjustment."""
+        return period_length(self.config[Config.PERIOD], self.tc_loop[2])
+
+    def _relength(self, now: int) -> None:
+        """The period's length changed in cycle ``now`` (the timer compares with it from
+        ``now + 1``)."""
+        if now + 1 < self._nb:
+            self._nb = max(self._lb + self._period_len(), now + 2)
 
     def _ramp(self) -> None:
         ramp = self.config[Config.RAMP]
@@ -453,10 +480,19 @@ class NodeModel:
         if self.events is not None:
             self.events.append((now, Ev.TIMECODE))
         sample = self._sample or (lambda c: (0, 0, 0))
-        resync = self.phase(now) >= self.config[Config.SYNC_WINDOW]
+        phase = self.phase(now)
+        word = self.config[Config.TC_DISCIPLINE]
+        resync = phase >= self.config[Config.SYNC_WINDOW]
+        if resync and word:                 # the loop's window is two-sided
+            resync, phase = arrival(word, phase, self.config[Config.SYNC_WINDOW],
+                                    self.config[Config.PERIOD] + self.tc_loop[2])
         if resync:
             self._boundary(now, sample, resync=True)
         self.run(now + 1)
+        if not resync and word and self._disciplined:
+            f, a, _ = self.tc_loop
+            self.tc_loop = loop_step(word, phase, f, a)
+            self._relength(now)
         self.tc_value = value & 0xFF
         return resync
 
@@ -649,8 +685,11 @@ class NodeModel:
             self.config[Config(reg)] = saturate(((signed + (1 << 23)) % (1 << 24)) - (1 << 23))
         elif reg == Config.PERIOD and 2 <= value < (1 << 24):
             self.config[Config.PERIOD] = value
-            if now + 1 < self._nb:          # the timer compares with the new value from now + 1
-                self._nb = max(self._lb + value, now + 2)
+            self._relength(now)             # the timer compares with the new value from now + 1
+        elif reg == Config.TC_DISCIPLINE and value < (1 << DISCIPLINE_BITS):
+            self.config[Config.TC_DISCIPLINE] = value
+            self.tc_loop = (0, 0, 0)        # the write clears the loop
+            self._relength(now)
         elif reg in (Config.SYNC_WINDOW, Config.COMMIT) and value < (1 << 24):
             self.config[Config(reg)] = value
         elif reg == Config.ARM:

@@ -58,6 +58,9 @@ class ControlTicks(wiring.Component):
     ----------
     boundary : In(1)
         The period boundary (the ticks restart).
+    tail : In(1)
+        No tick but the boundary's: the last TICK cycles of a disciplined period
+        (:class:`~hdl.node.timer.PeriodTimer`).
     cycles : In(16)
         CONFIG TICK: cycles per tick.
     mode : In(2)
@@ -102,6 +105,7 @@ class ControlTicks(wiring.Component):
         self._mc = joint
         super().__init__({
             "boundary":   In(1),
+            "tail":       In(1),
             "cycles":     In(16),
             "mode":       In(2),
             "count":      In(signed(32)),
@@ -155,7 +159,7 @@ class ControlTicks(wiring.Component):
             pos_now.eq(Mux(self.count >= lim, (1 << (WORD - 1)) - 1,
                            Mux(self.count < -lim, -(1 << (WORD - 1)),
                                self.count << -POS.lsb))),
-            tick.eq(self.boundary | (tick_cnt == 0)),
+            tick.eq(self.boundary | ((tick_cnt == 0) & ~self.tail)),
             tn.eq(self.ref_time + self.cycles),
             count24.eq(Mux(self.count > (1 << 23) - 1, (1 << 23) - 1,
                            Mux(self.count < -(1 << 23), -(1 << 23), self.count))),

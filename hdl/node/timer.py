@@ -6,6 +6,21 @@ its own cycle a boundary (re-synchronisation), counted while armed (``sync_error
 Comm A). Nothing here depends on when a packet arrived, only on what it said (docs/node.md
 "Timing").
 
+With CONFIG TC_DISCIPLINE on (:mod:`~protocol.discipline`, issue 21 item 3) a time-code inside
+the window runs one step of a digital PLL: the signed phase error ``e = phase − target`` sets
+this period's length to ``PERIOD + adj``, ``adj`` a share of ``e`` (saturated to 8 bits, so
+bounded) plus the carry of a fractional rate accumulator that integrates ``e``; ``tail`` then
+marks the last TICK cycles before the boundary (no control tick there). One subtraction,
+``rem = PERIOD + adj − phase`` (the cycles to the boundary), serves the end of the period
+(``rem ≤ 1``), its last phase, the tail, the window before the boundary and that side's
+error. The window is then two-sided: a time-code up to SYNC_WINDOW cycles *before* a
+boundary is an early one, its error ``−rem − target`` (negative), not a resync. A
+re-synchronising time-code is still a boundary, but the phase restarts at ``target + 1``
+instead of 1: the arrival cycle counts as phase ``target``, so the next boundary comes where
+the master's does (acquisition in one period; restarting at 1, a slow node's next time-code
+would arrive before its boundary and re-synchronise it again, every period). Off (0, the
+default), ``adj`` stays 0 and ``tail`` 0: the free-running timer.
+
 At every boundary the timer keeps a :class:`Snapshot` of the node's live values — what a
 Comm A reports, and the velocity the VDC is given for the period.
 """
@@ -14,9 +29,19 @@ from amaranth import *
 from amaranth.lib import data, wiring
 from amaranth.lib.wiring import In, Out
 
+from mrm_cosim.protocol.discipline import E_BITS, FRAC, GAIN_BITS, RATE_BITS, TARGET_BITS
 from mrm_cosim.protocol.fixed import WORD
 
-__all__ = ["PeriodTimer", "Snapshot"]
+__all__ = ["PeriodTimer", "Snapshot", "DisciplineWord"]
+
+
+class DisciplineWord(data.Struct):
+    """CONFIG TC_DISCIPLINE (:class:`~protocol.discipline.Discipline`)."""
+
+    target: TARGET_BITS     # phase the time-code should arrive at
+    kp:     GAIN_BITS       # phase gain 2^-kp
+    ki:     GAIN_BITS       # rate gain 2^-ki
+    enable: 1
 
 
 class Snapshot(data.Struct):
@@ -60,6 +85,12 @@ class PeriodTimer(wiring.Component):
     sync_errors : Out(16)
         Re-synchronisations while armed up to the last boundary, saturating (a
         re-synchronising boundary counts itself).
+    discipline : In(DisciplineWord)
+        CONFIG TC_DISCIPLINE; ``restart`` (In(1)) its write strobe, which clears the loop.
+    tick : In(16)
+        CONFIG TICK.
+    tail : Out(1)
+        The loop on and fewer than TICK cycles to the boundary: no control tick.
     """
 
     period:       In(24)
@@ -74,20 +105,35 @@ class PeriodTimer(wiring.Component):
     live:         In(Snapshot)
     snapshot:     Out(Snapshot)
     sync_errors:  Out(16)
+    discipline:   In(DisciplineWord)
+    restart:      In(1)
+    tick:         In(16)
+    tail:         Out(1)
 
     def elaborate(self, platform):
         m = Module()
         phase = self.phase
         count = Signal(16)              # re-synchronisations while armed
+        adj   = Signal(signed(RATE_BITS - FRAC + 2))    # this period's length − PERIOD
+        rem   = Signal(signed(26))      # cycles to the boundary (1 in the period's last phase)
+        late  = Signal()                # past the window after the boundary
+        early = Signal()                # the loop on and within the window before one
         m.d.comb += [
-            self.resync.eq(self.time_code & (phase >= self.window)),
+            rem.eq(self.period + adj - phase),
+            late.eq(phase >= self.window),
+            early.eq(self.discipline.enable & late & (rem <= self.window)),
+            self.resync.eq(self.time_code & late & ~early),
             self.boundary.eq((phase == 0) | self.resync),
-            self.pre_boundary.eq(phase == self.period - 1),
+            self.pre_boundary.eq(rem == 1),
             self.elapsed.eq(Mux(self.boundary, 0, phase)),
+            self.tail.eq(self.discipline.enable & (rem < self.tick)),
         ]
-        with m.If(self.boundary):
+        self._loop(m, adj, rem, early)
+        with m.If(self.resync & self.discipline.enable):
+            m.d.sync += phase.eq(self.discipline.target + 1)     # acquisition at the target
+        with m.Elif(self.boundary):
             m.d.sync += phase.eq(1)
-        with m.Elif(phase >= self.period - 1):
+        with m.Elif(rem <= 1):
             m.d.sync += phase.eq(0)
         with m.Else():
             m.d.sync += phase.eq(phase + 1)
@@ -101,3 +147,45 @@ class PeriodTimer(wiring.Component):
                 self.sync_errors.eq(Mux(counted, count + 1, count)),
             ]
         return m
+
+    def _loop(self, m, adj, rem, early):
+        """The discipline's step at an in-window time-code
+        (:func:`~protocol.discipline.loop_step`). The error saturates at ±128, so the
+        arrival's phase (or minus the cycles to the boundary) is first clipped to 14 bits:
+        ``|x| ≥ 2^13 > 4095 + 128`` saturates whatever the target."""
+        d = self.discipline
+        e_max = 1 << (E_BITS - 1)
+        f_max = 1 << (RATE_BITS - 1)
+        big  = 1 << 13
+        x    = Signal(signed(15))               # phase, or −rem before the boundary, clipped
+        raw  = Signal(signed(16))
+        sat  = Signal()                         # e saturated: no integration
+        e    = Signal(signed(E_BITS))
+        f    = Signal(signed(RATE_BITS))        # rate estimate, FRAC fraction bits
+        a    = Signal(FRAC)                     # the accumulator's fraction
+        fsum = Signal(signed(RATE_BITS + 1))
+        f2   = Signal(signed(RATE_BITS))
+        s    = Signal(signed(RATE_BITS + 1))
+        top  = raw[E_BITS - 1:]                 # all equal: raw fits E_BITS
+        rtop = rem[13:]                         # all equal: rem fits 14 bits
+        rfit = (rtop == 0) | (rtop == (1 << len(rtop)) - 1)
+        m.d.comb += [
+            x.eq(Mux(early, Mux(rfit, -rem[:14].as_signed(), Mux(rem[-1], big, -big)),
+                     Mux(self.phase[13:].any(), big, self.phase[:14]))),
+            raw.eq(x - d.target),
+            sat.eq(~((top == 0) | (top == (1 << len(top)) - 1))),
+            e.eq(Mux(sat, Mux(raw[-1], -e_max, e_max - 1), raw)),
+            fsum.eq(f + ((e << FRAC) >> d.ki)),
+            f2.eq(Mux(sat, f,
+                      Mux(fsum[-1] == fsum[-2], fsum,                   # no overflow
+                          Mux(fsum[-1], -f_max, f_max - 1)))),
+            s.eq(a + f2),
+        ]
+        with m.If(self.restart):
+            m.d.sync += [f.eq(0), a.eq(0), adj.eq(0)]
+        with m.Elif(self.time_code & ~self.resync & d.enable):
+            m.d.sync += [
+                f.eq(f2),
+                a.eq(s[:FRAC]),
+                adj.eq((s >> FRAC) + (e >> d.kp)),
+            ]

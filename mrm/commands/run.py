@@ -374,7 +374,8 @@ def _write_track(tmp: Path, args, config, robot, result, summary, profile) -> No
         record = pick_period(records, when=0.5)
         plot_timeline(tmp / "timeline.png", record, robot.n,
                       result.master.timing.period_cycles,
-                      f"{args.controller}: period {record.index} exchange")
+                      f"{args.controller}: period {record.index} exchange",
+                      skew=summary.get("period_skew"))
     plot_tracking(tmp / "tracking.png", result.t, q_d, result.q, result.tau,
                   f"{robot.name}: quintic test, {args.controller} on {config.backend}")
 

@@ -1,0 +1,72 @@
+"""Period-start skew (cosim/skew.py): offsets and statistics against hand-made strobes, and
+what a run on one clock reports."""
+
+import math
+
+import numpy as np
+import pytest
+
+from mrm_cosim.cosim.skew import period_skew, start_offsets
+from mrm_cosim.master.cycle import PeriodRecord
+
+P = 50_000
+
+
+def _records(starts_at=1000, periods=4):
+    return [PeriodRecord(index=i, start=starts_at + i * P) for i in range(periods)]
+
+
+def test_offsets_take_the_nearest_start_and_early_boundaries_count_negative():
+    recs = _records()
+    strobes = [(1000 + 0, 1), (1000 + 3, 2),                 # period 0: on time, 3 late
+               (1000 + P - 5, 1),                             # node 1 five cycles early for 1
+               (1000 + P + 2, 2),
+               (1000 + 2 * P, 1),                             # period 2: node 2 missing
+               (1000 + 3 * P - 1, 1), (1000 + 3 * P + 1, 2)]
+    b = start_offsets(recs, 2, P, strobes=strobes)
+    expect = np.array([[0, 3], [-5, 2], [0, np.nan], [-1, 1]])
+    np.testing.assert_array_equal(b, expect)
+    s = period_skew(recs, 2, P, strobes=strobes)
+    assert s["periods"] == 4 and s["missing"] == 1
+    nm = s["node_vs_master"]
+    assert nm["max_abs_cycles"] == 5
+    assert nm["rms_cycles"] == pytest.approx(math.sqrt((0 + 9 + 25 + 4 + 0 + 1 + 1) / 7))
+    assert nm["max_abs_ns"] == 100.0
+    assert nm["per_node"][0]["max_abs_cycles"] == 5 and nm["per_node"][1]["max_abs_cycles"] == 3
+    # spreads of the complete periods: 3, 7, 2
+    bn = s["between_nodes"]
+    assert bn["max_cycles"] == 7
+    assert bn["rms_cycles"] == pytest.approx(math.sqrt((9 + 49 + 4) / 3))
+
+
+def test_without_every_strobe_the_records_first_ones_are_used():
+    recs = _records(periods=2)
+    recs[0].node_events = {("BOUNDARY", 1): 1000, ("TIMECODE", 1): 1012}
+    recs[1].node_events = {("BOUNDARY", 1): 1000 + P + 4, ("TIMECODE", 1): 1000 + P + 12}
+    s = period_skew(recs, 1, P)
+    assert s["node_vs_master"]["per_node"][0]["max_abs_cycles"] == 4
+    assert s["timecode_latency_cycles"] == [[12.0, 12.0]]
+    assert s["missing"] == 0
+
+
+def test_a_run_without_boundaries_reports_none():
+    s = period_skew(_records(periods=2), 3, P)
+    assert s["missing"] == 6
+    assert s["node_vs_master"]["max_abs_cycles"] is None
+    assert s["between_nodes"]["max_cycles"] is None
+    assert s["timecode_latency_cycles"] == [None, None, None]
+
+
+def test_one_clock_one_reset_every_period_starts_together():
+    """Today's simulation (one 50 MHz clock, one reset): every node's boundary on the master's
+    period start, the time-code 12 cycles a hop down the chain."""
+    from mrm_cosim.cosim.track import run_track
+
+    _, summary = run_track("mrm3", "vdc", "model", duration=0.005)
+    s = summary["period_skew"]
+    assert s["periods"] >= 5 and s["missing"] == 0
+    assert s["node_vs_master"]["max_abs_cycles"] == 0
+    assert s["between_nodes"]["max_cycles"] == 0
+    lat = s["timecode_latency_cycles"]
+    assert lat[0][0] == lat[0][1] > 0
+    assert lat[1][0] - lat[0][0] == lat[2][0] - lat[1][0] > 0     # the same hop delay
