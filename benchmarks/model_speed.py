@@ -1,6 +1,7 @@
 """The ``model`` backend's speed, compiled inner loop against pure Python, side by side.
 
     python benchmarks/model_speed.py [--robot mrm3 --robot mrm6] [--cycles 2500000] [--rounds 3]
+                                     [--joints rigid|compliant]
 
 For each robot, ``mrm bench``'s window (the VDC loop on the paper's quintic, after start-up)
 runs alternately with ``kernel="numba"`` and ``kernel="python"``; it prints the real-time factor
@@ -10,7 +11,8 @@ Then one more run of each with the loop's parts timed (on by default, ``--no-bre
 CPU µs per simulated 1 ms period spent in the fast steps (the compiled path's plain plant
 steps, plant and nodes together: :meth:`cosim.model.ModelBackend.fast_path`), the general
 steps' plant step, the master, the general steps' gateware side (nodes, encoders, link) and
-the rest of the loop. The timers add a little to each part.
+the rest of the loop. The timers add a little to each part. ``--joints compliant`` runs the
+same window on Table 2's compliant plant (its own fast path, ``fast_step_compliant``).
 
 ``--master`` times the master alone instead: the window's calls into it (``poll``,
 ``on_packet``, ``on_node_events``, ``next_due``, ``quiet_end``, ``stale``) recorded once, then
@@ -43,10 +45,19 @@ from mrm_cosim.units import CLOCK_HZ
 START = 50_000          # period 0, as mrm bench
 
 
+#: the plant's joints (``--joints``): ``mrm bench``'s rigid plant, or Table 2's compliant one
+_JOINTS = "rigid"
+
+
 def _loop(robot, kernel: str):
     from mrm_cosim.cosim.bench import bench_master_and_plant
 
     master, plant = bench_master_and_plant(robot)
+    if _JOINTS != "rigid":
+        from mrm_cosim.models.plant import PlantConfig, make_plant
+
+        plant = make_plant(robot, PlantConfig(joints=_JOINTS), seed=0)
+        plant.reset(robot.home)
     backend = ModelBackend(kernel=kernel, pid_shift=pid_shifts(robot))
     return ClosedLoop(robot, backend, master, plant, START, node_uploads(robot, "vdc", Gains()))
 
@@ -229,8 +240,15 @@ def main(argv=None) -> int:
     ap.add_argument("--master", action="store_true", help="time the master alone")
     ap.add_argument("--against", metavar="PYTHON",
                     help="side by side with the tree of this interpreter (its venv's python)")
+    ap.add_argument("--joints", choices=("rigid", "compliant"), default="rigid",
+                    help="the plant's joints (default rigid, as mrm bench; compliant: Table "
+                    "2's plant, two-inertia joints with the encoder on the motor)")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    global _JOINTS
+    _JOINTS = args.joints
+    if args.joints != "rigid" and (args.against or args.master):
+        ap.error("--joints compliant times the loop only (not with --against or --master)")
     if args.worker:
         return _worker()
     robots = args.robot or ["mrm3", "mrm6"]
