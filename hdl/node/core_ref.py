@@ -32,8 +32,9 @@ Internal events follow the node's period timer (free-running from reset, phase 0
   brake's first cycle; then the ramp to zero (STO);
 * steps of the primitive generator (:class:`~hdl.node.dmp_ref.DmpGeneratorModel`, CONFIG DMP,
   :mod:`~hdl.node.dmp_seq`): at every boundary and every DMP_STEP cycles after one while it
-  runs; while it is selected its references replace Comm D's (``τ_D`` stays Comm D's) and
-  their time counts from the step.
+  runs (with the loop on, only at phases below PERIOD: a lengthened period's last interval
+  is DMP_STEP + adj, not a step just before the boundary's own); while it is selected its
+  references replace Comm D's (``τ_D`` stays Comm D's) and their time counts from the step.
 
 External events: :meth:`timecode` at the strobe's cycle, :meth:`packet` at the cycle its last
 byte is taken. Within one cycle, internal events come first (they see the registers as they were
@@ -251,6 +252,9 @@ class NodeModel:
                 commit = _NEVER
             pre = nb - 1 if self.arm_pending and self._pre_seen != nb else _NEVER
             ds = self._dmp_due if self.dmp_running and self._dmp_due < nb else _NEVER
+            if ds != _NEVER and cfg[_CFG_TC] and self._disciplined and \
+                    ds - self._lb >= cfg[Config.PERIOD]:
+                ds = _NEVER                     # past the nominal period: the boundary steps
             nt = self._nt
             if cfg[_CFG_TC] and self._disciplined and \
                     nt + cfg[Config.TICK] > self._lb + cfg[Config.PERIOD] + self.tc_loop[2]:
