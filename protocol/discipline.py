@@ -8,7 +8,8 @@ cycle minus the phase the time-code should arrive at: the link latency from the 
 that the node's boundary falls on the master's period start); for a time-code before the
 boundary ``e = −rem − target``, ``rem = PERIOD + adj − phase`` the cycles to the boundary.
 Its outputs set the length of the period the time-code arrived in, ``PERIOD + adj`` cycles,
-``adj = r + p``:
+``adj = r + p``, from :data:`LATENCY` cycles after the time-code (the step is computed
+serially; nothing needs it sooner, a time-code comes once a period):
 
 * **phase** ``p = e >> kp``: a share of the error, once, bounded by the error's saturation
   (``|e| ≤ 128``: ``|p| ≤ 128 >> kp`` cycles);
@@ -47,7 +48,7 @@ from dataclasses import dataclass
 from mrm_cosim.errors import InputError
 
 __all__ = ["FRAC", "RATE_BITS", "E_BITS", "STEP_MAX", "TARGET_BITS", "GAIN_BITS", "WORD_BITS",
-           "Discipline", "loop_step", "period_length", "arrival"]
+           "LATENCY", "Discipline", "loop_step", "period_length", "arrival"]
 
 #: fraction bits of the rate estimate ``f`` and of the accumulator ``a``
 FRAC = 8
@@ -60,6 +61,12 @@ STEP_MAX = 1 << (E_BITS - 1)
 TARGET_BITS = 12
 GAIN_BITS = 3
 WORD_BITS = TARGET_BITS + 2 * GAIN_BITS + 1
+#: cycles from a time-code the loop takes to the first cycle of its new ``adj`` (and ``f``,
+#: ``a``): the gateware computes the step serially, the error in the time-code's cycle, then
+#: one right shift of each gain's operand a cycle (2^GAIN_BITS − 1 cycles, whatever the
+#: gains), then the sums. A time-code in the cycles between is not taken by the loop (it is
+#: still a resync outside the window); a write of the register clears the step under way.
+LATENCY = (1 << GAIN_BITS) + 1
 
 
 @dataclass(frozen=True)

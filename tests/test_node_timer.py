@@ -14,7 +14,8 @@ from hypothesis import strategies as st
 from mrm_cosim.errors import InputError
 from mrm_cosim.hdl.node.timer import PeriodTimer
 from mrm_cosim.hdl.node.timer_ref import TimerModel
-from mrm_cosim.protocol.discipline import FRAC, STEP_MAX, Discipline, arrival, loop_step
+from mrm_cosim.protocol.discipline import (FRAC, LATENCY, STEP_MAX, Discipline, arrival,
+                                           loop_step)
 from mrm_cosim.testbench import run_simulation
 
 PERIOD, TICK = 256, 16
@@ -93,6 +94,22 @@ def test_rtl_equals_reference_with_the_loop_rewritten_and_switched_off():
                                                 15 * PERIOD + 40: 0}, 60)
     assert_same(rtl, exp)
     assert ref.resyncs, "off again, the drift of 5 cycles per period must leave the window"
+
+
+def test_rtl_equals_reference_with_time_codes_and_a_write_during_a_step():
+    """The loop's step takes LATENCY cycles (serial shifts for the gains): its adj applies
+    then; a time-code during it is not taken (three here, one cycle after the step's start,
+    and LATENCY − 1 and LATENCY − 2 after it), one LATENCY after is; a rewrite during a step
+    drops it."""
+    w = Discipline(target=12, kp=0, ki=1).word
+    base = arrivals(12, 3, 10, [0, 2, 1])
+    busy = [base[2] + 1, base[3] + LATENCY - 1, base[6] + LATENCY - 2]
+    tcs = sorted(base + busy + [base[4] + LATENCY])
+    rtl, exp, ref = run_both(13 * PERIOD, tcs, {3: w, base[5] + 4: w}, 60)
+    assert_same(rtl, exp)
+    assert not ref.resyncs
+    assert len(ref.errors) == len(base) + 1             # all but the three during a step
+    assert len(ref.rates) == len(base)                  # and the one the rewrite dropped
 
 
 def test_off_is_the_free_running_timer():

@@ -359,6 +359,7 @@ class NodeCore(wiring.Component):
             gen.host_data.eq(dec.words.p.data),
             gen.host_we.eq(dec.words.valid & (dec.words.p.bank == Bank.DMP)),
             dseq.boundary.eq(timer.boundary),
+            dseq.tail.eq(cfg.discipline.enable & (timer.phase >= cfg.period)),
             dseq.gen_ready.eq(gen.ready),
             dseq.step_cycles.eq(cfg.dmp_step),
             dseq.off.eq(cfg.dmp_off),

@@ -32,8 +32,9 @@ Internal events follow the node's period timer (free-running from reset, phase 0
   brake's first cycle; then the ramp to zero (STO);
 * steps of the primitive generator (:class:`~hdl.node.dmp_ref.DmpGeneratorModel`, CONFIG DMP,
   :mod:`~hdl.node.dmp_seq`): at every boundary and every DMP_STEP cycles after one while it
-  runs; while it is selected its references replace Comm D's (``τ_D`` stays Comm D's) and
-  their time counts from the step.
+  runs (with the loop on, only at phases below PERIOD: a lengthened period's last interval
+  is DMP_STEP + adj, not a step just before the boundary's own); while it is selected its
+  references replace Comm D's (``τ_D`` stays Comm D's) and their time counts from the step.
 
 External events: :meth:`timecode` at the strobe's cycle, :meth:`packet` at the cycle its last
 byte is taken. Within one cycle, internal events come first (they see the registers as they were
@@ -58,7 +59,8 @@ from functools import cache
 from mrm_cosim.hdl.link.codec_ref import saturating_sum_ref
 from mrm_cosim.protocol.crc import CRC16_INIT, crc16
 from mrm_cosim.protocol.discipline import WORD_BITS as DISCIPLINE_BITS
-from mrm_cosim.protocol.discipline import Discipline, arrival, loop_step, period_length
+from mrm_cosim.protocol.discipline import (LATENCY, Discipline, arrival, loop_step,
+                                           period_length)
 from mrm_cosim.protocol.encoder import EncoderParams
 from mrm_cosim.protocol.fixed import POS, saturate
 from mrm_cosim.protocol.joint_program import MODES as JOINT_MODES
@@ -226,6 +228,7 @@ class NodeModel:
     _pre_seen: int = -1                   # boundary whose previous cycle was examined
     _sample: object = None
     tc_loop: tuple = (0, 0, 0)            # the discipline's rate f, fraction a, adjustment adj
+    _tc_pending: tuple | None = None      # a loop step under way: (first cycle, new tc_loop)
 
     # --- internal events ----------------------------------------------------------------------
     def phase(self, now: int) -> int:
@@ -251,11 +254,19 @@ class NodeModel:
                 commit = _NEVER
             pre = nb - 1 if self.arm_pending and self._pre_seen != nb else _NEVER
             ds = self._dmp_due if self.dmp_running and self._dmp_due < nb else _NEVER
+            if ds != _NEVER and cfg[_CFG_TC] and self._disciplined and \
+                    ds - self._lb >= cfg[Config.PERIOD]:
+                ds = _NEVER                     # past the nominal period: the boundary steps
             nt = self._nt
-            if cfg[_CFG_TC] and self._disciplined and \
-                    nt + cfg[Config.TICK] > self._lb + cfg[Config.PERIOD] + self.tc_loop[2]:
-                nt = _NEVER                     # the disciplined period's tail: no tick
+            tp = self._tc_pending
+            if cfg[_CFG_TC] and self._disciplined:
+                adj = tp[1][2] if tp is not None and nt >= tp[0] else self.tc_loop[2]
+                if nt + cfg[Config.TICK] > self._lb + cfg[Config.PERIOD] + adj:
+                    nt = _NEVER                 # the disciplined period's tail: no tick
             c = min(nb, nt, commit, pre, ds)
+            if tp is not None and tp[0] <= c and tp[0] < until:
+                self._tc_apply(tp[0])           # the loop's step applies before its cycle
+                continue
             if c >= until:
                 break
             if c == pre:
@@ -348,6 +359,15 @@ class NodeModel:
     def _period_len(self) -> int:
         """Cycles of a period starting now: PERIOD, with the discipline's adjustment."""
         return period_length(self.config[Config.PERIOD], self.tc_loop[2])
+
+    def _tc_apply(self, now: int) -> None:
+        """The loop's step under way applies if its first cycle is ``now`` or before (the
+        timer compares with its ``adj`` from that cycle)."""
+        tp = self._tc_pending
+        if tp is not None and tp[0] <= now:
+            self._tc_pending = None
+            self.tc_loop = tp[1]
+            self._relength(tp[0] - 1)
 
     def _relength(self, now: int) -> None:
         """The period's length changed in cycle ``now`` (the timer compares with it from
@@ -477,6 +497,8 @@ class NodeModel:
         """Time-code strobe in cycle ``now`` with time ``value``; returns whether it
         re-synchronised the timer (arrival phase outside ``[0, SYNC_WINDOW)``)."""
         self.run(now, sample)
+        self._tc_apply(now)
+        busy = self._tc_pending is not None     # a step under way: this one is not taken
         if self.events is not None:
             self.events.append((now, Ev.TIMECODE))
         sample = self._sample or (lambda c: (0, 0, 0))
@@ -489,10 +511,9 @@ class NodeModel:
         if resync:
             self._boundary(now, sample, resync=True)
         self.run(now + 1)
-        if not resync and word and self._disciplined:
+        if not resync and word and self._disciplined and not busy:
             f, a, _ = self.tc_loop
-            self.tc_loop = loop_step(word, phase, f, a)
-            self._relength(now)
+            self._tc_pending = (now + LATENCY, loop_step(word, phase, f, a))
         self.tc_value = value & 0xFF
         return resync
 
@@ -672,6 +693,7 @@ class NodeModel:
         return out + bytes(PAYLOAD - len(out))
 
     def _config(self, now: int, reg: int, value: int) -> None:
+        self._tc_apply(now)
         signed = value - (1 << 32) if value >> 31 else value
         if reg == Config.MODE and value < len(JOINT_MODES):
             self.config[Config.MODE] = value
@@ -688,7 +710,8 @@ class NodeModel:
             self._relength(now)             # the timer compares with the new value from now + 1
         elif reg == Config.TC_DISCIPLINE and value < (1 << DISCIPLINE_BITS):
             self.config[Config.TC_DISCIPLINE] = value
-            self.tc_loop = (0, 0, 0)        # the write clears the loop
+            self.tc_loop = (0, 0, 0)        # the write clears the loop (and a step under way)
+            self._tc_pending = None
             self._relength(now)
         elif reg in (Config.SYNC_WINDOW, Config.COMMIT) and value < (1 << 24):
             self.config[Config(reg)] = value

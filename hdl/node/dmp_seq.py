@@ -9,7 +9,10 @@ Comm D's ``q_d0, q̇_d0, q̈_d0`` while it is selected; Comm D's ``τ_D`` stays 
   generator's first step takes effect and the generator's references are selected; it then
   steps at every boundary and every DMP_STEP cycles after one (PERIOD is a multiple of
   DMP_STEP, the uploads check it), so the steps lie on the node's period grid, as Comm D's
-  commit does, and every joint of a system steps in the same cycle.
+  commit does, and every joint of a system steps in the same cycle. Under a disciplined
+  timer (CONFIG TC_DISCIPLINE, a period of PERIOD + adj cycles) the grid is the nominal
+  one: no step but the boundary's once the phase reaches PERIOD (``tail``), so a period
+  has PERIOD / DMP_STEP steps whatever ``adj``, its last interval DMP_STEP + adj.
 * ``STOP``: the generator stops; its references, still selected, hold the last position with
   zero velocity and acceleration.
 * ``OFF``: the generator stops and Comm D's references are selected again.
@@ -37,6 +40,9 @@ class DmpTiming(wiring.Component):
     ----------
     boundary : In(1)
         The period timer's boundary.
+    tail : In(1)
+        No step but the boundary's: the disciplined timer's phase is at or past PERIOD (the
+        cycles a lengthened period adds, :class:`~hdl.node.timer.PeriodTimer`).
     gen_ready : In(1)
         The generator's next step is computed. A step strobe without it changes nothing here
         (the generator counts it): the references and their time run on, and a waiting
@@ -54,6 +60,7 @@ class DmpTiming(wiring.Component):
     """
 
     boundary:    In(1)
+    tail:        In(1)
     gen_ready:   In(1)
     step_cycles: In(24)
     off:         In(1)
@@ -70,7 +77,7 @@ class DmpTiming(wiring.Component):
         waiting = Signal()          # started; the first step comes at the next boundary
         running = Signal()          # selected and stepping
         due = ((self.boundary & (waiting | running))
-               | (running & (self.ref_time == self.step_cycles)))
+               | (running & (self.ref_time == self.step_cycles) & ~self.tail))
         m.d.comb += [
             self.gen_start.eq(self.start),
             self.gen_stop.eq(self.stop | self.off),

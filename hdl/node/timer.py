@@ -10,7 +10,10 @@ With CONFIG TC_DISCIPLINE on (:mod:`~protocol.discipline`, issue 21 item 3) a ti
 the window runs one step of a digital PLL: the signed phase error ``e = phase − target`` sets
 this period's length to ``PERIOD + adj``, ``adj`` a share of ``e`` (saturated to 8 bits, so
 bounded) plus the carry of a fractional rate accumulator that integrates ``e``; ``tail`` then
-marks the last TICK cycles before the boundary (no control tick there). One subtraction,
+marks the last TICK cycles before the boundary (no control tick there). The step is
+computed serially (one shift a cycle for the gains, no barrel shifters): the new ``adj``
+applies :data:`~protocol.discipline.LATENCY` cycles after the time-code, and a time-code
+in the cycles between is not taken by the loop. One subtraction,
 ``rem = PERIOD + adj − phase`` (the cycles to the boundary), serves the end of the period
 (``rem ≤ 1``), its last phase, the tail, the window before the boundary and that side's
 error. The window is then two-sided: a time-code up to SYNC_WINDOW cycles *before* a
@@ -29,7 +32,8 @@ from amaranth import *
 from amaranth.lib import data, wiring
 from amaranth.lib.wiring import In, Out
 
-from mrm_cosim.protocol.discipline import E_BITS, FRAC, GAIN_BITS, RATE_BITS, TARGET_BITS
+from mrm_cosim.protocol.discipline import (E_BITS, FRAC, GAIN_BITS, LATENCY, RATE_BITS,
+                                           TARGET_BITS)
 from mrm_cosim.protocol.fixed import WORD
 
 __all__ = ["PeriodTimer", "Snapshot", "DisciplineWord"]
@@ -150,9 +154,14 @@ class PeriodTimer(wiring.Component):
 
     def _loop(self, m, adj, rem, early):
         """The discipline's step at an in-window time-code
-        (:func:`~protocol.discipline.loop_step`). The error saturates at ±128, so the
-        arrival's phase (or minus the cycles to the boundary) is first clipped to 14 bits:
-        ``|x| ≥ 2^13 > 4095 + 128`` saturates whatever the target."""
+        (:func:`~protocol.discipline.loop_step`), serially: in the time-code's cycle the
+        error ``e`` (it saturates at ±128, so the arrival's phase, or minus the cycles to the
+        boundary, is first clipped to 14 bits: ``|x| ≥ 2^13 > 4095 + 128`` saturates whatever
+        the target) into two shift registers, ``e·2^FRAC`` and ``e``; in each of the next
+        2^GAIN_BITS − 1 cycles ``k`` (1 …) each shifts right by one while ``k ≤ ki`` (``kp``),
+        which leaves ``(e·2^FRAC) >> ki`` and ``e >> kp`` without a barrel shifter; then the
+        sums, into ``f``, ``a``, ``adj`` — :data:`~protocol.discipline.LATENCY` cycles after
+        the time-code. ``step`` ≠ 0: a step under way, a time-code then is not taken."""
         d = self.discipline
         e_max = 1 << (E_BITS - 1)
         f_max = 1 << (RATE_BITS - 1)
@@ -166,6 +175,10 @@ class PeriodTimer(wiring.Component):
         fsum = Signal(signed(RATE_BITS + 1))
         f2   = Signal(signed(RATE_BITS))
         s    = Signal(signed(RATE_BITS + 1))
+        sat_r = Signal()                        # e saturated, kept for the sums
+        sf   = Signal(signed(RATE_BITS))        # e·2^FRAC, shifted right ki times
+        sp   = Signal(signed(E_BITS))           # e, shifted right kp times
+        step = Signal(range(LATENCY))           # 0 idle; 1 … LATENCY − 2 shifts; the sums
         top  = raw[E_BITS - 1:]                 # all equal: raw fits E_BITS
         rtop = rem[13:]                         # all equal: rem fits 14 bits
         rfit = (rtop == 0) | (rtop == (1 << len(rtop)) - 1)
@@ -175,17 +188,27 @@ class PeriodTimer(wiring.Component):
             raw.eq(x - d.target),
             sat.eq(~((top == 0) | (top == (1 << len(top)) - 1))),
             e.eq(Mux(sat, Mux(raw[-1], -e_max, e_max - 1), raw)),
-            fsum.eq(f + ((e << FRAC) >> d.ki)),
-            f2.eq(Mux(sat, f,
+            fsum.eq(f + sf),
+            f2.eq(Mux(sat_r, f,
                       Mux(fsum[-1] == fsum[-2], fsum,                   # no overflow
                           Mux(fsum[-1], -f_max, f_max - 1)))),
             s.eq(a + f2),
         ]
         with m.If(self.restart):
-            m.d.sync += [f.eq(0), a.eq(0), adj.eq(0)]
-        with m.Elif(self.time_code & ~self.resync & d.enable):
+            m.d.sync += [f.eq(0), a.eq(0), adj.eq(0), step.eq(0)]
+        with m.Elif(step == 0):
+            with m.If(self.time_code & ~self.resync & d.enable):
+                m.d.sync += [sat_r.eq(sat), sf.eq(e << FRAC), sp.eq(e), step.eq(1)]
+        with m.Elif(step == LATENCY - 1):
             m.d.sync += [
                 f.eq(f2),
                 a.eq(s[:FRAC]),
-                adj.eq((s >> FRAC) + (e >> d.kp)),
+                adj.eq((s >> FRAC) + sp),
+                step.eq(0),
             ]
+        with m.Else():
+            with m.If(step <= d.ki):
+                m.d.sync += sf.eq(sf >> 1)
+            with m.If(step <= d.kp):
+                m.d.sync += sp.eq(sp >> 1)
+            m.d.sync += step.eq(step + 1)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from mrm_cosim.protocol.discipline import Discipline, arrival, loop_step, period_length
+from mrm_cosim.protocol.discipline import LATENCY, Discipline, arrival, loop_step, period_length
 
 __all__ = ["TimerModel"]
 
@@ -34,6 +34,9 @@ class TimerModel:
         ones.
     f, a, adj : int
         The loop's rate estimate, fraction and this period's adjustment.
+    pending : tuple or None
+        A step under way: ``(cycle, f, a, adj)``, its values and the first cycle they apply
+        (:data:`~protocol.discipline.LATENCY` after its time-code).
     errors, rates : list of int
         The phase error ``phase − target`` of every time-code the loop took, and the rate
         estimate ``f`` after it.
@@ -52,6 +55,7 @@ class TimerModel:
     f: int = 0
     a: int = 0
     adj: int = 0
+    pending: tuple | None = None
     lb: int = 0                 # last boundary
     nb: int = 0                 # next boundary (cycle 0 at reset)
 
@@ -66,14 +70,26 @@ class TimerModel:
 
     def rem(self, now: int) -> int:
         """The gateware's ``rem = PERIOD + adj − phase`` in cycle ``now``."""
-        return self.period + self.adj - self.phase(now)
+        phase = self.phase(now)
+        return self.period + self.adj - phase
 
     def advance(self, now: int) -> None:
-        """Process the boundaries of cycles before ``now``."""
-        while self.nb < now:
-            self.lb = self.nb
-            self.nb = self.lb + self.length
-            self.boundaries.append(self.lb)
+        """Process the boundaries of cycles before ``now`` and a loop step applying in
+        ``now`` or before (before a boundary in its own cycle: that period is the new
+        length)."""
+        while True:
+            p = self.pending
+            if p is not None and p[0] <= now and p[0] <= self.nb:
+                self.pending = None
+                self.f, self.a, self.adj = p[1:]
+                self.rates.append(self.f)
+                self._relength(p[0] - 1)
+            elif self.nb < now:
+                self.lb = self.nb
+                self.nb = self.lb + self.length
+                self.boundaries.append(self.lb)
+            else:
+                break
 
     def phase(self, now: int) -> int:
         """The timer's phase in cycle ``now`` (0 in a boundary's cycle)."""
@@ -92,6 +108,7 @@ class TimerModel:
     def timecode(self, now: int) -> bool:
         """A time-code strobe in cycle ``now``; returns whether it re-synchronised."""
         p = self.phase(now)
+        busy = self.pending is not None         # a step under way: this one is not taken
         resync, lp = arrival(self.word, p, self.window, self.period + self.adj)
         if resync:
             self.nb = now
@@ -103,11 +120,9 @@ class TimerModel:
             if self.enabled:        # the arrival cycle counts as phase `target`
                 self.lb = now - Discipline.from_word(self.word).target
                 self.nb = self.lb + self.length
-        elif self.enabled:
+        elif self.enabled and not busy:
             self.errors.append(lp - Discipline.from_word(self.word).target)
-            self.f, self.a, self.adj = loop_step(self.word, lp, self.f, self.a)
-            self.rates.append(self.f)
-            self._relength(now)
+            self.pending = (now + LATENCY, *loop_step(self.word, lp, self.f, self.a))
         return resync
 
     def config(self, now: int, word: int) -> None:
@@ -115,4 +130,5 @@ class TimerModel:
         self.advance(now)
         self.word = word
         self.f = self.a = self.adj = 0
+        self.pending = None
         self._relength(now)
