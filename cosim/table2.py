@@ -225,7 +225,7 @@ def run_table2(config: ExperimentConfig, out, *, progress: Progress | None = Non
         write_json(tmp / "summary.json", summary)
         (tmp / "config.toml").write_text(config.to_toml())
         (tmp / "table2.md").write_text(table_markdown(summary))
-        _comparison_plots(tmp, robot, config, runs, profile)
+        _comparison_plots(tmp, robot, config, runs, profile, jobs=jobs)
     return summary
 
 
@@ -453,19 +453,45 @@ def tip_error(robot, q_d, q) -> np.ndarray:
                      for a, b in zip(q_d, q, strict=True)])
 
 
-def _comparison_plots(folder: Path, robot, config, runs, profile) -> None:
-    from mrm_cosim.cosim.plots import plot_error_comparison, plot_joint_tracking, plot_torques
-
+def _comparison_plots(folder: Path, robot, config, runs, profile, jobs: int = 1) -> None:
+    """The paper's Fig. 4 and 5 and the torques of every controller (three PNGs); with
+    ``jobs`` > 1 drawn side by side on forked processes (the same files: each figure is drawn
+    from the same data by the same code wherever it runs)."""
     first = next(iter(runs.values()))[0]
     every = _every_ms(first.t)
     t = first.t[::every]
     q_d = profile.evaluate(t)[0]
     qs = {c: r.q[::every][: len(t)] for c, (r, _) in runs.items()}
     sub = f"{robot.name}, {config.backend}, seed {config.seed}"
-    plot_joint_tracking(folder / "fig4_tracking.png", t, q_d, qs,
-                        f"Joint tracking (paper Fig. 4), {sub}")
-    plot_error_comparison(folder / "fig5_errors.png", t, {c: q_d - q for c, q in qs.items()},
-                          {c: tip_error(robot, q_d, q) for c, q in qs.items()},
-                          f"Tracking errors (paper Fig. 5), {sub}")
-    plot_torques(folder / "torques.png", first.t, {c: r.tau for c, (r, _) in runs.items()},
-                 f"Torque commands (every plant step), {sub}", peak=robot.peak_torques)
+    figures = [
+        ("joint_tracking", (folder / "fig4_tracking.png", t, q_d, qs,
+                            f"Joint tracking (paper Fig. 4), {sub}"), {}),
+        ("error_comparison", (folder / "fig5_errors.png", t,
+                              {c: q_d - q for c, q in qs.items()},
+                              {c: tip_error(robot, q_d, q) for c, q in qs.items()},
+                              f"Tracking errors (paper Fig. 5), {sub}"), {}),
+        ("torques", (folder / "torques.png", first.t,
+                     {c: r.tau for c, (r, _) in runs.items()},
+                     f"Torque commands (every plant step), {sub}"),
+         {"peak": robot.peak_torques}),
+    ]
+    if jobs <= 1:
+        for spec in figures:
+            _draw(spec)
+        return
+    from mrm_cosim.cosim.executors import LocalExecutor
+
+    with LocalExecutor(min(jobs, len(figures))) as ex:
+        for i, status, value in ex.run(_draw, figures):
+            if status != "ok":
+                raise RuntimeError(f"drawing {figures[i][1][0].name} failed in its "
+                                   f"process:\n{value}")
+
+
+def _draw(spec, report=None) -> None:
+    """One of :func:`_comparison_plots`' figures, ``(kind, args, kwargs)``:
+    ``plots.plot_<kind>(*args, **kwargs)`` (``report``: the executor's, unused)."""
+    from mrm_cosim.cosim import plots
+
+    kind, args, kwargs = spec
+    getattr(plots, f"plot_{kind}")(*args, **kwargs)

@@ -266,6 +266,10 @@ def test_side_by_side_runs_give_the_same_results_as_one_after_the_other(tmp_path
     for c in cfg.controllers:
         assert (tmp_path / "one" / c / "trace.csv").read_bytes() == \
             (tmp_path / "two" / c / "trace.csv").read_bytes()
+    # the comparison figures, drawn side by side on forked processes with jobs > 1: the same
+    # bytes as drawn one after the other
+    for name in ("fig4_tracking.png", "fig5_errors.png", "torques.png"):
+        assert (tmp_path / "one" / name).read_bytes() == (tmp_path / "two" / name).read_bytes()
     lines = stream.getvalue().splitlines()
     assert sum(line.startswith("[") for line in lines) == len(cfg.controllers)
     for c in cfg.controllers:
