@@ -293,3 +293,15 @@ def test_cli_refuses_a_bad_jobs_count(tmp_path, capsys):
     code = cli.main(["run", "table2", "--jobs", "0", "--out", str(tmp_path / "o")])
     assert code == 2 and "--jobs" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_table2_runs_one_process_per_controller_on_two_cores_or_more():
+    """Three equal runs on two cores end in 1.5 run times side by side, in 2 when each core
+    takes whole runs: one process per controller wherever there are two cores; one core runs
+    them in turn."""
+    from mrm_cosim.mrm.commands.run import table2_jobs
+
+    assert table2_jobs(3, cores=2) == 3
+    assert table2_jobs(3, cores=16) == 3
+    assert table2_jobs(2, cores=2) == 2
+    assert table2_jobs(3, cores=1) == 1
