@@ -1053,8 +1053,6 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     again in mode 0); 2 if a joint moved more than one count in a cycle (the plant has
     stepped, the nodes have not); 3 as :func:`plain_step`'s True. With ``pre_next`` and the
     step done, ``8 · (code + 2)``: ``code`` the next step's ``pre_free`` result (−1, 0, 1)."""
-    n = IB[H_N]
-    cycles = IB[H_CYCLES]
     h = F[F_H]
     hh = F[F_HH]
     if mode == 1:
@@ -1064,18 +1062,39 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
         if not plant_src.stuck(S, a) and plant_src.likely_pattern(S, M, h) != 1:
             return 4
     plant_src.finish(S, h, hh)
+    r = _step_nodes(IB, F, S, rec, i, start, plant_src.Q_START, plant_src.V_START,
+                    plant_src.A_PREV, plant_src.Q, plant_src.Q)
+    if r:
+        return r
+    if pre_next:
+        n = IB[H_N]
+        tau = F[F_SIZE + n:F_SIZE + 2 * n]
+        return 8 * (plant_src.pre_free(S, C, tau, hh, F[F_FRICTION]) + 2)
+    return 0
+
+
+def _step_nodes(IB, F, S, rec, i, start, start_row, velocity_row, acc_row, end_row, q_row):
+    """The end of a fast step, after the plant's: the trace row ``i`` (``S[q_row]`` the
+    angles, the torques that drove the step), the count changes of the encoder's motion
+    (``S[start_row]``, ``S[velocity_row]``, ``S[acc_row]``, ``S[end_row]``: start angle and
+    velocity, the step's acceleration, end angle; :func:`step_changes`) and every node's plain
+    ticks to the step's last cycle with the torques they output there (:func:`plain_step`).
+    Returns 0; 2 if a joint moved more than one count in a cycle; 3 as :func:`plain_step`'s
+    True."""
+    n = IB[H_N]
+    cycles = IB[H_CYCLES]
     N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR = blob_views(IB)
     K = F[F_SIZE:F_SIZE + n]
     tau = F[F_SIZE + n:F_SIZE + 2 * n]
     M = np.empty((4, n))
     for j in range(n):
-        M[0, j] = S[plant_src.Q_START, j]
-        M[1, j] = S[plant_src.V_START, j]
-        M[2, j] = S[plant_src.A_PREV, j]
-        M[3, j] = S[plant_src.Q, j]
-        rec[0, i, j] = S[plant_src.Q, j]
+        M[0, j] = S[start_row, j]
+        M[1, j] = S[velocity_row, j]
+        M[2, j] = S[acc_row, j]
+        M[3, j] = S[end_row, j]
+        rec[0, i, j] = S[q_row, j]
         rec[1, i, j] = tau[j]
-    if step_changes(M, K, h, cycles, CHC, CHN, NCH):
+    if step_changes(M, K, F[F_H], cycles, CHC, CHN, NCH):
         return 2
     plain = np.ones(n, dtype=np.bool_)
     for k in range(n):
@@ -1083,8 +1102,6 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     if plain_step(N, P, E, VIS, PIPE, DUE, PEND, plain, start, cycles, 0, CHC, CHN, NCH, CUR,
                   tau):
         return 3
-    if pre_next:
-        return 8 * (plant_src.pre_free(S, C, tau, hh, F[F_FRICTION]) + 2)
     return 0
 
 
@@ -1108,31 +1125,17 @@ def fast_step_compliant(IB, F, S, acc, rec, i, start, C, noise, pre_next):
     Returns 0; 2 if a joint moved more than one count in a cycle (the plant has stepped, the
     nodes have not); 3 as :func:`plain_step`'s True; with ``pre_next``, ``8 · (code + 2)`` with
     ``code`` 1 (``pre`` done) or −1 (a torque was not finite, nothing done)."""
-    n = IB[H_N]
-    cycles = IB[H_CYCLES]
     h = F[F_H]
     hh = F[F_HH]
     compliant_src.finish(S, acc, h, hh)
-    N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR = blob_views(IB)
-    K = F[F_SIZE:F_SIZE + n]
-    tau = F[F_SIZE + n:F_SIZE + 2 * n]
-    M = np.empty((4, n))
-    for j in range(n):
-        M[0, j] = S[compliant_src.TH_START, j]
-        M[1, j] = S[compliant_src.W_START, j]
-        M[2, j] = S[compliant_src.AM_PREV, j]
-        M[3, j] = S[compliant_src.TH, j]
-        rec[0, i, j] = S[compliant_src.Q, j]
-        rec[1, i, j] = tau[j]
-    if step_changes(M, K, h, cycles, CHC, CHN, NCH):
-        return 2
-    plain = np.ones(n, dtype=np.bool_)
-    for k in range(n):
-        CUR[k] = 0
-    if plain_step(N, P, E, VIS, PIPE, DUE, PEND, plain, start, cycles, 0, CHC, CHN, NCH, CUR,
-                  tau):
-        return 3
+    # the motor-side encoder counts the motor (θ); the trace records the link (q)
+    r = _step_nodes(IB, F, S, rec, i, start, compliant_src.TH_START, compliant_src.W_START,
+                    compliant_src.AM_PREV, compliant_src.TH, compliant_src.Q)
+    if r:
+        return r
     if pre_next:
+        n = IB[H_N]
+        tau = F[F_SIZE + n:F_SIZE + 2 * n]
         if compliant_src.pre(S, C, tau, noise, h, hh, F[F_FRICTION] != 0.0):
             return 24
         return 8

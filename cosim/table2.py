@@ -463,16 +463,18 @@ def _comparison_plots(folder: Path, robot, config, runs, profile, jobs: int = 1)
     q_d = profile.evaluate(t)[0]
     qs = {c: r.q[::every][: len(t)] for c, (r, _) in runs.items()}
     sub = f"{robot.name}, {config.backend}, seed {config.seed}"
+    from mrm_cosim.cosim.plots import plot_error_comparison, plot_joint_tracking, plot_torques
+
     figures = [
-        ("joint_tracking", (folder / "fig4_tracking.png", t, q_d, qs,
-                            f"Joint tracking (paper Fig. 4), {sub}"), {}),
-        ("error_comparison", (folder / "fig5_errors.png", t,
-                              {c: q_d - q for c, q in qs.items()},
-                              {c: tip_error(robot, q_d, q) for c, q in qs.items()},
-                              f"Tracking errors (paper Fig. 5), {sub}"), {}),
-        ("torques", (folder / "torques.png", first.t,
-                     {c: r.tau for c, (r, _) in runs.items()},
-                     f"Torque commands (every plant step), {sub}"),
+        (plot_joint_tracking, (folder / "fig4_tracking.png", t, q_d, qs,
+                               f"Joint tracking (paper Fig. 4), {sub}"), {}),
+        (plot_error_comparison, (folder / "fig5_errors.png", t,
+                                 {c: q_d - q for c, q in qs.items()},
+                                 {c: tip_error(robot, q_d, q) for c, q in qs.items()},
+                                 f"Tracking errors (paper Fig. 5), {sub}"), {}),
+        (plot_torques, (folder / "torques.png", first.t,
+                        {c: r.tau for c, (r, _) in runs.items()},
+                        f"Torque commands (every plant step), {sub}"),
          {"peak": robot.peak_torques}),
     ]
     if jobs <= 1:
@@ -489,9 +491,7 @@ def _comparison_plots(folder: Path, robot, config, runs, profile, jobs: int = 1)
 
 
 def _draw(spec, report=None) -> None:
-    """One of :func:`_comparison_plots`' figures, ``(kind, args, kwargs)``:
-    ``plots.plot_<kind>(*args, **kwargs)`` (``report``: the executor's, unused)."""
-    from mrm_cosim.cosim import plots
-
-    kind, args, kwargs = spec
-    getattr(plots, f"plot_{kind}")(*args, **kwargs)
+    """One of :func:`_comparison_plots`' figures, ``(plot, args, kwargs)``: ``plot(*args,
+    **kwargs)`` (``report``: the executor's, unused)."""
+    plot, args, kwargs = spec
+    plot(*args, **kwargs)

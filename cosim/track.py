@@ -210,7 +210,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         "link_error_detail": link_detail,
         "phases_us": phases,
         "period_skew": period_skew(master.records, robot.n, timing.period_cycles,
-                                   strobes=getattr(master, "boundary_strobes", None)),
+                                   strobes=master.boundary_strobes),
         "trace_sha256": result.trace_sha256,
         "wall_s": wall,
         "rtf": wall / (duration + start / CLOCK_HZ),

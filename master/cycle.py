@@ -209,6 +209,9 @@ class Master:
         self.dt = timing.period_cycles / clock_hz
         self.start = None
         self.records: list[PeriodRecord] = []
+        #: every ``(cycle, node)`` BOUNDARY strobe from period 0 on (a record keeps only each
+        #: period's first: a node starting a period early strobes late in the previous one)
+        self.boundary_strobes: list[tuple[int, int]] = []
         self.overruns = 0        # periods whose exchange did not finish within the period
         self.missing = 0         # replies that never came
         self.unexpected = 0      # replies that were not asked for, or malformed
@@ -425,6 +428,8 @@ class Master:
                         break
                     if r.index < index:
                         break
+            if name == "BOUNDARY":
+                self.boundary_strobes.append((now, node))
             if seen is not None:
                 key = (name, node)
                 if seen.setdefault(key, now) > now:     # the first strobe in the period

@@ -62,11 +62,34 @@ def test_one_clock_one_reset_every_period_starts_together():
     period start, the time-code 12 cycles a hop down the chain."""
     from mrm_cosim.cosim.track import run_track
 
-    _, summary = run_track("mrm3", "vdc", "model", duration=0.005)
+    result, summary = run_track("mrm3", "vdc", "model", duration=0.005)
     s = summary["period_skew"]
     assert s["periods"] >= 5 and s["missing"] == 0
+    # the master kept every boundary, one per node per period
+    assert len(result.master.boundary_strobes) == 3 * s["periods"]
     assert s["node_vs_master"]["max_abs_cycles"] == 0
     assert s["between_nodes"]["max_cycles"] == 0
     lat = s["timecode_latency_cycles"]
     assert lat[0][0] == lat[0][1] > 0
     assert lat[1][0] - lat[0][0] == lat[2][0] - lat[1][0] > 0     # the same hop delay
+
+
+def test_the_master_keeps_every_boundary_a_record_would_drop():
+    """A record keeps each period's first strobe of a name; an early boundary of the next
+    period lands in the same record after the on-time one. The master's
+    ``boundary_strobes`` keeps both, so the skew sees the early start (−5), not a gap."""
+    from mrm_cosim.master.cycle import Master
+    from mrm_cosim.models.robot import load_robot
+
+    robot = load_robot("mrm3")
+    master = Master(robot, "pid-fpga", lambda t: (np.zeros(3),) * 3, robot.counts_per_rev)
+    master.begin(1000)
+    master.records = _records(periods=2)
+    master.on_node_events([(1000, 1, "BOUNDARY"), (1000 + P - 5, 1, "BOUNDARY"),
+                           (1000 + P - 5, 1, "RX_A")])
+    assert master.boundary_strobes == [(1000, 1), (1000 + P - 5, 1)]
+    assert master.records[0].node_events[("BOUNDARY", 1)] == 1000        # the first only
+    with_all = period_skew(master.records, 1, P, strobes=master.boundary_strobes)
+    firsts = period_skew(master.records, 1, P)
+    assert with_all["missing"] == 0 and with_all["node_vs_master"]["max_abs_cycles"] == 5
+    assert firsts["missing"] == 1
