@@ -122,6 +122,34 @@ def test_generator_steps_on_the_nominal_grid_of_a_disciplined_period(step, targe
     assert all(parse_comm_a(r[1])["overruns"] == 0 for r in replies)
 
 
+@pytest.mark.parametrize("step, arrive", [
+    # DMP_STEP does not divide PERIOD: the boundary's strobe comes 200 cycles after a step
+    # (not ready), and the grid step DMP_STEP after the last step taken still comes
+    (600, 20),
+    # the same with a resync 700 cycles into a period (the loop off): off the grid
+    (600, 700),
+    # DMP_STEP divides PERIOD; a resync at 1500 moves the boundaries off the old grid
+    (STEP, 1500),
+], ids=["step-not-dividing", "resync-off-grid", "resync-on-step"])
+def test_a_strobe_that_finds_the_generator_busy_leaves_its_grid_step_due(step, arrive):
+    """A step strobe whose references are not ready (a boundary's, 200 or 100 cycles after a
+    step that takes ~590) changes nothing but the overrun count: the generator's time runs on
+    from the last step taken, so the grid step DMP_STEP after it still comes. The reference
+    had dropped that step and waited for the next boundary. Gateware == reference every cycle
+    (inside ``_run``); time-codes at phase ``arrive`` with TC_DISCIPLINE 0 (a resync when
+    outside SYNC_WINDOW)."""
+    trace, strobes, model, replies, marks = _run(1, discipline=0, arrive=arrive, step=step,
+                                                 control={0: DmpControl.START})
+    steps = sorted(c for c, f in strobes if f == NodeEvent.DMP_STEP)
+    gaps = {b - a for a, b in zip(steps, steps[1:], strict=False)}
+    if step == 600:
+        # every boundary strobe misses, and is counted; the grid keeps its 600-cycle beat
+        assert max(parse_comm_a(r[1])["dmp_overruns"] for r in replies) > 0
+        taken = [c for c in steps if c not in set(model.boundaries)]
+        assert {b - a for a, b in zip(taken, taken[1:], strict=False)} <= {step, 2 * step}
+    assert min(gaps) > 0 and len(steps) >= 10
+
+
 def _run(mode, discipline=None, arrive=None, step=STEP, control=None):
     """The node core with the generator against NodeModel, every cycle; CONFIG DMP as in
     ``control`` (period → DmpControl, START / STOP / OFF in periods 0, 3, 4 by default).

@@ -31,8 +31,9 @@ Internal events follow the node's period timer (free-running from reset, phase 0
   (≠ 0), at the latest STOP_CYCLES after the trip; the hold for BRAKE_CYCLES from the
   brake's first cycle; then the ramp to zero (STO);
 * steps of the primitive generator (:class:`~hdl.node.dmp_ref.DmpGeneratorModel`, CONFIG DMP,
-  :mod:`~hdl.node.dmp_seq`): at every boundary and every DMP_STEP cycles after one while it
-  runs (with the loop on, only at phases below PERIOD: a lengthened period's last interval
+  :mod:`~hdl.node.dmp_seq`): at every boundary and DMP_STEP cycles after the last step
+  taken while it runs (a strobe that finds the references not ready does not move that
+  grid; with the loop on, only at phases below PERIOD: a lengthened period's last interval
   is DMP_STEP + adj, not a step just before the boundary's own); while it is selected its
   references replace Comm D's (``τ_D`` stays Comm D's) and their time counts from the step.
 
@@ -312,7 +313,11 @@ class NodeModel:
             self.events.append((c, Ev.DMP_STEP))
         out = self.dmp.step(c)
         if out is None:
-            self._dmp_due = _NEVER              # its time runs on: the next boundary steps
+            # Its time runs on from the last step taken: a grid step still ahead of this strobe
+            # (a boundary's, off the grid after a resync) comes as due; one missed at the grid
+            # point leaves the next boundary to step.
+            if c >= self._dmp_due:
+                self._dmp_due = _NEVER
             return
         if self.dmp_waiting:
             self.dmp_waiting, self.dmp_running, self.dmp_select = False, True, True
