@@ -14,7 +14,8 @@ rate estimate from period 60 (cycles per period). Settings: off
 (TC_DISCIPLINE 0, today's timer), on from a common reset, on with each node out of reset at a
 random cycle of the master's first period (acquisition by the first time-code). Seeds vary the
 phases, start cycles and jitter; the worst over seeds is printed.
-``tests/test_timer_discipline.py`` checks the same cases.
+``tests/test_timer_discipline.py`` checks the same cases. ``--plot PNG`` also draws seed 0's
+skew over the run, off and on (:func:`~cosim.plots.plot_skew`; docs/img/timer_skew.png).
 """
 
 import argparse
@@ -32,6 +33,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--periods", type=int, default=1000, help="master periods (1 ms each)")
     parser.add_argument("--seeds", type=int, default=10, help="seeds; the worst is printed")
+    parser.add_argument("--plot", metavar="PNG", help="draw seed 0's skew over the run here")
     args = parser.parse_args()
     t0 = time.process_time()
     settings = [("off", None, False), ("on", GAINS, False), ("on, late reset", GAINS, True)]
@@ -61,6 +63,18 @@ def main():
             print(f"{name:16} {ppm:+5d} {hop:3d} {mx:10.2f} {rms:8.2f} {lmx:11.2f} {lrms:11.2f} "
                   f"{bound:6.1f} {lk:>5} {rs:8d} {wd:>10}")
     print(f"CPU {time.process_time() - t0:.1f} s")
+    if args.plot:
+        from mrm_cosim.cosim.plots import plot_skew
+
+        runs = {}
+        for name, disc in (("discipline off", None), ("discipline on (from a common reset)",
+                                                       GAINS)):
+            nodes = run_discipline(random_clocks(0), args.periods, discipline=disc, seed=0)
+            runs[name] = np.stack([r.skew for r in nodes], axis=1)
+        ppms = ", ".join(f"{r.clock.ppm:+d}" for r in nodes)
+        plot_skew(args.plot, runs, f"Node period starts against the master's: clocks {ppms} "
+                  "ppm at hops 1–4, bit-exact timer reference, seed 0")
+        print(f"wrote {args.plot}")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ from mrm_cosim.units import CLOCK_HZ
 __all__ = ["plot_tracking", "plot_joint_tracking", "plot_error_comparison", "plot_torques",
            "plot_parameters", "plot_timeline", "timeline_bars", "timeline_markers",
            "pick_period", "Bar", "Marker", "plot_tool_errors", "plot_tool_path",
-           "plot_safe_stop"]
+           "plot_safe_stop", "plot_skew"]
 
 _COLORS = {"pid-1khz": "tab:red", "pid-fpga": "tab:orange", "vdc": "tab:blue"}
 
@@ -500,6 +500,47 @@ def skew_line(skew: dict) -> str:
     if skew.get("missing"):
         text += f"; {skew['missing']} unseen"
     return text
+
+
+def plot_skew(path, runs: dict, title: str, period_s: float = 1e-3,
+              clock_hz: float = float(CLOCK_HZ)):
+    """Each node's period start against the master's over a run (issue 21 item 3): one panel
+    per run (e.g. ``{"discipline on": b_on, "discipline off": b_off}``), one line per node,
+    ns against the period's time.
+
+    Parameters
+    ----------
+    runs : dict
+        label → ``(periods, n_nodes)`` start offsets in cycles of the reference clock
+        (:func:`cosim.skew.start_offsets`; NaN where a period had no boundary strobe: a gap
+        in the line).
+    period_s : float
+        The master's period (the x axis: period index × ``period_s``).
+
+    Returns
+    -------
+    Figure
+        One axis per run, in ``runs``' order; on each, one line per node (node 1 first) whose
+        data are the offsets in ns, and the run's largest ``|offset|`` in the axis title.
+    """
+    fig, axes = _figure(len(runs), 2.4, 9.0)
+    ns = 1e9 / clock_hz
+    for ax, (label, b) in zip(axes, runs.items(), strict=True):
+        b = np.asarray(b, dtype=float)
+        t = np.arange(b.shape[0]) * period_s
+        for k in range(b.shape[1]):
+            ax.plot(t, b[:, k] * ns, lw=0.9, label=f"node {k + 1}")
+        seen = b[~np.isnan(b)]
+        worst = f"max |offset| {np.abs(seen).max() * ns:.0f} ns" if seen.size else "no boundary"
+        ax.set_title(f"{label}: {worst}", fontsize=9)
+        ax.set_ylabel("period start − master's (ns)", fontsize=8)
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.grid(True, lw=0.3)
+        ax.legend(loc="upper left", fontsize=7, ncol=min(6, b.shape[1]))
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle(title, fontsize=10)
+    _save(fig, path)
+    return fig
 
 
 def plot_dmp_paths(path, results: dict, period_ms: int, title: str):

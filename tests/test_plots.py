@@ -272,3 +272,21 @@ def test_a_long_run_is_drawn_through_its_envelope(tmp_path):
     assert len(err.get_xdata()) <= 4 * ENVELOPE_COLUMNS
     assert err.get_ydata().min() == (1e3 * (q_d[:, 1] - q[:, 1])).min()     # the spike
     assert_array_equal(err.get_ydata(), envelope(t, 1e3 * (q_d[:, 1] - q[:, 1]))[1])
+
+
+def test_skew_plot_draws_each_nodes_offsets_in_ns_per_run(tmp_path):
+    """One panel per run in order, one line per node whose data are the offsets in ns (20 ns a
+    cycle), a gap where a period had no boundary, the run's worst |offset| in the title."""
+    on = np.array([[1.0, -2.0], [np.nan, 3.0], [0.5, -4.0]])
+    off = np.array([[0.0, 0.0], [-50.0, 2.0], [-100.0, 4.0]])
+    fig = plots.plot_skew(tmp_path / "s.png", {"on": on, "off": off}, "skew")
+    assert (tmp_path / "s.png").stat().st_size > 0
+    ax_on, ax_off = fig.axes
+    for ax, b in ((ax_on, on), (ax_off, off)):
+        lines = [ln for ln in ax.get_lines() if ln.get_label().startswith("node")]
+        assert [ln.get_label() for ln in lines] == ["node 1", "node 2"]
+        for k, ln in enumerate(lines):
+            np.testing.assert_array_equal(ln.get_ydata(), b[:, k] * 20.0)
+            np.testing.assert_allclose(ln.get_xdata(), [0.0, 1e-3, 2e-3])
+    assert ax_on.get_title() == "on: max |offset| 80 ns"
+    assert ax_off.get_title() == "off: max |offset| 2000 ns"
