@@ -266,6 +266,10 @@ class NodeModel:
                     nt = _NEVER                 # the disciplined period's tail: no tick
             c = min(nb, nt, commit, pre, ds)
             if tp is not None and tp[0] <= c and tp[0] < until:
+                if nt == _NEVER and self._nt < tp[0]:
+                    # the tail took that tick in its cycle, under the adj then: the gateware's
+                    # tick counter has run out, and a new adj cannot bring it back
+                    self._nt = _NEVER
                 self._tc_apply(tp[0])           # the loop's step applies before its cycle
                 continue
             if c >= until:
