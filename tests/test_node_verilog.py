@@ -214,3 +214,18 @@ def test_the_node_fits_the_xc2v1000_flip_flops_multipliers_block_ram(node_xc2v):
 def test_the_node_fits_the_xc2v1000_luts_with_a_margin(node_xc2v):
     """LUT4 sites (logic and distributed RAM) at most 10,240 − :data:`LUT_MARGIN`."""
     assert node_xc2v["lut"] <= 10_240 - LUT_MARGIN, node_xc2v
+
+
+def test_nextpnr_is_found_by_its_absolute_path_through_a_relative_path_entry(tmp_path,
+                                                                            monkeypatch):
+    """`PATH=.venv/bin:$PATH` (docs/node.md's command) names the tool relative to the caller's
+    directory; the flow runs it in a temporary one, so the path it gets must be absolute."""
+    from mrm_cosim.hdl import synth
+
+    (tmp_path / "bin").mkdir()
+    tool = tmp_path / "bin" / "nextpnr-ecp5"
+    tool.write_text("#!/bin/sh\n")
+    tool.chmod(0o755)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("PATH", "bin")
+    assert synth.find_nextpnr() == str(tool)
