@@ -68,6 +68,8 @@ from mrm_cosim.protocol.joint_program import JointParams, pid_shifts_per_node
 from mrm_cosim.protocol.fixed import FORCE
 from mrm_cosim.protocol.regs import Config
 
+_COMMIT = int(Config.COMMIT)
+
 __all__ = ["ModelBackend", "ModelAssumptionError"]
 
 _MARGIN = 500           # cycles of margin the model wants around every timing condition
@@ -164,6 +166,7 @@ class ModelBackend(GatewareSide):
             self._F = np.zeros(ksrc.F_SIZE + 2 * self.n)
             self._no_a, self._no_M = np.zeros(self.n), np.zeros((self.n, self.n))
         self._horizon_end = None        # fast path: _horizon's (None: recompute)
+        self._commits = []              # fast path: _horizon's plain commits (node, cycle)
         self._send_at = None            # send_ahead: the cycle send() sends at (None: now)
         self._fast_seen = None          # fast path: what reached the master (fast_observed)
         #: plant steps the fast path ran, by how the plant step ended (free, stick-slip: the
@@ -370,8 +373,17 @@ class ModelBackend(GatewareSide):
         :meth:`fast_path`)."""
         end = soon = ksrc.NEVER
         inbox = self._link.inbox
+        commits = []
         for k, node in enumerate(self.nodes):
-            x = node.next_special() + 1
+            x = node.next_special()
+            if x == node._lb + node.config[_COMMIT]:
+                kc = node.kernel_commit()       # a plain commit: the kernel takes it
+                if kc is not None and kc[0] == x:
+                    commits.append((node, x))
+                    if node.d_pending and x < soon:
+                        soon = x                # its COMMIT strobe reaches the master
+                    x = kc[1]
+            x += 1
             for e in inbox[k]:
                 if e[0] < x:
                     x = e[0]
@@ -383,6 +395,7 @@ class ModelBackend(GatewareSide):
         for r in self._link.replies:
             if r[0] < soon:
                 soon = r[0]
+        self._commits = commits
         return end, soon
 
     def fast_observed(self) -> Observed | None:
@@ -516,11 +529,20 @@ class ModelBackend(GatewareSide):
         for node in self.nodes:
             if not node.in_kernel:
                 node.push()
+        for node, c in self._commits:           # (the horizon's: _fast_limits just ran)
+            node.arm_commit(c)
 
     def _fast_end_run(self, plant, r: int, cycle: int, soon: int, steps: int) -> int:
         """The end of a fast run of ``steps`` steps ending at ``cycle``, the last kernel call
         having returned ``r``: its errors raised, the backend at ``cycle``, what reached the
-        master in the last step kept for :meth:`fast_observed`."""
+        master in the last step kept for :meth:`fast_observed`. The commits the run's
+        horizon armed are taken on the objects, or disarmed (:meth:`KernelNode.end_commit
+        <cosim.model_kernel.KernelNode.end_commit>`)."""
+        if self._commits:
+            for node, c in self._commits:
+                node.end_commit(c)
+            self._commits = []
+            self._horizon_end = None            # (the nodes' next events have moved on)
         if r == 2:                      # the plant stepped, the nodes did not
             PlantLines(plant).changes()         # the reference raises EncoderOverspeed
             raise AssertionError("model kernel: an overspeed the reference missed")

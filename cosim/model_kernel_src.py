@@ -53,7 +53,11 @@ N_ARMED, N_TRIPPED, N_PRIME, N_PRIME_DUE, N_PRIME_SET = 18, 19, 20, 21, 22
 N_LAST_PACKET, N_DBASE = 23, 24
 N_D0 = 25                                       # d_words: 25..28
 N_TICK, N_MODE, N_TIMEOUT, N_TAU_MIN, N_TAU_MAX, N_RAMP = 29, 30, 31, 32, 33, 34
-N_SIZE = 35
+# a plain commit the kernel takes (:func:`node_plain`): its cycle (NEVER: none), then the
+# pending Comm D's words and boundary (d_next, d_next_base) it puts in d_words and d_base
+N_COMMIT_C, N_DN_BASE = 35, 36
+N_DN0 = 37                                      # d_next: 37..40
+N_SIZE = 41
 
 # --- joint parameter row ---------------------------------------------------------------------
 P_CT, P_CTH, P_KC, P_LAMC, P_LAM, P_IVS, P_IVLC, P_KJ = 0, 1, 2, 3, 4, 5, 6, 7
@@ -624,6 +628,25 @@ def _dead_run(N, P, E, vis, due, first, k, step, cyc):
 
 
 def node_plain(N, P, E, vis, pipe, due, lim):
+    """The plain ticks before ``lim`` (:func:`node_ticks`), and the commit of ``N[N_COMMIT_C]``
+    if it lies before ``lim``: as :meth:`KernelNode.run <cosim.model_kernel.KernelNode.run>`
+    takes a plain commit point ``c`` (:meth:`~cosim.model_kernel.KernelNode._commit_in_row`),
+    the ticks before ``c``, the tick in cycle ``c``, then the pending Comm D's words into
+    ``d_words`` and ``d_base`` (:meth:`NodeModel._take_d <hdl.node.core_ref.NodeModel._take_d>`
+    with the generator's references not selected). The caller arms it only for such a commit
+    (:meth:`cosim.model.ModelBackend._horizon`) and does the object's side after."""
+    c = N[N_COMMIT_C]
+    if c < lim:
+        node_ticks(N, P, E, vis, pipe, due, c)
+        node_ticks(N, P, E, vis, pipe, due, c + 1)
+        N[N_COMMIT_C] = NEVER
+        N[N_DBASE] = N[N_DN_BASE]
+        for j in range(4):
+            N[N_D0 + j] = N[N_DN0 + j]
+    node_ticks(N, P, E, vis, pipe, due, lim)
+
+
+def node_ticks(N, P, E, vis, pipe, due, lim):
     """The lazy branch of :meth:`FastNode.run`'s loop for the plain ticks before ``lim``."""
     step = N[N_TICK]
     cyc = P[P_CYC + N[N_MODE]]

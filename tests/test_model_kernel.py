@@ -153,7 +153,8 @@ def _run(robot_name, controller, kernel, cycles, joints="rigid"):
                       node_uploads(robot, controller, gains))
     result = loop.run(cycles)
     state = [(n._nt, n.torque, n.overruns, n._landing, n._deferred, n.joint.q_des,
-              n.joint.v_des, n.joint.i_lo, n.joint.i_hi, n.tripped, n.prime)
+              n.joint.v_des, n.joint.i_lo, n.joint.i_hi, n.tripped, n.prime, n.d_words,
+              n.d_base, n.cd_words, n.cd_base, n.d_pending, n._commit_seen)
              for n in backend.nodes]
     enc = [(e.count, e.velocity, e.errors) for e in backend.encoders]
     return result, payloads, state, enc, backend, plant
@@ -243,10 +244,16 @@ def test_compiled_and_python_paths_give_the_same_trace(robot, controller):
     assert steps["stick-slip"] + steps["solve"] > 0, steps
     # and some of its runs ended with a step whose replies or strobes it handed to the master
     assert fast[4].fast_handovers > 0
-    # the nodes' boundaries, commits, time-codes and packets ran with their tick state in the
-    # kernel's row (KernelNode._boundary_in_row, _commit_in_row, timecode, packet)
-    for event in ("boundary", "commit", "timecode", "packet"):
+    # the nodes' boundaries, time-codes and packets ran with their tick state in the kernel's
+    # row (KernelNode._boundary_in_row, timecode, packet), the commits inside fast steps
+    # (KernelNode.arm_commit), and the row's references are the object's
+    for event in ("boundary", "timecode", "packet"):
         assert sum(node.in_row[event] for node in fast[4].nodes) > 0, event
+    assert sum(node.fast_commits for node in fast[4].nodes) > 0
+    for node in fast[4].nodes:
+        assert node._row[src.N_D0:src.N_D0 + 4].tolist() == node.d_words
+        assert node._row[src.N_DBASE] == node.d_base
+        assert node._row[src.N_COMMIT_C] == src.NEVER
     assert slow[4].fast_steps == {"free": 0, "stick-slip": 0, "solve": 0}
     assert fast[1] == slow[1] and len(fast[1]) > 0
     assert fast[2] == slow[2]
@@ -272,6 +279,7 @@ def test_compiled_and_python_paths_give_the_same_trace_on_the_compliant_plant(ro
     assert type(fast[4].nodes[0]).__name__ == "KernelNode"
     assert fast[0].violations == slow[0].violations == []
     assert fast[0].trace_sha256 == slow[0].trace_sha256
+    assert sum(node.fast_commits for node in fast[4].nodes) > 0
     steps = fast[4].fast_steps      # (a compliant step has no stick-slip solve through ABA)
     assert steps["free"] > 0.8 * cycles / 500 and steps["stick-slip"] == steps["solve"] == 0
     assert fast[4].fast_handovers > 0
