@@ -174,6 +174,8 @@ class ModelBackend(GatewareSide):
         self.fast_steps = {"free": 0, "stick-slip": 0, "solve": 0}
         #: fast runs whose last step handed replies or strobes to the master (fast_observed)
         self.fast_handovers = 0
+        #: fast runs whose last step had node events (its nodes on the general path, _fast)
+        self.event_steps = 0
         self._fast_end = 0              # fast path: the end of its last step (node._done)
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
             node.lazy = self.lazy
@@ -452,10 +454,23 @@ class ModelBackend(GatewareSide):
         return self._fast_end_run(plant, r, cycle, soon, j - i)
 
     def _fast(self, plant, pk, rec, s: int, i: int, stop: int, cycle: int, lim: int) -> int:
-        """:meth:`fast_path`'s callable."""
-        lim, soon = self._fast_limits(lim)
-        if i >= stop or cycle + s > lim:
+        """:meth:`fast_path`'s callable. Its plain steps end at the horizon (:meth:`_horizon`);
+        where the master stays quiet to the end of the step after them (``lim``), no line is
+        cut and nothing reached the master before it, that step runs too, as the run's last:
+        its plant part in the kernel as a plain step's (``fast_step``'s ``pre_next`` −1), its
+        nodes as :meth:`advance` runs them (:meth:`_run_kernel` on the count changes the kernel
+        left), what reached the master handed over at its end (:meth:`fast_observed`) — what
+        the general step does, in the same order, without the loop's general step around it
+        (:attr:`event_steps`)."""
+        hard, soon = self._fast_limits(ksrc.NEVER)
+        plain_lim = hard if hard < lim else lim
+        # a last step with node events: the master quiet through it, no cut, nothing for the
+        # master before it (the plain steps' own stop)
+        events_ok = not (self._link.cuts or self._link.errors)
+        if i >= stop or cycle + s > lim or (cycle + s > plain_lim and
+                                            not (events_ok and cycle <= soon)):
             return 0
+        more_lim = lim if events_ok else plain_lim
         self._fast_begin(cycle)
         S, C, model, data, qm, vm, force, solve, stepped = plant.kernel_parts()
         IB, F, tau = self._arrays.IB, self._F, self._torque
@@ -468,11 +483,19 @@ class ModelBackend(GatewareSide):
         r = 0
         n_stick = n_solve = 0
         code = None             # the step's pre_free result, where the last fast_step ran it
+        event_step = False
         while j < stop and cycle + s <= lim:
+            if cycle + s > plain_lim:           # the step with node events: the run's last
+                if not events_ok:
+                    break
+                event_step = True
+                more = -1
+            else:
+                # the next step runs here too: fast_step runs its pre_free (one call less)
+                more = 1 if (j + 1 < stop and cycle + 2 * s <= more_lim
+                             and cycle + s <= soon) else 0
             if code is None:
                 code = pre_free(S, C, tau, hh, friction)
-            # the next step runs here too: fast_step runs its pre_free (one call less)
-            more = j + 1 < stop and cycle + 2 * s <= lim and cycle + s <= soon
             if code == 1:
                 r = fast_step(IB, F, S, aba(model, data, qm, vm, force), no_M, rec, j, cycle, 1,
                               C, more)
@@ -491,6 +514,11 @@ class ModelBackend(GatewareSide):
                     solve(M)
                     r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0, C, more)
             j += 1
+            if event_step:
+                if r == 0:
+                    stepped(j - i)
+                    return self._event_step(j - i, cycle, s, n_stick, n_solve)
+                break
             if r >= 8:                  # done, and the next step's pre_free with it
                 code = (r >> 3) - 2
                 cycle += s
@@ -502,11 +530,42 @@ class ModelBackend(GatewareSide):
             if cycle > soon:            # a strobe or a reply for the master in this step
                 break
         stepped(j - i)
+        self._count_steps(j - i, n_stick, n_solve)
+        return self._fast_end_run(plant, r, cycle, soon, j - i)
+
+    def _count_steps(self, steps: int, n_stick: int, n_solve: int) -> None:
         counts = self.fast_steps
-        counts["free"] += j - i - n_stick
+        counts["free"] += steps - n_stick
         counts["stick-slip"] += n_stick - n_solve
         counts["solve"] += n_solve
-        return self._fast_end_run(plant, r, cycle, soon, j - i)
+
+    def _event_step(self, steps: int, cycle: int, s: int, n_stick: int, n_solve: int) -> int:
+        """The nodes' part of a fast run's last step, from ``cycle``, with node events
+        (:meth:`_fast`): the plant's part done by the kernel, its count changes in the
+        kernel's arrays. The run's armed commits taken or disarmed first (the general path
+        takes the latter), the nodes brought to ``cycle`` as :meth:`advance` finds them, then
+        :meth:`_run_kernel`'s nodes; what reached the master by the step's end kept for
+        :meth:`fast_observed`. Returns the run's steps."""
+        self._count_steps(steps, n_stick, n_solve)
+        self.event_steps += 1
+        if self._commits:
+            for node, c in self._commits:
+                node.end_commit(c)
+            self._commits = []
+        self.cycle = self._fed = self._fast_end = cycle
+        self._sync_done()
+        self._chg_lines = None                  # (the kernel's changes: no PlantLines)
+        end = cycle + s
+        events = self._run_kernel_nodes(cycle, s, 0)
+        replies = [Reply(c, src, ptype, seq, bytes(payload))
+                   for c, src, ptype, payload, seq in self._link.replies_before(end)]
+        self.cycle = self._fed = self._fast_end = end
+        self._horizon_end = None
+        self._send_at = None
+        if events or replies:
+            self.fast_handovers += 1
+            self._fast_seen = Observed(events, replies)
+        return steps
 
     def _fast_limits(self, lim: int) -> tuple[int, int]:
         """A fast run offered: ``(lim, soon)``, the run's last end cycle (``lim``
@@ -631,6 +690,12 @@ class ModelBackend(GatewareSide):
                                            a.NCH):
                     lines.changes()                 # the reference raises EncoderOverspeed
                     raise AssertionError("model kernel: an overspeed the reference missed")
+        return self._run_kernel_nodes(start, n, offset)
+
+    def _run_kernel_nodes(self, start: int, n: int, offset: int) -> list:
+        """:meth:`_run_kernel`'s nodes, the step's count changes in the kernel's arrays."""
+        a = self._arrays
+        end = start + n
         plain = self._plain
         inbox = self._link.inbox
         others = None

@@ -1075,7 +1075,10 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     mode 2) or 4 if the likely pattern does not (the caller runs the general solve and calls
     again in mode 0); 2 if a joint moved more than one count in a cycle (the plant has
     stepped, the nodes have not); 3 as :func:`plain_step`'s True. With ``pre_next`` and the
-    step done, ``8 · (code + 2)``: ``code`` the next step's ``pre_free`` result (−1, 0, 1)."""
+    step done, ``8 · (code + 2)``: ``code`` the next step's ``pre_free`` result (−1, 0, 1).
+    ``pre_next`` −1: the plant's part only (the trace row and the count changes, returns 0
+    or 2): the caller runs the nodes (:meth:`ModelBackend._fast
+    <cosim.model.ModelBackend._fast>`'s last step with a node event)."""
     h = F[F_H]
     hh = F[F_HH]
     if mode == 1:
@@ -1085,6 +1088,9 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
         if not plant_src.stuck(S, a) and plant_src.likely_pattern(S, M, h) != 1:
             return 4
     plant_src.finish(S, h, hh)
+    if pre_next < 0:            # the plant's part only: the nodes run on the general path
+        return _step_plant_end(IB, F, S, rec, i, plant_src.Q_START, plant_src.V_START,
+                               plant_src.A_PREV, plant_src.Q, plant_src.Q)
     r = _step_nodes(IB, F, S, rec, i, start, plant_src.Q_START, plant_src.V_START,
                     plant_src.A_PREV, plant_src.Q, plant_src.Q)
     if r:
@@ -1104,8 +1110,22 @@ def _step_nodes(IB, F, S, rec, i, start, start_row, velocity_row, acc_row, end_r
     ticks to the step's last cycle with the torques they output there (:func:`plain_step`).
     Returns 0; 2 if a joint moved more than one count in a cycle; 3 as :func:`plain_step`'s
     True."""
+    if _step_plant_end(IB, F, S, rec, i, start_row, velocity_row, acc_row, end_row, q_row):
+        return 2
     n = IB[H_N]
-    cycles = IB[H_CYCLES]
+    N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR = blob_views(IB)
+    tau = F[F_SIZE + n:F_SIZE + 2 * n]
+    plain = np.ones(n, dtype=np.bool_)
+    if plain_step(N, P, E, VIS, PIPE, DUE, PEND, plain, start, IB[H_CYCLES], 0, CHC, CHN, NCH,
+                  CUR, tau):
+        return 3
+    return 0
+
+
+def _step_plant_end(IB, F, S, rec, i, start_row, velocity_row, acc_row, end_row, q_row):
+    """:func:`_step_nodes`' first part: the trace row ``i`` and the step's count changes
+    (``CUR`` at the first). Returns 0; 2 if a joint moved more than one count in a cycle."""
+    n = IB[H_N]
     N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR = blob_views(IB)
     K = F[F_SIZE:F_SIZE + n]
     tau = F[F_SIZE + n:F_SIZE + 2 * n]
@@ -1117,14 +1137,10 @@ def _step_nodes(IB, F, S, rec, i, start, start_row, velocity_row, acc_row, end_r
         M[3, j] = S[end_row, j]
         rec[0, i, j] = S[q_row, j]
         rec[1, i, j] = tau[j]
-    if step_changes(M, K, F[F_H], cycles, CHC, CHN, NCH):
+    if step_changes(M, K, F[F_H], IB[H_CYCLES], CHC, CHN, NCH):
         return 2
-    plain = np.ones(n, dtype=np.bool_)
     for k in range(n):
         CUR[k] = 0
-    if plain_step(N, P, E, VIS, PIPE, DUE, PEND, plain, start, cycles, 0, CHC, CHN, NCH, CUR,
-                  tau):
-        return 3
     return 0
 
 

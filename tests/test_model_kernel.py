@@ -157,7 +157,11 @@ def _run(robot_name, controller, kernel, cycles, joints="rigid"):
               n.d_base, n.cd_words, n.cd_base, n.d_pending, n._commit_seen)
              for n in backend.nodes]
     enc = [(e.count, e.velocity, e.errors) for e in backend.encoders]
-    return result, payloads, state, enc, backend, plant
+    # what the master saw of every period: the cycle of every event, reply and node strobe
+    # (a strobe the fast path lost or moved shows here, not in the trace)
+    seen = [(r.index, r.start, r.events, r.arrivals, r.node_events, r.complete)
+            for r in master.records]
+    return result, payloads, state, enc, backend, plant, seen
 
 
 @needs_numba
@@ -242,8 +246,10 @@ def test_compiled_and_python_paths_give_the_same_trace(robot, controller):
     steps = fast[4].fast_steps
     assert sum(steps.values()) > 0.8 * cycles / 500 and steps["free"] > 0, steps
     assert steps["stick-slip"] + steps["solve"] > 0, steps
-    # and some of its runs ended with a step whose replies or strobes it handed to the master
+    # and some of its runs ended with a step whose replies or strobes it handed to the master,
+    # some with a step whose nodes had events (its plant in the kernel, ModelBackend._fast)
     assert fast[4].fast_handovers > 0
+    assert fast[4].event_steps > 0
     # the nodes' boundaries, time-codes and packets ran with their tick state in the kernel's
     # row (KernelNode._boundary_in_row, timecode, packet), the commits inside fast steps
     # (KernelNode.arm_commit), and the row's references are the object's
@@ -258,6 +264,7 @@ def test_compiled_and_python_paths_give_the_same_trace(robot, controller):
     assert fast[1] == slow[1] and len(fast[1]) > 0
     assert fast[2] == slow[2]
     assert fast[3] == slow[3]
+    assert fast[6] == slow[6] and len(fast[6]) >= 7
     assert np.ptp(fast[0].q, axis=0).min() > 2e-5                 # every joint moved (counts)
     # the torques changed (torque-only nodes hold the master's torque for a period)
     assert max(len(np.unique(col)) for col in fast[0].tau.T) > \
@@ -286,6 +293,7 @@ def test_compiled_and_python_paths_give_the_same_trace_on_the_compliant_plant(ro
     assert fast[1] == slow[1] and len(fast[1]) > 0
     assert fast[2] == slow[2]
     assert fast[3] == slow[3]
+    assert fast[6] == slow[6] and len(fast[6]) >= 7
     # every link moved by counts of its motor-side encoder (≈ 1.3e5 counts/rad; mrm6's heavy
     # links follow their gears' 25 Hz swing by 1e-5 rad in 8 ms)
     assert np.ptp(fast[0].q, axis=0).min() > 5e-6
