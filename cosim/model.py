@@ -414,9 +414,19 @@ class ModelBackend(GatewareSide):
         and the current-sensor noise of the run's steps is drawn from the plant's stream in
         one call before them (the same values, in the order the plant's own step draws
         them)."""
-        lim, soon = self._fast_limits(lim)
-        if i >= stop or cycle + s > lim:
+        hard, soon = self._fast_limits(ksrc.NEVER)
+        plain_lim = hard if hard < lim else lim
+        events_ok = not (self._link.cuts or self._link.errors)
+        if i >= stop or cycle + s > lim or (cycle + s > plain_lim and
+                                            not (events_ok and cycle <= soon)):
             return 0
+        # the steps this run takes unless one fails (the loop's own bounds): the plain ones,
+        # then (_fast) the step with node events where it may; their noise in one draw: the
+        # stream's next values in the order the plant's step draws them
+        p = min(stop - i, max(0, plain_lim - cycle) // s, max(0, soon - cycle) // s + 1)
+        end_p = cycle + p * s
+        event = events_ok and p < stop - i and end_p <= soon and end_p + s <= lim
+        m = p + event
         self._fast_begin(cycle)
         S, C, model, data, qm, vm, force, noise, stepped = plant.kernel_parts()
         ck = plant._kern
@@ -424,19 +434,24 @@ class ModelBackend(GatewareSide):
         h, hh = float(F[ksrc.F_H]), float(F[ksrc.F_HH])
         friction = F[ksrc.F_FRICTION] != 0.0
         fast_step, aba, pre = self._kern.fast_step_compliant, pin.aba, ck.pre
-        # the steps this run takes unless one fails (the loop's own bounds), and their noise in
-        # one draw: the stream's next values in the order the plant's step draws them
-        m = min(stop - i, (lim - cycle) // s, max(0, soon - cycle) // s + 1)
         z = noise(m)
         j = i
         r = 0
         ready = False           # the step's pre done (by the last fast_step_compliant call)
-        while j < stop and cycle + s <= lim:
+        while j - i < m:
             if not ready and not pre(S, C, tau, z[j - i], h, hh, friction):
                 raise InputError("tau_cmd", f"must be finite, not {tau.tolist()!r}")
-            more = j + 1 < stop and cycle + 2 * s <= lim and cycle + s <= soon
+            if j - i == p:                      # the step with node events
+                r = fast_step(IB, F, S, aba(model, data, qm, vm, force), rec, j, cycle, C,
+                              self._no_a, -1)
+                j += 1
+                if r == 0:
+                    stepped(j - i)
+                    return self._event_step(j - i, cycle, s, 0, 0)
+                break
+            more = j + 1 - i < m
             r = fast_step(IB, F, S, aba(model, data, qm, vm, force), rec, j, cycle, C,
-                          z[j - i + 1] if more else self._no_a, more)
+                          z[j - i + 1] if more else self._no_a, 1 if more else 0)
             j += 1
             cycle += s
             if r == 8:

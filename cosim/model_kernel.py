@@ -155,7 +155,7 @@ def _warm_up(k) -> None:
     b = _throw_away()
     k.fast_step_compliant(b.IB, F, np.zeros((compliant_src.S_ROWS, 1)), np.zeros(1),
                           np.zeros((2, 1, 1)), 0, 0, np.ones((compliant_src.C_ROWS, 1)),
-                          np.zeros(1), True)
+                          np.zeros(1), 1)
     z6, z13 = np.zeros(6, dtype=np.int64), np.zeros(13, dtype=np.int64)
     k.vdc_link(z13, z6, z13, z13, z13, z6, z6, z6, np.zeros(3, dtype=np.int64), z6,
                z13.copy())

@@ -1163,11 +1163,15 @@ def fast_step_compliant(IB, F, S, acc, rec, i, start, C, noise, pre_next):
 
     Returns 0; 2 if a joint moved more than one count in a cycle (the plant has stepped, the
     nodes have not); 3 as :func:`plain_step`'s True; with ``pre_next``, ``8 · (code + 2)`` with
-    ``code`` 1 (``pre`` done) or −1 (a torque was not finite, nothing done)."""
+    ``code`` 1 (``pre`` done) or −1 (a torque was not finite, nothing done). ``pre_next`` −1:
+    the plant's part only, as :func:`fast_step`'s."""
     h = F[F_H]
     hh = F[F_HH]
     compliant_src.finish(S, acc, h, hh)
     # the motor-side encoder counts the motor (θ); the trace records the link (q)
+    if pre_next < 0:            # the plant's part only (as fast_step's)
+        return _step_plant_end(IB, F, S, rec, i, compliant_src.TH_START, compliant_src.W_START,
+                               compliant_src.AM_PREV, compliant_src.TH, compliant_src.Q)
     r = _step_nodes(IB, F, S, rec, i, start, compliant_src.TH_START, compliant_src.W_START,
                     compliant_src.AM_PREV, compliant_src.TH, compliant_src.Q)
     if r:
