@@ -167,6 +167,7 @@ class ModelBackend(GatewareSide):
             self._no_a, self._no_M = np.zeros(self.n), np.zeros((self.n, self.n))
         self._horizon_end = None        # fast path: _horizon's (None: recompute)
         self._commits = []              # fast path: _horizon's plain commits (node, cycle)
+        self._armed = []                # fast path: those a run armed in the kernel
         self._send_at = None            # send_ahead: the cycle send() sends at (None: now)
         self._fast_seen = None          # fast path: what reached the master (fast_observed)
         #: plant steps the fast path ran, by how the plant step ended (free, stick-slip: the
@@ -427,7 +428,7 @@ class ModelBackend(GatewareSide):
         end_p = cycle + p * s
         event = events_ok and p < stop - i and end_p <= soon and end_p + s <= lim
         m = p + event
-        self._fast_begin(cycle)
+        self._fast_begin(cycle, plain_lim)
         S, C, model, data, qm, vm, force, noise, stepped = plant.kernel_parts()
         ck = plant._kern
         IB, F, tau = self._arrays.IB, self._F, self._torque
@@ -486,7 +487,7 @@ class ModelBackend(GatewareSide):
                                             not (events_ok and cycle <= soon)):
             return 0
         more_lim = lim if events_ok else plain_lim
-        self._fast_begin(cycle)
+        self._fast_begin(cycle, plain_lim)
         S, C, model, data, qm, vm, force, solve, stepped = plant.kernel_parts()
         IB, F, tau = self._arrays.IB, self._F, self._torque
         hh = float(F[ksrc.F_HH])
@@ -563,10 +564,7 @@ class ModelBackend(GatewareSide):
         :meth:`fast_observed`. Returns the run's steps."""
         self._count_steps(steps, n_stick, n_solve)
         self.event_steps += 1
-        if self._commits:
-            for node, c in self._commits:
-                node.end_commit(c)
-            self._commits = []
+        self._end_commits()
         self.cycle = self._fed = self._fast_end = cycle
         self._sync_done()
         self._chg_lines = None                  # (the kernel's changes: no PlantLines)
@@ -594,16 +592,20 @@ class ModelBackend(GatewareSide):
             lim = hard
         return lim, soon
 
-    def _fast_begin(self, cycle: int) -> None:
-        """A fast run starts at ``cycle``: the nodes' rows pushed into the kernel. Raises if
-        the backend is not at ``cycle``."""
+    def _fast_begin(self, cycle: int, reach: int) -> None:
+        """A fast run starts at ``cycle``, its plain steps ending by ``reach``: the nodes' rows
+        pushed into the kernel, the commits they may pass armed. Raises if the backend is not
+        at ``cycle``."""
         self._send_at = None
         if cycle != self.cycle or cycle != self._fed:
             raise ValueError(f"fast path at cycle {cycle}, the backend at {self.cycle}")
         for node in self.nodes:
             if not node.in_kernel:
                 node.push()
-        for node, c in self._commits:           # (the horizon's: _fast_limits just ran)
+        # the horizon's plain commits (_fast_limits just ran) that a plain step of this run
+        # can pass (its ticks before reach − 1: the kernel takes it in node_plain)
+        self._armed = armed = [(node, c) for node, c in self._commits if c + 1 < reach]
+        for node, c in armed:
             node.arm_commit(c)
 
     def _fast_end_run(self, plant, r: int, cycle: int, soon: int, steps: int) -> int:
@@ -612,11 +614,7 @@ class ModelBackend(GatewareSide):
         master in the last step kept for :meth:`fast_observed`. The commits the run's
         horizon armed are taken on the objects, or disarmed (:meth:`KernelNode.end_commit
         <cosim.model_kernel.KernelNode.end_commit>`)."""
-        if self._commits:
-            for node, c in self._commits:
-                node.end_commit(c)
-            self._commits = []
-            self._horizon_end = None            # (the nodes' next events have moved on)
+        self._end_commits()
         if r == 2:                      # the plant stepped, the nodes did not
             PlantLines(plant).changes()         # the reference raises EncoderOverspeed
             raise AssertionError("model kernel: an overspeed the reference missed")
@@ -634,6 +632,17 @@ class ModelBackend(GatewareSide):
                 Reply(c, src, ptype, seq, bytes(payload))
                 for c, src, ptype, payload, seq in self._link.replies_before(cycle)])
         return steps
+
+    def _end_commits(self) -> None:
+        """The commits the run armed taken on the objects, or disarmed
+        (:meth:`KernelNode.end_commit <cosim.model_kernel.KernelNode.end_commit>`)."""
+        if self._armed:
+            taken = False
+            for node, c in self._armed:
+                taken = node.end_commit(c) or taken
+            self._armed = []
+            if taken:
+                self._horizon_end = None        # (those nodes' next events have moved on)
 
     def _sync_done(self) -> None:
         """After fast steps: the nodes' ``_done``, as :meth:`_run_kernel` leaves it."""

@@ -563,14 +563,11 @@ class KernelNode(FastNode):
         it (:func:`~cosim.model_kernel_src.node_plain`): the pending Comm D's words, or the
         words in force if none is pending, into the row. The row must hold the tick state;
         :meth:`end_commit` after the kernel's calls."""
-        row = self._row
-        row[src.N_COMMIT_C] = c
+        # (N_COMMIT_C, N_DN_BASE, N_DN0 … N_DN0 + 3 in one assignment)
         if self.d_pending:
-            row[src.N_DN_BASE] = self.d_next_base
-            row[src.N_DN0:src.N_DN0 + 4] = self.d_next
+            self._row[src.N_COMMIT_C:src.N_DN0 + 4] = [c, self.d_next_base, *self.d_next]
         else:
-            row[src.N_DN_BASE] = self.d_base
-            row[src.N_DN0:src.N_DN0 + 4] = self.d_words
+            self._row[src.N_COMMIT_C:src.N_DN0 + 4] = [c, self.d_base, *self.d_words]
 
     def end_commit(self, c: int) -> bool:
         """After :meth:`arm_commit` ``c`` and the kernel's calls: if the kernel took the commit,
