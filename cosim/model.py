@@ -66,9 +66,17 @@ from mrm_cosim.hdl.node.joint_ref import JointModel
 from mrm_cosim.protocol.encoder import encoders_per_node
 from mrm_cosim.protocol.joint_program import JointParams, pid_shifts_per_node
 from mrm_cosim.protocol.fixed import FORCE
-from mrm_cosim.protocol.regs import Config
+from mrm_cosim.protocol.regs import Config, NodeEvent
 
 _COMMIT = int(Config.COMMIT)
+_FORCE_LSB = FORCE.decode(1)                # 2^−13: FORCE.decode(w) = w · this, exactly
+#: the observation port's flags by value: their names (what the master is handed)
+_EVENT_NAMES = {int(f): f.name for f in NodeEvent}
+
+
+def _arrival(e):
+    """An inbox entry's order: its cycle, then its sequence."""
+    return e[0], e[1]
 
 __all__ = ["ModelBackend", "ModelAssumptionError"]
 
@@ -726,7 +734,11 @@ class ModelBackend(GatewareSide):
         last = end - 1
         for k, node in enumerate(self.nodes):
             box = inbox[k]
-            if node.next_special() >= last and not (box and min(e[0] for e in box) < end):
+            first = ksrc.NEVER
+            for e in box:
+                if e[0] < first:
+                    first = e[0]
+            if node.next_special() >= last and first >= end:
                 plain[k] = True
                 if not node.in_kernel:
                     node.push()
@@ -760,7 +772,8 @@ class ModelBackend(GatewareSide):
             sample = self._samplers[k]
             box = self._link.inbox[k]
             if box:
-                box.sort(key=lambda e: (e[0], e[1]))
+                if len(box) > 1:
+                    box.sort(key=_arrival)
                 i = 0
                 while i < len(box) and box[i][0] < end:
                     c, _, kind, data = box[i]
@@ -785,8 +798,8 @@ class ModelBackend(GatewareSide):
                     if reply is not None:
                         self._link.reply(k, node.reply_cycle(c, ptype), ptype, reply, seq)
                 del box[:i]
-            if self._kern is not None:
-                self._torque[k] = FORCE.decode(node.run_torque(end - 1, sample))
+            if self._kern is not None:             # (FORCE.decode: w · 2^lsb, exact)
+                self._torque[k] = node.run_torque(end - 1, sample) * _FORCE_LSB
             else:
                 node.run(end - 1, sample)
                 self._torque[k] = FORCE.decode(node.torque_at(end - 1))
@@ -800,7 +813,8 @@ class ModelBackend(GatewareSide):
             later = []
             for c, flag in node.events:
                 if c < end:
-                    out.append((c, k + 1, flag.name))
+                    name = _EVENT_NAMES.get(flag)      # (flag.name: an enum property call)
+                    out.append((c, k + 1, flag.name if name is None else name))
                 else:           # (a MARK still ahead waits for its chunk)
                     later.append((c, flag))
             node.events = later

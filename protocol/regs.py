@@ -46,7 +46,8 @@ import numpy as np
 from mrm_cosim.errors import InputError
 
 from .crc import CRC16_INIT, crc16
-from .fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, saturate, theta_group
+from .fixed import (ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, WORD_MAX, WORD_MIN, saturate,
+                    theta_group)
 from .joint_program import MODES as JOINT_MODES
 from .joint_program import JointParams, joint_microcode
 from .packet import DATA_PAYLOAD
@@ -188,10 +189,21 @@ def _pad(data: bytes) -> bytes:
     return data + bytes(PAYLOAD - len(data))
 
 
+def _encode(x: float, shift: int) -> int:
+    """:meth:`Fmt.encode <protocol.fixed.Fmt.encode>` of a format whose ``lsb`` is −``shift``
+    (the same operations; the packers' words, one call each instead of a method's)."""
+    w = math.floor(math.ldexp(float(x), shift) + 0.5)
+    return WORD_MIN if w < WORD_MIN else WORD_MAX if w > WORD_MAX else w
+
+
+_VEL_SHIFT, _ACC_SHIFT, _FORCE_SHIFT, _POS_SHIFT = -VEL.lsb, -ACC.lsb, -FORCE.lsb, -POS.lsb
+
+
 def pack_comm_b(qd_r: float, V_C, V_rC, prime: bool = False) -> bytes:
     """Comm B payload from floats (rad/s, m/s; saturating at the VEL range)."""
-    enc = VEL.encode
-    words = [enc(qd_r), *map(enc, V_C), *map(enc, V_rC)]
+    sh = _VEL_SHIFT
+    words = [_encode(qd_r, sh), *[_encode(x, sh) for x in V_C],
+             *[_encode(x, sh) for x in V_rC]]
     return pack_words(words) + (b"\1" if prime else b"\0")
 
 
@@ -199,8 +211,9 @@ def pack_comm_d(tau: float, g_C, q_d0: float, qd_d0: float, qdd_d0: float,
                 counts_per_rev: int = 800_000) -> bytes:
     """Comm D payload from floats (N·m, m/s², rad, rad/s, rad/s²)."""
     counts = q_d0 * counts_per_rev / (2 * math.pi)
-    words = [FORCE.encode(tau)] + [ACC.encode(x) for x in g_C] + \
-        [POS.encode(counts), VEL.encode(qd_d0), ACC.encode(qdd_d0)]
+    words = [_encode(tau, _FORCE_SHIFT), *[_encode(x, _ACC_SHIFT) for x in g_C],
+             _encode(counts, _POS_SHIFT), _encode(qd_d0, _VEL_SHIFT),
+             _encode(qdd_d0, _ACC_SHIFT)]
     return _pad(pack_words(words))
 
 
