@@ -173,6 +173,8 @@ class ModelBackend(GatewareSide):
             # the fast path's floats: the plant's constants, then the torque outputs
             self._F = np.zeros(ksrc.F_SIZE + 2 * self.n)
             self._no_a, self._no_M = np.zeros(self.n), np.zeros((self.n, self.n))
+            self._no_brake = np.zeros(self.n, dtype=bool)      # (brake(): read only)
+            self._no_brake.flags.writeable = False
         self._horizon_end = None        # fast path: _horizon's (None: recompute)
         self._commits = []              # fast path: _horizon's plain commits (node, cycle)
         self._armed = []                # fast path: those a run armed in the kernel
@@ -218,6 +220,13 @@ class ModelBackend(GatewareSide):
         <cosim.model_node.FastNode.safe_stop_near>` keeps those on the reference), so its
         brake is its trip with STOP_CYCLES = 0: tripped by then."""
         c = self.cycle - 1
+        if self._kern is not None:
+            for node in self.nodes:
+                if not node.in_kernel:
+                    break
+            else:               # every node in the kernel: none brakes, the usual case, or
+                if not self._kern.any_trip(self._arrays.N, c):      # the list below
+                    return self._no_brake
         out = []
         for node in self.nodes:
             if getattr(node, "in_kernel", False):

@@ -177,6 +177,7 @@ def _warm_up(k) -> None:
     k.enc_preset(e[0], e[2], e[3], e[4], 900, 0)
     k.enc_feed_changes(e[0], e[1], e[2], 500, 500, z, z)
     k.materialize(a.N[0], a.P[0])
+    k.any_trip(a.N, 0)
     k.sin_cos(-5, 1 << 20)
 
 
@@ -618,10 +619,9 @@ class KernelNode(FastNode):
             reply = NodeModel.packet(self, now, ptype, payload, period, enc_errors, sample)
         finally:
             self._row_packet = False
-        row[src.N_LAST_PACKET] = now
         row[src.N_PRIME] = self.prime
-        row[src.N_DBASE] = self.d_base
-        row[src.N_D0:src.N_D0 + 4] = self.d_words
+        # N_LAST_PACKET, N_DBASE, N_D0 … N_D0 + 3 in one assignment
+        row[src.N_LAST_PACKET:src.N_D0 + 4] = [now, self.d_base, *self.d_words]
         self.in_row["packet"] += 1
         return reply
 

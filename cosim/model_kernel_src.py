@@ -677,6 +677,17 @@ def torque_at(N, now):
     return N[N_TORQUE]
 
 
+def any_trip(NS, c):
+    """Whether a node of rows ``NS`` has tripped, or armed sees its watchdog's trip by cycle
+    ``c`` (:meth:`ModelBackend.brake <cosim.model.ModelBackend.brake>`'s test of a node whose
+    state the kernel holds, for every node at once)."""
+    for k in range(NS.shape[0]):
+        if NS[k, N_TRIPPED] or (NS[k, N_ARMED] and
+                                c >= NS[k, N_LAST_PACKET] + 2 + NS[k, N_TIMEOUT]):
+            return True
+    return False
+
+
 def _count_at(q0, v0, half_acc, k, step, m):
     """``_count_changes``' ``count(m)``: the count sampled in cycle ``m`` of the step."""
     s = (m + 1) * step

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import enum
 import math
+import struct
 
 import numpy as np
 
@@ -222,17 +223,31 @@ def parse_comm_a(data: bytes) -> dict:
     if len(data) != PAYLOAD:
         raise ValueError(f"Comm A payload must be {PAYLOAD} bytes, not {len(data)}")
     qd, tau = unpack_words(data, 2, 4)
+    # (one struct call for the little-endian fields from byte 10 on: the master parses three
+    # to six of these a period)
+    (status, errors, period, overruns, sync, late, crc, count, up, down, rx, router,
+     dmp) = _COMM_A_TAIL.unpack_from(data, 10)
     return {"count": int.from_bytes(data[0:4], "little", signed=True), "qd": qd, "torque": tau,
-            "status": Status(int.from_bytes(data[10:12], "little")),
-            "errors": int.from_bytes(data[12:14], "little"), "period": data[14],
-            "overruns": int.from_bytes(data[15:17], "little"),
-            "sync_errors": int.from_bytes(data[17:19], "little"),
-            "late_d": int.from_bytes(data[19:21], "little"),
-            "upload_crc": int.from_bytes(data[21:23], "little"),
-            "upload_count": int.from_bytes(data[23:25], "little"),
-            **{k: int.from_bytes(data[25 + 2 * i:27 + 2 * i], "little")
-               for i, k in enumerate(LINK_HEALTH)},
-            "dmp_overruns": int.from_bytes(data[33:35], "little")}
+            "status": _status(status), "errors": errors, "period": period,
+            "overruns": overruns, "sync_errors": sync, "late_d": late, "upload_crc": crc,
+            "upload_count": count, "up_link_errors": up, "down_link_errors": down,
+            "rx_dropped": rx, "router_dropped": router, "dmp_overruns": dmp}
+
+
+#: Comm A's fields from byte 10: status, errors, period, overruns, sync errors, late Comm D,
+#: upload CRC and count, the four link-health counters (:data:`LINK_HEALTH`), the generator's
+#: overruns
+_COMM_A_TAIL = struct.Struct("<HHB10H")
+assert LINK_HEALTH == ("up_link_errors", "down_link_errors", "rx_dropped", "router_dropped")
+_STATUS: dict[int, Status] = {}
+
+
+def _status(v: int) -> Status:
+    """``Status(v)``, kept by value (the enum's call costs more than the lookup)."""
+    s = _STATUS.get(v)
+    if s is None:
+        s = _STATUS[v] = Status(v)
+    return s
 
 
 def upload_check(payloads) -> tuple[int, int]:
@@ -262,7 +277,7 @@ def parse_comm_c(data: bytes) -> tuple[list[int], list[int], Status, int]:
     if len(data) != PAYLOAD:
         raise ValueError(f"Comm C payload must be {PAYLOAD} bytes, not {len(data)}")
     w = unpack_words(data, 12)
-    return w[:6], w[6:], Status(int.from_bytes(data[36:38], "little")), data[38]
+    return w[:6], w[6:], _status(int.from_bytes(data[36:38], "little")), data[38]
 
 
 def config_payloads(values: dict) -> list[bytes]:

@@ -161,3 +161,36 @@ def test_comm_b_and_d_packing_equals_the_formats_encode(seed):
         cpr = int(rng.choice([800_000, 4096, 1 << 24]))
         assert pack_comm_d(x[0], x[1:4], x[4] * 1e-3, x[5], x[6], cpr) == \
             _plain_comm_d(x[0], x[1:4], x[4] * 1e-3, x[5], x[6], cpr)
+
+
+def _plain_comm_a(data):
+    """parse_comm_a as it was: a from_bytes a field."""
+    from mrm_cosim.protocol.regs import LINK_HEALTH, Status, unpack_words
+
+    qd, tau = unpack_words(data, 2, 4)
+    return {"count": int.from_bytes(data[0:4], "little", signed=True), "qd": qd, "torque": tau,
+            "status": Status(int.from_bytes(data[10:12], "little")),
+            "errors": int.from_bytes(data[12:14], "little"), "period": data[14],
+            "overruns": int.from_bytes(data[15:17], "little"),
+            "sync_errors": int.from_bytes(data[17:19], "little"),
+            "late_d": int.from_bytes(data[19:21], "little"),
+            "upload_crc": int.from_bytes(data[21:23], "little"),
+            "upload_count": int.from_bytes(data[23:25], "little"),
+            **{k: int.from_bytes(data[25 + 2 * i:27 + 2 * i], "little")
+               for i, k in enumerate(LINK_HEALTH)},
+            "dmp_overruns": int.from_bytes(data[33:35], "little")}
+
+
+def test_comm_a_and_c_parsing_equals_the_plain_one():
+    """parse_comm_a's one struct call gives every field (and its order, and Status) of the
+    field-by-field parse; parse_comm_c's status is the enum's, over random payloads."""
+    from mrm_cosim.protocol.regs import PAYLOAD, Status, parse_comm_a, parse_comm_c
+
+    rng = np.random.default_rng(7)
+    for _ in range(500):
+        data = rng.integers(0, 256, PAYLOAD, dtype=np.uint8).tobytes()
+        got, want = parse_comm_a(data), _plain_comm_a(data)
+        assert got == want and list(got) == list(want)
+        assert type(got["status"]) is Status
+        status = parse_comm_c(data)[2]
+        assert type(status) is Status and status == Status(int.from_bytes(data[36:38], "little"))

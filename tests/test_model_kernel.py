@@ -515,3 +515,19 @@ def test_compiled_vdc_step_equals_the_reference(th, K, rho, bounds, inv_t, prev,
         assert fast.step(x) == ref.step(x)
         assert (fast.theta, fast.prev_C, fast.prev_qd_r, fast.primed) == \
             (ref.theta, ref.prev_C, ref.prev_qd_r, ref.primed)
+
+
+@needs_numba
+@settings(max_examples=300, deadline=None)
+@given(rows=st.lists(st.tuples(st.booleans(), st.booleans(), st.integers(-10**6, 10**6),
+                               st.integers(0, 10**6)), min_size=1, max_size=7),
+       c=st.integers(-10**6, 3 * 10**6))
+def test_any_trip_is_every_node_s_brake_test(rows, c):
+    """:func:`any_trip` (ModelBackend.brake's shortcut) is the per-node test of a node the
+    kernel holds: tripped, or armed with the watchdog's trip by ``c``."""
+    N = np.zeros((len(rows), src.N_SIZE), dtype=np.int64)
+    for k, (tripped, armed, last, timeout) in enumerate(rows):
+        N[k, src.N_TRIPPED], N[k, src.N_ARMED] = tripped, armed
+        N[k, src.N_LAST_PACKET], N[k, src.N_TIMEOUT] = last, timeout
+    want = any(t or (a and c >= last + 2 + to) for t, a, last, to in rows)
+    assert kern.any_trip(N, c) is want
