@@ -633,8 +633,9 @@ def node_plain(N, P, E, vis, pipe, due, lim):
     takes a plain commit point ``c`` (:meth:`~cosim.model_kernel.KernelNode._commit_in_row`),
     the ticks before ``c``, the tick in cycle ``c``, then the pending Comm D's words into
     ``d_words`` and ``d_base`` (:meth:`NodeModel._take_d <hdl.node.core_ref.NodeModel._take_d>`
-    with the generator's references not selected). The caller arms it only for such a commit
-    (:meth:`cosim.model.ModelBackend._horizon`) and does the object's side after."""
+    with the generator's references not selected). Only such a commit is armed (a fast run's,
+    :meth:`cosim.model.ModelBackend._fast_begin`), and the object's side follows the run
+    (:meth:`~cosim.model_kernel.KernelNode.end_commit`)."""
     c = N[N_COMMIT_C]
     if c < lim:
         node_ticks(N, P, E, vis, pipe, due, c)
