@@ -390,7 +390,10 @@ class ModelBackend(GatewareSide):
     def _horizon(self) -> tuple[int, int]:
         """``(end, soon)``: the latest end of a plain step from now, and the first cycle of a
         strobe or reply for the master (a run stops after the step holding it;
-        :meth:`fast_path`)."""
+        :meth:`fast_path`). A node's plain commit point (:meth:`KernelNode.kernel_commit
+        <cosim.model_kernel.KernelNode.kernel_commit>`) does not end plain steps: it goes into
+        :attr:`_commits` for a run to arm, and its COMMIT strobe, if a Comm D is pending,
+        into ``soon``."""
         end = soon = ksrc.NEVER
         inbox = self._link.inbox
         commits = []
