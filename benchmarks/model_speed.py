@@ -24,7 +24,8 @@ sends, bit for bit).
 other tree's interpreter (its venv's ``python``, whose ``mrm_cosim`` is that tree) runs this
 script as a worker, and the windows alternate between the two processes, ABBA, so both see
 the same load; it prints each side's CPU RTF (best, median) and the median of the ratios pair
-by pair, with both trace hashes — on a shared machine the steadiest before/after figure.
+by pair, with both trace hashes — on a shared machine the steadiest before/after figure. With
+``--joints compliant`` both sides run the compliant plant (the worker is given ``--joints``).
 """
 
 from __future__ import annotations
@@ -190,8 +191,8 @@ def _worker() -> int:
 
 def against(python: str, robots, cycles: int, pairs: int) -> None:
     """This tree and the one of interpreter ``python``, windows alternated ABBA (numba path)."""
-    other = subprocess.Popen([python, __file__, "--worker"], stdin=subprocess.PIPE,
-                             stdout=subprocess.PIPE, text=True)
+    other = subprocess.Popen([python, __file__, "--worker", "--joints", _JOINTS],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     if other.stdout.readline().strip() != "ready":
         raise SystemExit(f"{python}: the worker did not start")
     for robot in ("mrm3", "mrm6"):
@@ -247,8 +248,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     global _JOINTS
     _JOINTS = args.joints
-    if args.joints != "rigid" and (args.against or args.master):
-        ap.error("--joints compliant times the loop only (not with --against or --master)")
+    if args.joints != "rigid" and args.master:
+        ap.error("--joints compliant times the loop only (not with --master)")
     if args.worker:
         return _worker()
     robots = args.robot or ["mrm3", "mrm6"]

@@ -66,7 +66,17 @@ from mrm_cosim.hdl.node.joint_ref import JointModel
 from mrm_cosim.protocol.encoder import encoders_per_node
 from mrm_cosim.protocol.joint_program import JointParams, pid_shifts_per_node
 from mrm_cosim.protocol.fixed import FORCE
-from mrm_cosim.protocol.regs import Config
+from mrm_cosim.protocol.regs import Config, NodeEvent
+
+_COMMIT = int(Config.COMMIT)
+_FORCE_LSB = FORCE.decode(1)                # 2^−13: FORCE.decode(w) = w · this, exactly
+#: the observation port's flags by value: their names (what the master is handed)
+_EVENT_NAMES = {int(f): f.name for f in NodeEvent}
+
+
+def _arrival(e):
+    """An inbox entry's order: its cycle, then its sequence."""
+    return e[0], e[1]
 
 __all__ = ["ModelBackend", "ModelAssumptionError"]
 
@@ -163,7 +173,11 @@ class ModelBackend(GatewareSide):
             # the fast path's floats: the plant's constants, then the torque outputs
             self._F = np.zeros(ksrc.F_SIZE + 2 * self.n)
             self._no_a, self._no_M = np.zeros(self.n), np.zeros((self.n, self.n))
+            self._no_brake = np.zeros(self.n, dtype=bool)      # (brake(): read only)
+            self._no_brake.flags.writeable = False
         self._horizon_end = None        # fast path: _horizon's (None: recompute)
+        self._commits = []              # fast path: _horizon's plain commits (node, cycle)
+        self._armed = []                # fast path: those a run armed in the kernel
         self._send_at = None            # send_ahead: the cycle send() sends at (None: now)
         self._fast_seen = None          # fast path: what reached the master (fast_observed)
         #: plant steps the fast path ran, by how the plant step ended (free, stick-slip: the
@@ -171,6 +185,8 @@ class ModelBackend(GatewareSide):
         self.fast_steps = {"free": 0, "stick-slip": 0, "solve": 0}
         #: fast runs whose last step handed replies or strobes to the master (fast_observed)
         self.fast_handovers = 0
+        #: fast runs whose last step had node events (its nodes on the general path, _fast)
+        self.event_steps = 0
         self._fast_end = 0              # fast path: the end of its last step (node._done)
         for node, encoder in zip(self.nodes, self.encoders, strict=True):
             node.lazy = self.lazy
@@ -204,6 +220,13 @@ class ModelBackend(GatewareSide):
         <cosim.model_node.FastNode.safe_stop_near>` keeps those on the reference), so its
         brake is its trip with STOP_CYCLES = 0: tripped by then."""
         c = self.cycle - 1
+        if self._kern is not None:
+            for node in self.nodes:
+                if not node.in_kernel:
+                    break
+            else:               # every node in the kernel: none brakes, the usual case, or
+                if not self._kern.any_trip(self._arrays.N, c):      # the list below
+                    return self._no_brake
         out = []
         for node in self.nodes:
             if getattr(node, "in_kernel", False):
@@ -367,11 +390,23 @@ class ModelBackend(GatewareSide):
     def _horizon(self) -> tuple[int, int]:
         """``(end, soon)``: the latest end of a plain step from now, and the first cycle of a
         strobe or reply for the master (a run stops after the step holding it;
-        :meth:`fast_path`)."""
+        :meth:`fast_path`). A node's plain commit point (:meth:`KernelNode.kernel_commit
+        <cosim.model_kernel.KernelNode.kernel_commit>`) does not end plain steps: it goes into
+        :attr:`_commits` for a run to arm, and its COMMIT strobe, if a Comm D is pending,
+        into ``soon``."""
         end = soon = ksrc.NEVER
         inbox = self._link.inbox
+        commits = []
         for k, node in enumerate(self.nodes):
-            x = node.next_special() + 1
+            x = node.next_special()
+            if x == node._lb + node.config[_COMMIT]:
+                kc = node.kernel_commit()       # a plain commit: the kernel takes it
+                if kc is not None and kc[0] == x:
+                    commits.append((node, x))
+                    if node.d_pending and x < soon:
+                        soon = x                # its COMMIT strobe reaches the master
+                    x = kc[1]
+            x += 1
             for e in inbox[k]:
                 if e[0] < x:
                     x = e[0]
@@ -383,6 +418,7 @@ class ModelBackend(GatewareSide):
         for r in self._link.replies:
             if r[0] < soon:
                 soon = r[0]
+        self._commits = commits
         return end, soon
 
     def fast_observed(self) -> Observed | None:
@@ -399,29 +435,44 @@ class ModelBackend(GatewareSide):
         and the current-sensor noise of the run's steps is drawn from the plant's stream in
         one call before them (the same values, in the order the plant's own step draws
         them)."""
-        lim, soon = self._fast_limits(lim)
-        if i >= stop or cycle + s > lim:
+        hard, soon = self._fast_limits(ksrc.NEVER)
+        plain_lim = hard if hard < lim else lim
+        events_ok = not (self._link.cuts or self._link.errors)
+        if i >= stop or cycle + s > lim or (cycle + s > plain_lim and
+                                            not (events_ok and cycle <= soon)):
             return 0
-        self._fast_begin(cycle)
+        # the steps this run takes unless one fails (the loop's own bounds): the plain ones,
+        # then (_fast) the step with node events where it may; their noise in one draw: the
+        # stream's next values in the order the plant's step draws them
+        p = min(stop - i, max(0, plain_lim - cycle) // s, max(0, soon - cycle) // s + 1)
+        end_p = cycle + p * s
+        event = events_ok and p < stop - i and end_p <= soon and end_p + s <= lim
+        m = p + event
+        self._fast_begin(cycle, plain_lim)
         S, C, model, data, qm, vm, force, noise, stepped = plant.kernel_parts()
         ck = plant._kern
         IB, F, tau = self._arrays.IB, self._F, self._torque
         h, hh = float(F[ksrc.F_H]), float(F[ksrc.F_HH])
         friction = F[ksrc.F_FRICTION] != 0.0
         fast_step, aba, pre = self._kern.fast_step_compliant, pin.aba, ck.pre
-        # the steps this run takes unless one fails (the loop's own bounds), and their noise in
-        # one draw: the stream's next values in the order the plant's step draws them
-        m = min(stop - i, (lim - cycle) // s, max(0, soon - cycle) // s + 1)
         z = noise(m)
         j = i
         r = 0
         ready = False           # the step's pre done (by the last fast_step_compliant call)
-        while j < stop and cycle + s <= lim:
+        while j - i < m:
             if not ready and not pre(S, C, tau, z[j - i], h, hh, friction):
                 raise InputError("tau_cmd", f"must be finite, not {tau.tolist()!r}")
-            more = j + 1 < stop and cycle + 2 * s <= lim and cycle + s <= soon
+            if j - i == p:                      # the step with node events
+                r = fast_step(IB, F, S, aba(model, data, qm, vm, force), rec, j, cycle, C,
+                              self._no_a, -1)
+                j += 1
+                if r == 0:
+                    stepped(j - i)
+                    return self._event_step(j - i, cycle, s, 0, 0)
+                break
+            more = j + 1 - i < m
             r = fast_step(IB, F, S, aba(model, data, qm, vm, force), rec, j, cycle, C,
-                          z[j - i + 1] if more else self._no_a, more)
+                          z[j - i + 1] if more else self._no_a, 1 if more else 0)
             j += 1
             cycle += s
             if r == 8:
@@ -439,11 +490,24 @@ class ModelBackend(GatewareSide):
         return self._fast_end_run(plant, r, cycle, soon, j - i)
 
     def _fast(self, plant, pk, rec, s: int, i: int, stop: int, cycle: int, lim: int) -> int:
-        """:meth:`fast_path`'s callable."""
-        lim, soon = self._fast_limits(lim)
-        if i >= stop or cycle + s > lim:
+        """:meth:`fast_path`'s callable. Its plain steps end at the horizon (:meth:`_horizon`);
+        where the master stays quiet to the end of the step after them (``lim``), no line is
+        cut and nothing reached the master before it, that step runs too, as the run's last:
+        its plant part in the kernel as a plain step's (``fast_step``'s ``pre_next`` −1), its
+        nodes as :meth:`advance` runs them (:meth:`_run_kernel` on the count changes the kernel
+        left), what reached the master handed over at its end (:meth:`fast_observed`) — what
+        the general step does, in the same order, without the loop's general step around it
+        (:attr:`event_steps`)."""
+        hard, soon = self._fast_limits(ksrc.NEVER)
+        plain_lim = hard if hard < lim else lim
+        # a last step with node events: the master quiet through it, no cut, nothing for the
+        # master before it (the plain steps' own stop)
+        events_ok = not (self._link.cuts or self._link.errors)
+        if i >= stop or cycle + s > lim or (cycle + s > plain_lim and
+                                            not (events_ok and cycle <= soon)):
             return 0
-        self._fast_begin(cycle)
+        more_lim = lim if events_ok else plain_lim
+        self._fast_begin(cycle, plain_lim)
         S, C, model, data, qm, vm, force, solve, stepped = plant.kernel_parts()
         IB, F, tau = self._arrays.IB, self._F, self._torque
         hh = float(F[ksrc.F_HH])
@@ -455,11 +519,19 @@ class ModelBackend(GatewareSide):
         r = 0
         n_stick = n_solve = 0
         code = None             # the step's pre_free result, where the last fast_step ran it
+        event_step = False
         while j < stop and cycle + s <= lim:
+            if cycle + s > plain_lim:           # the step with node events: the run's last
+                if not events_ok:
+                    break
+                event_step = True
+                more = -1
+            else:
+                # the next step runs here too: fast_step runs its pre_free (one call less)
+                more = 1 if (j + 1 < stop and cycle + 2 * s <= more_lim
+                             and cycle + s <= soon) else 0
             if code is None:
                 code = pre_free(S, C, tau, hh, friction)
-            # the next step runs here too: fast_step runs its pre_free (one call less)
-            more = j + 1 < stop and cycle + 2 * s <= lim and cycle + s <= soon
             if code == 1:
                 r = fast_step(IB, F, S, aba(model, data, qm, vm, force), no_M, rec, j, cycle, 1,
                               C, more)
@@ -478,6 +550,11 @@ class ModelBackend(GatewareSide):
                     solve(M)
                     r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0, C, more)
             j += 1
+            if event_step:
+                if r == 0:
+                    stepped(j - i)
+                    return self._event_step(j - i, cycle, s, n_stick, n_solve)
+                break
             if r >= 8:                  # done, and the next step's pre_free with it
                 code = (r >> 3) - 2
                 cycle += s
@@ -489,11 +566,39 @@ class ModelBackend(GatewareSide):
             if cycle > soon:            # a strobe or a reply for the master in this step
                 break
         stepped(j - i)
+        self._count_steps(j - i, n_stick, n_solve)
+        return self._fast_end_run(plant, r, cycle, soon, j - i)
+
+    def _count_steps(self, steps: int, n_stick: int, n_solve: int) -> None:
         counts = self.fast_steps
-        counts["free"] += j - i - n_stick
+        counts["free"] += steps - n_stick
         counts["stick-slip"] += n_stick - n_solve
         counts["solve"] += n_solve
-        return self._fast_end_run(plant, r, cycle, soon, j - i)
+
+    def _event_step(self, steps: int, cycle: int, s: int, n_stick: int, n_solve: int) -> int:
+        """The nodes' part of a fast run's last step, from ``cycle``, with node events
+        (:meth:`_fast`): the plant's part done by the kernel, its count changes in the
+        kernel's arrays. The run's armed commits taken or disarmed first (the general path
+        takes the latter), the nodes brought to ``cycle`` as :meth:`advance` finds them, then
+        :meth:`_run_kernel`'s nodes; what reached the master by the step's end kept for
+        :meth:`fast_observed`. Returns the run's steps."""
+        self._count_steps(steps, n_stick, n_solve)
+        self.event_steps += 1
+        self._end_commits()
+        self.cycle = self._fed = self._fast_end = cycle
+        self._sync_done()
+        self._chg_lines = None                  # (the kernel's changes: no PlantLines)
+        end = cycle + s
+        events = self._run_kernel_nodes(cycle, s, 0)
+        replies = [Reply(c, src, ptype, seq, bytes(payload))
+                   for c, src, ptype, payload, seq in self._link.replies_before(end)]
+        self.cycle = self._fed = self._fast_end = end
+        self._horizon_end = None
+        self._send_at = None
+        if events or replies:
+            self.fast_handovers += 1
+            self._fast_seen = Observed(events, replies)
+        return steps
 
     def _fast_limits(self, lim: int) -> tuple[int, int]:
         """A fast run offered: ``(lim, soon)``, the run's last end cycle (``lim``
@@ -507,20 +612,29 @@ class ModelBackend(GatewareSide):
             lim = hard
         return lim, soon
 
-    def _fast_begin(self, cycle: int) -> None:
-        """A fast run starts at ``cycle``: the nodes' rows pushed into the kernel. Raises if
-        the backend is not at ``cycle``."""
+    def _fast_begin(self, cycle: int, reach: int) -> None:
+        """A fast run starts at ``cycle``, its plain steps ending by ``reach``: the nodes' rows
+        pushed into the kernel, the commits they may pass armed. Raises if the backend is not
+        at ``cycle``."""
         self._send_at = None
         if cycle != self.cycle or cycle != self._fed:
             raise ValueError(f"fast path at cycle {cycle}, the backend at {self.cycle}")
         for node in self.nodes:
             if not node.in_kernel:
                 node.push()
+        # the horizon's plain commits (_fast_limits just ran) that a plain step of this run
+        # can pass (its ticks before reach − 1: the kernel takes it in node_plain)
+        self._armed = armed = [(node, c) for node, c in self._commits if c + 1 < reach]
+        for node, c in armed:
+            node.arm_commit(c)
 
     def _fast_end_run(self, plant, r: int, cycle: int, soon: int, steps: int) -> int:
         """The end of a fast run of ``steps`` steps ending at ``cycle``, the last kernel call
         having returned ``r``: its errors raised, the backend at ``cycle``, what reached the
-        master in the last step kept for :meth:`fast_observed`."""
+        master in the last step kept for :meth:`fast_observed`. The commits the run's
+        horizon armed are taken on the objects, or disarmed (:meth:`KernelNode.end_commit
+        <cosim.model_kernel.KernelNode.end_commit>`)."""
+        self._end_commits()
         if r == 2:                      # the plant stepped, the nodes did not
             PlantLines(plant).changes()         # the reference raises EncoderOverspeed
             raise AssertionError("model kernel: an overspeed the reference missed")
@@ -538,6 +652,17 @@ class ModelBackend(GatewareSide):
                 Reply(c, src, ptype, seq, bytes(payload))
                 for c, src, ptype, payload, seq in self._link.replies_before(cycle)])
         return steps
+
+    def _end_commits(self) -> None:
+        """The commits the run armed taken on the objects, or disarmed
+        (:meth:`KernelNode.end_commit <cosim.model_kernel.KernelNode.end_commit>`)."""
+        if self._armed:
+            taken = False
+            for node, c in self._armed:
+                taken = node.end_commit(c) or taken
+            self._armed = []
+            if taken:
+                self._horizon_end = None        # (those nodes' next events have moved on)
 
     def _sync_done(self) -> None:
         """After fast steps: the nodes' ``_done``, as :meth:`_run_kernel` leaves it."""
@@ -609,13 +734,23 @@ class ModelBackend(GatewareSide):
                                            a.NCH):
                     lines.changes()                 # the reference raises EncoderOverspeed
                     raise AssertionError("model kernel: an overspeed the reference missed")
+        return self._run_kernel_nodes(start, n, offset)
+
+    def _run_kernel_nodes(self, start: int, n: int, offset: int) -> list:
+        """:meth:`_run_kernel`'s nodes, the step's count changes in the kernel's arrays."""
+        a = self._arrays
+        end = start + n
         plain = self._plain
         inbox = self._link.inbox
         others = None
         last = end - 1
         for k, node in enumerate(self.nodes):
             box = inbox[k]
-            if node.next_special() >= last and not (box and min(e[0] for e in box) < end):
+            first = ksrc.NEVER
+            for e in box:
+                if e[0] < first:
+                    first = e[0]
+            if node.next_special() >= last and first >= end:
                 plain[k] = True
                 if not node.in_kernel:
                     node.push()
@@ -649,7 +784,8 @@ class ModelBackend(GatewareSide):
             sample = self._samplers[k]
             box = self._link.inbox[k]
             if box:
-                box.sort(key=lambda e: (e[0], e[1]))
+                if len(box) > 1:
+                    box.sort(key=_arrival)
                 i = 0
                 while i < len(box) and box[i][0] < end:
                     c, _, kind, data = box[i]
@@ -674,8 +810,8 @@ class ModelBackend(GatewareSide):
                     if reply is not None:
                         self._link.reply(k, node.reply_cycle(c, ptype), ptype, reply, seq)
                 del box[:i]
-            if self._kern is not None:
-                self._torque[k] = FORCE.decode(node.run_torque(end - 1, sample))
+            if self._kern is not None:             # (FORCE.decode: w · 2^lsb, exact)
+                self._torque[k] = node.run_torque(end - 1, sample) * _FORCE_LSB
             else:
                 node.run(end - 1, sample)
                 self._torque[k] = FORCE.decode(node.torque_at(end - 1))
@@ -689,7 +825,8 @@ class ModelBackend(GatewareSide):
             later = []
             for c, flag in node.events:
                 if c < end:
-                    out.append((c, k + 1, flag.name))
+                    name = _EVENT_NAMES.get(flag)      # (flag.name: an enum property call)
+                    out.append((c, k + 1, flag.name if name is None else name))
                 else:           # (a MARK still ahead waits for its chunk)
                     later.append((c, flag))
             node.events = later

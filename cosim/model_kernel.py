@@ -31,7 +31,7 @@ from functools import cache
 
 import numpy as np
 
-from mrm_cosim.cosim.model_node import FastNode
+from mrm_cosim.cosim.model_node import _BRAKE, _CYCLES_MAX, _STOP, FastNode
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.hdl.node.trig_ref import sin_cos
 from mrm_cosim.protocol.cordic import bam_constant
@@ -155,7 +155,7 @@ def _warm_up(k) -> None:
     b = _throw_away()
     k.fast_step_compliant(b.IB, F, np.zeros((compliant_src.S_ROWS, 1)), np.zeros(1),
                           np.zeros((2, 1, 1)), 0, 0, np.ones((compliant_src.C_ROWS, 1)),
-                          np.zeros(1), True)
+                          np.zeros(1), 1)
     z6, z13 = np.zeros(6, dtype=np.int64), np.zeros(13, dtype=np.int64)
     k.vdc_link(z13, z6, z13, z13, z13, z6, z6, z6, np.zeros(3, dtype=np.int64), z6,
                z13.copy())
@@ -177,6 +177,7 @@ def _warm_up(k) -> None:
     k.enc_preset(e[0], e[2], e[3], e[4], 900, 0)
     k.enc_feed_changes(e[0], e[1], e[2], 500, 500, z, z)
     k.materialize(a.N[0], a.P[0])
+    k.any_trip(a.N, 0)
     k.sin_cos(-5, 1 << 20)
 
 
@@ -244,6 +245,7 @@ class KernelArrays:
         (self.N, self.P, self.E, self.PEND, self.VIS, self.PIPE, self.DUE,
          # the count changes of the current plant step (step_changes) and the next one to feed
          self.CHC, self.CHN, self.NCH, self.CUR) = views
+        self.N[:, src.N_COMMIT_C] = src.NEVER   # no commit armed
 
     def rows(self, k: int) -> tuple:
         """Node ``k``'s encoder views ``(E, PEND, VIS, PIPE, DUE)``."""
@@ -412,6 +414,8 @@ class KernelNode(FastNode):
         self._kern = kern
         #: the timer's events run with the tick state in the row (no copy of it either way)
         self.in_row = {"boundary": 0, "commit": 0, "timecode": 0, "packet": 0}
+        #: plain commit points the kernel took inside a fast step (:meth:`arm_commit`)
+        self.fast_commits = 0
 
     def run(self, until: int, sample=None, stay: bool = False) -> None:
         """:meth:`FastNode.run` with its runs of plain ticks in the kernel
@@ -527,6 +531,64 @@ class KernelNode(FastNode):
         self.in_row["commit"] += 1
         return True
 
+    def kernel_commit(self) -> tuple[int, int] | None:
+        """``(c, special)`` if the timer's next event is a commit point ``c`` that
+        :meth:`_commit_in_row` would take (no boundary, pre-arm cycle or generator step with
+        it, the generator's references not selected, the safe stop neither acting nor near by
+        ``c``), ``special`` the next event after it (what :meth:`next_special` gives once it
+        has passed); else None. A fast step may then run through ``c`` with the commit in the
+        kernel (:meth:`arm_commit`)."""
+        lb = self._lb
+        if self._commit_seen == lb or self.arm_pending or self.dmp_running or \
+                self.dmp_waiting or self.dmp_select:
+            return None
+        cfg = self.config
+        c = lb + cfg[_COMMIT]
+        special = self._nb
+        if c >= special:
+            return None
+        if cfg[_STOP] or cfg[_BRAKE]:
+            if self.tripped:
+                return None
+            if self.armed:
+                near = (self.last_packet + 2 + cfg[_TIMEOUT] - 2 * cfg[_TICK]
+                        - _CYCLES_MAX - 2)
+                if near <= c:
+                    return None
+                if near < special:
+                    special = near
+        return c, special
+
+    def arm_commit(self, c: int) -> None:
+        """The kernel takes the commit point ``c`` (:meth:`kernel_commit`) when its ticks pass
+        it (:func:`~cosim.model_kernel_src.node_plain`): the pending Comm D's words, or the
+        words in force if none is pending, into the row. The row must hold the tick state;
+        :meth:`end_commit` after the kernel's calls."""
+        # (N_COMMIT_C, N_DN_BASE, N_DN0 … N_DN0 + 3 in one assignment)
+        if self.d_pending:
+            self._row[src.N_COMMIT_C:src.N_DN0 + 4] = [c, self.d_next_base, *self.d_next]
+        else:
+            self._row[src.N_COMMIT_C:src.N_DN0 + 4] = [c, self.d_base, *self.d_words]
+
+    def end_commit(self, c: int) -> bool:
+        """After :meth:`arm_commit` ``c`` and the kernel's calls: if the kernel took the commit,
+        the object's side of it, as :meth:`_commit_in_row` does after its tick (the
+        observation port's COMMIT strobe, :meth:`NodeModel._take_d
+        <hdl.node.core_ref.NodeModel._take_d>`); else the commit disarmed (the general path
+        takes it). Returns whether the kernel took it."""
+        row = self._row
+        if row[src.N_COMMIT_C] != src.NEVER:
+            row[src.N_COMMIT_C] = src.NEVER
+            return False
+        self._commit_seen = self._lb
+        if self.d_pending:
+            if self.events is not None:
+                self.events.append((c, NodeEvent.COMMIT))
+            self._take_d(self.d_next, self.d_next_base)
+            self.d_pending = False
+        self.fast_commits += 1
+        return True
+
     _row_packet = False     # NodeModel.packet running with the tick state in the row
     _kb = None              # bam_constant of the encoder's counts per revolution (CORDIC)
 
@@ -557,10 +619,9 @@ class KernelNode(FastNode):
             reply = NodeModel.packet(self, now, ptype, payload, period, enc_errors, sample)
         finally:
             self._row_packet = False
-        row[src.N_LAST_PACKET] = now
         row[src.N_PRIME] = self.prime
-        row[src.N_DBASE] = self.d_base
-        row[src.N_D0:src.N_D0 + 4] = self.d_words
+        # N_LAST_PACKET, N_DBASE, N_D0 … N_D0 + 3 in one assignment
+        row[src.N_LAST_PACKET:src.N_D0 + 4] = [now, self.d_base, *self.d_words]
         self.in_row["packet"] += 1
         return reply
 
@@ -619,7 +680,8 @@ class KernelNode(FastNode):
             j.q_des, j.v_des, j.i_lo, j.i_hi,
             self.armed, self.tripped, self.prime, 0 if pd is None else pd, pd is not None,
             self.last_packet, self.d_base, *self.d_words,
-            cfg[_TICK], cfg[_MODE], cfg[_TIMEOUT], cfg[_TAU_MIN], cfg[_TAU_MAX], cfg[_RAMP]]
+            cfg[_TICK], cfg[_MODE], cfg[_TIMEOUT], cfg[_TAU_MIN], cfg[_TAU_MAX], cfg[_RAMP],
+            src.NEVER, 0, 0, 0, 0, 0]           # no commit armed (ModelBackend arms one)
         if self._prow_of is not j.params:
             param_row(j.params, self._prow)
             self._prow_of = j.params

@@ -53,7 +53,11 @@ N_ARMED, N_TRIPPED, N_PRIME, N_PRIME_DUE, N_PRIME_SET = 18, 19, 20, 21, 22
 N_LAST_PACKET, N_DBASE = 23, 24
 N_D0 = 25                                       # d_words: 25..28
 N_TICK, N_MODE, N_TIMEOUT, N_TAU_MIN, N_TAU_MAX, N_RAMP = 29, 30, 31, 32, 33, 34
-N_SIZE = 35
+# a plain commit the kernel takes (:func:`node_plain`): its cycle (NEVER: none), then the
+# pending Comm D's words and boundary (d_next, d_next_base) it puts in d_words and d_base
+N_COMMIT_C, N_DN_BASE = 35, 36
+N_DN0 = 37                                      # d_next: 37..40
+N_SIZE = 41
 
 # --- joint parameter row ---------------------------------------------------------------------
 P_CT, P_CTH, P_KC, P_LAMC, P_LAM, P_IVS, P_IVLC, P_KJ = 0, 1, 2, 3, 4, 5, 6, 7
@@ -624,6 +628,26 @@ def _dead_run(N, P, E, vis, due, first, k, step, cyc):
 
 
 def node_plain(N, P, E, vis, pipe, due, lim):
+    """The plain ticks before ``lim`` (:func:`node_ticks`), and the commit of ``N[N_COMMIT_C]``
+    if it lies before ``lim``: as :meth:`KernelNode.run <cosim.model_kernel.KernelNode.run>`
+    takes a plain commit point ``c`` (:meth:`~cosim.model_kernel.KernelNode._commit_in_row`),
+    the ticks before ``c``, the tick in cycle ``c``, then the pending Comm D's words into
+    ``d_words`` and ``d_base`` (:meth:`NodeModel._take_d <hdl.node.core_ref.NodeModel._take_d>`
+    with the generator's references not selected). Only such a commit is armed (a fast run's,
+    :meth:`cosim.model.ModelBackend._fast_begin`), and the object's side follows the run
+    (:meth:`~cosim.model_kernel.KernelNode.end_commit`)."""
+    c = N[N_COMMIT_C]
+    if c < lim:
+        node_ticks(N, P, E, vis, pipe, due, c)
+        node_ticks(N, P, E, vis, pipe, due, c + 1)
+        N[N_COMMIT_C] = NEVER
+        N[N_DBASE] = N[N_DN_BASE]
+        for j in range(4):
+            N[N_D0 + j] = N[N_DN0 + j]
+    node_ticks(N, P, E, vis, pipe, due, lim)
+
+
+def node_ticks(N, P, E, vis, pipe, due, lim):
     """The lazy branch of :meth:`FastNode.run`'s loop for the plain ticks before ``lim``."""
     step = N[N_TICK]
     cyc = P[P_CYC + N[N_MODE]]
@@ -652,6 +676,17 @@ def torque_at(N, now):
             or N[N_PRIME_SET]:
         _watch(N, now)
     return N[N_TORQUE]
+
+
+def any_trip(NS, c):
+    """Whether a node of rows ``NS`` has tripped, or armed sees its watchdog's trip by cycle
+    ``c`` (:meth:`ModelBackend.brake <cosim.model.ModelBackend.brake>`'s test of a node whose
+    state the kernel holds, for every node at once)."""
+    for k in range(NS.shape[0]):
+        if NS[k, N_TRIPPED] or (NS[k, N_ARMED] and
+                                c >= NS[k, N_LAST_PACKET] + 2 + NS[k, N_TIMEOUT]):
+            return True
+    return False
 
 
 def _count_at(q0, v0, half_acc, k, step, m):
@@ -1052,7 +1087,10 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     mode 2) or 4 if the likely pattern does not (the caller runs the general solve and calls
     again in mode 0); 2 if a joint moved more than one count in a cycle (the plant has
     stepped, the nodes have not); 3 as :func:`plain_step`'s True. With ``pre_next`` and the
-    step done, ``8 · (code + 2)``: ``code`` the next step's ``pre_free`` result (−1, 0, 1)."""
+    step done, ``8 · (code + 2)``: ``code`` the next step's ``pre_free`` result (−1, 0, 1).
+    ``pre_next`` −1: the plant's part only (the trace row and the count changes, returns 0
+    or 2): the caller runs the nodes (:meth:`ModelBackend._fast
+    <cosim.model.ModelBackend._fast>`'s last step with a node event)."""
     h = F[F_H]
     hh = F[F_HH]
     if mode == 1:
@@ -1062,6 +1100,9 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
         if not plant_src.stuck(S, a) and plant_src.likely_pattern(S, M, h) != 1:
             return 4
     plant_src.finish(S, h, hh)
+    if pre_next < 0:            # the plant's part only: the nodes run on the general path
+        return _step_plant_end(IB, F, S, rec, i, plant_src.Q_START, plant_src.V_START,
+                               plant_src.A_PREV, plant_src.Q, plant_src.Q)
     r = _step_nodes(IB, F, S, rec, i, start, plant_src.Q_START, plant_src.V_START,
                     plant_src.A_PREV, plant_src.Q, plant_src.Q)
     if r:
@@ -1081,8 +1122,22 @@ def _step_nodes(IB, F, S, rec, i, start, start_row, velocity_row, acc_row, end_r
     ticks to the step's last cycle with the torques they output there (:func:`plain_step`).
     Returns 0; 2 if a joint moved more than one count in a cycle; 3 as :func:`plain_step`'s
     True."""
+    if _step_plant_end(IB, F, S, rec, i, start_row, velocity_row, acc_row, end_row, q_row):
+        return 2
     n = IB[H_N]
-    cycles = IB[H_CYCLES]
+    N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR = blob_views(IB)
+    tau = F[F_SIZE + n:F_SIZE + 2 * n]
+    plain = np.ones(n, dtype=np.bool_)
+    if plain_step(N, P, E, VIS, PIPE, DUE, PEND, plain, start, IB[H_CYCLES], 0, CHC, CHN, NCH,
+                  CUR, tau):
+        return 3
+    return 0
+
+
+def _step_plant_end(IB, F, S, rec, i, start_row, velocity_row, acc_row, end_row, q_row):
+    """:func:`_step_nodes`' first part: the trace row ``i`` and the step's count changes
+    (``CUR`` at the first). Returns 0; 2 if a joint moved more than one count in a cycle."""
+    n = IB[H_N]
     N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR = blob_views(IB)
     K = F[F_SIZE:F_SIZE + n]
     tau = F[F_SIZE + n:F_SIZE + 2 * n]
@@ -1094,14 +1149,10 @@ def _step_nodes(IB, F, S, rec, i, start, start_row, velocity_row, acc_row, end_r
         M[3, j] = S[end_row, j]
         rec[0, i, j] = S[q_row, j]
         rec[1, i, j] = tau[j]
-    if step_changes(M, K, F[F_H], cycles, CHC, CHN, NCH):
+    if step_changes(M, K, F[F_H], IB[H_CYCLES], CHC, CHN, NCH):
         return 2
-    plain = np.ones(n, dtype=np.bool_)
     for k in range(n):
         CUR[k] = 0
-    if plain_step(N, P, E, VIS, PIPE, DUE, PEND, plain, start, cycles, 0, CHC, CHN, NCH, CUR,
-                  tau):
-        return 3
     return 0
 
 
@@ -1124,11 +1175,15 @@ def fast_step_compliant(IB, F, S, acc, rec, i, start, C, noise, pre_next):
 
     Returns 0; 2 if a joint moved more than one count in a cycle (the plant has stepped, the
     nodes have not); 3 as :func:`plain_step`'s True; with ``pre_next``, ``8 · (code + 2)`` with
-    ``code`` 1 (``pre`` done) or −1 (a torque was not finite, nothing done)."""
+    ``code`` 1 (``pre`` done) or −1 (a torque was not finite, nothing done). ``pre_next`` −1:
+    the plant's part only, as :func:`fast_step`'s."""
     h = F[F_H]
     hh = F[F_HH]
     compliant_src.finish(S, acc, h, hh)
     # the motor-side encoder counts the motor (θ); the trace records the link (q)
+    if pre_next < 0:            # the plant's part only (as fast_step's)
+        return _step_plant_end(IB, F, S, rec, i, compliant_src.TH_START, compliant_src.W_START,
+                               compliant_src.AM_PREV, compliant_src.TH, compliant_src.Q)
     r = _step_nodes(IB, F, S, rec, i, start, compliant_src.TH_START, compliant_src.W_START,
                     compliant_src.AM_PREV, compliant_src.TH, compliant_src.Q)
     if r:

@@ -40,13 +40,15 @@ from __future__ import annotations
 
 import enum
 import math
+import struct
 
 import numpy as np
 
 from mrm_cosim.errors import InputError
 
 from .crc import CRC16_INIT, crc16
-from .fixed import ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, saturate, theta_group
+from .fixed import (ACC, FORCE, GAIN, POS, RHOT, THETA, VEL, WORD_MAX, WORD_MIN, saturate,
+                    theta_group)
 from .joint_program import MODES as JOINT_MODES
 from .joint_program import JointParams, joint_microcode
 from .packet import DATA_PAYLOAD
@@ -188,10 +190,21 @@ def _pad(data: bytes) -> bytes:
     return data + bytes(PAYLOAD - len(data))
 
 
+def _encode(x: float, shift: int) -> int:
+    """:meth:`Fmt.encode <protocol.fixed.Fmt.encode>` of a format whose ``lsb`` is −``shift``
+    (the same operations; the packers' words, one call each instead of a method's)."""
+    w = math.floor(math.ldexp(float(x), shift) + 0.5)
+    return WORD_MIN if w < WORD_MIN else WORD_MAX if w > WORD_MAX else w
+
+
+_VEL_SHIFT, _ACC_SHIFT, _FORCE_SHIFT, _POS_SHIFT = -VEL.lsb, -ACC.lsb, -FORCE.lsb, -POS.lsb
+
+
 def pack_comm_b(qd_r: float, V_C, V_rC, prime: bool = False) -> bytes:
     """Comm B payload from floats (rad/s, m/s; saturating at the VEL range)."""
-    enc = VEL.encode
-    words = [enc(qd_r), *map(enc, V_C), *map(enc, V_rC)]
+    sh = _VEL_SHIFT
+    words = [_encode(qd_r, sh), *[_encode(x, sh) for x in V_C],
+             *[_encode(x, sh) for x in V_rC]]
     return pack_words(words) + (b"\1" if prime else b"\0")
 
 
@@ -199,8 +212,9 @@ def pack_comm_d(tau: float, g_C, q_d0: float, qd_d0: float, qdd_d0: float,
                 counts_per_rev: int = 800_000) -> bytes:
     """Comm D payload from floats (N·m, m/s², rad, rad/s, rad/s²)."""
     counts = q_d0 * counts_per_rev / (2 * math.pi)
-    words = [FORCE.encode(tau)] + [ACC.encode(x) for x in g_C] + \
-        [POS.encode(counts), VEL.encode(qd_d0), ACC.encode(qdd_d0)]
+    words = [_encode(tau, _FORCE_SHIFT), *[_encode(x, _ACC_SHIFT) for x in g_C],
+             _encode(counts, _POS_SHIFT), _encode(qd_d0, _VEL_SHIFT),
+             _encode(qdd_d0, _ACC_SHIFT)]
     return _pad(pack_words(words))
 
 
@@ -209,17 +223,31 @@ def parse_comm_a(data: bytes) -> dict:
     if len(data) != PAYLOAD:
         raise ValueError(f"Comm A payload must be {PAYLOAD} bytes, not {len(data)}")
     qd, tau = unpack_words(data, 2, 4)
+    # (one struct call for the little-endian fields from byte 10 on: the master parses three
+    # to six of these a period)
+    (status, errors, period, overruns, sync, late, crc, count, up, down, rx, router,
+     dmp) = _COMM_A_TAIL.unpack_from(data, 10)
     return {"count": int.from_bytes(data[0:4], "little", signed=True), "qd": qd, "torque": tau,
-            "status": Status(int.from_bytes(data[10:12], "little")),
-            "errors": int.from_bytes(data[12:14], "little"), "period": data[14],
-            "overruns": int.from_bytes(data[15:17], "little"),
-            "sync_errors": int.from_bytes(data[17:19], "little"),
-            "late_d": int.from_bytes(data[19:21], "little"),
-            "upload_crc": int.from_bytes(data[21:23], "little"),
-            "upload_count": int.from_bytes(data[23:25], "little"),
-            **{k: int.from_bytes(data[25 + 2 * i:27 + 2 * i], "little")
-               for i, k in enumerate(LINK_HEALTH)},
-            "dmp_overruns": int.from_bytes(data[33:35], "little")}
+            "status": _status(status), "errors": errors, "period": period,
+            "overruns": overruns, "sync_errors": sync, "late_d": late, "upload_crc": crc,
+            "upload_count": count, "up_link_errors": up, "down_link_errors": down,
+            "rx_dropped": rx, "router_dropped": router, "dmp_overruns": dmp}
+
+
+#: Comm A's fields from byte 10: status, errors, period, overruns, sync errors, late Comm D,
+#: upload CRC and count, the four link-health counters (:data:`LINK_HEALTH`), the generator's
+#: overruns
+_COMM_A_TAIL = struct.Struct("<HHB10H")
+assert LINK_HEALTH == ("up_link_errors", "down_link_errors", "rx_dropped", "router_dropped")
+_STATUS: dict[int, Status] = {}
+
+
+def _status(v: int) -> Status:
+    """``Status(v)``, kept by value (the enum's call costs more than the lookup)."""
+    s = _STATUS.get(v)
+    if s is None:
+        s = _STATUS[v] = Status(v)
+    return s
 
 
 def upload_check(payloads) -> tuple[int, int]:
@@ -249,7 +277,7 @@ def parse_comm_c(data: bytes) -> tuple[list[int], list[int], Status, int]:
     if len(data) != PAYLOAD:
         raise ValueError(f"Comm C payload must be {PAYLOAD} bytes, not {len(data)}")
     w = unpack_words(data, 12)
-    return w[:6], w[6:], Status(int.from_bytes(data[36:38], "little")), data[38]
+    return w[:6], w[6:], _status(int.from_bytes(data[36:38], "little")), data[38]
 
 
 def config_payloads(values: dict) -> list[bytes]:

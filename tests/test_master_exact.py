@@ -120,3 +120,77 @@ def test_mounts_follow_the_robot():
     for k in range(robot.n):
         assert np.array_equal(Ts[k], robot.mount_transform(k))
         assert np.array_equal(Us[k], _mount_U_of(robot, k))
+
+
+def _plain_comm_b(qd_r, V_C, V_rC, prime):
+    """pack_comm_b as it was: every word by its format's encode."""
+    from mrm_cosim.protocol.fixed import VEL
+    from mrm_cosim.protocol.regs import pack_words
+
+    enc = VEL.encode
+    return pack_words([enc(qd_r), *map(enc, V_C), *map(enc, V_rC)]) + (b"\1" if prime else b"\0")
+
+
+def _plain_comm_d(tau, g_C, q_d0, qd_d0, qdd_d0, cpr):
+    """pack_comm_d as it was."""
+    from mrm_cosim.protocol.fixed import ACC, FORCE, POS, VEL
+    from mrm_cosim.protocol.regs import PAYLOAD, pack_words
+
+    counts = q_d0 * cpr / (2 * math.pi)
+    words = [FORCE.encode(tau)] + [ACC.encode(x) for x in g_C] + \
+        [POS.encode(counts), VEL.encode(qd_d0), ACC.encode(qdd_d0)]
+    out = pack_words(words)
+    return out + bytes(PAYLOAD - len(out))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_comm_b_and_d_packing_equals_the_formats_encode(seed):
+    """The packers' inline encoding gives the bytes of every format's own ``encode``, over
+    random values at every scale, ties at half an LSB, and beyond the words' range (saturated)."""
+    from mrm_cosim.protocol.regs import pack_comm_b, pack_comm_d
+
+    rng = np.random.default_rng(seed)
+    for _ in range(300):
+        scale = 10.0 ** rng.uniform(-8, 4)
+        x = (rng.standard_normal(14) * scale).tolist()
+        x[rng.integers(14)] = rng.integers(-2**26, 2**26) * 2.0**-20    # a tie, at some LSB
+        x[rng.integers(14)] = float(rng.choice([1e9, -1e9, 0.0, -0.0]))
+        prime = bool(rng.integers(2))
+        assert pack_comm_b(x[0], x[1:7], x[7:13], prime) == \
+            _plain_comm_b(x[0], x[1:7], x[7:13], prime)
+        cpr = int(rng.choice([800_000, 4096, 1 << 24]))
+        assert pack_comm_d(x[0], x[1:4], x[4] * 1e-3, x[5], x[6], cpr) == \
+            _plain_comm_d(x[0], x[1:4], x[4] * 1e-3, x[5], x[6], cpr)
+
+
+def _plain_comm_a(data):
+    """parse_comm_a as it was: a from_bytes a field."""
+    from mrm_cosim.protocol.regs import LINK_HEALTH, Status, unpack_words
+
+    qd, tau = unpack_words(data, 2, 4)
+    return {"count": int.from_bytes(data[0:4], "little", signed=True), "qd": qd, "torque": tau,
+            "status": Status(int.from_bytes(data[10:12], "little")),
+            "errors": int.from_bytes(data[12:14], "little"), "period": data[14],
+            "overruns": int.from_bytes(data[15:17], "little"),
+            "sync_errors": int.from_bytes(data[17:19], "little"),
+            "late_d": int.from_bytes(data[19:21], "little"),
+            "upload_crc": int.from_bytes(data[21:23], "little"),
+            "upload_count": int.from_bytes(data[23:25], "little"),
+            **{k: int.from_bytes(data[25 + 2 * i:27 + 2 * i], "little")
+               for i, k in enumerate(LINK_HEALTH)},
+            "dmp_overruns": int.from_bytes(data[33:35], "little")}
+
+
+def test_comm_a_and_c_parsing_equals_the_plain_one():
+    """parse_comm_a's one struct call gives every field (and its order, and Status) of the
+    field-by-field parse; parse_comm_c's status is the enum's, over random payloads."""
+    from mrm_cosim.protocol.regs import PAYLOAD, Status, parse_comm_a, parse_comm_c
+
+    rng = np.random.default_rng(7)
+    for _ in range(500):
+        data = rng.integers(0, 256, PAYLOAD, dtype=np.uint8).tobytes()
+        got, want = parse_comm_a(data), _plain_comm_a(data)
+        assert got == want and list(got) == list(want)
+        assert type(got["status"]) is Status
+        status = parse_comm_c(data)[2]
+        assert type(status) is Status and status == Status(int.from_bytes(data[36:38], "little"))

@@ -153,10 +153,15 @@ def _run(robot_name, controller, kernel, cycles, joints="rigid"):
                       node_uploads(robot, controller, gains))
     result = loop.run(cycles)
     state = [(n._nt, n.torque, n.overruns, n._landing, n._deferred, n.joint.q_des,
-              n.joint.v_des, n.joint.i_lo, n.joint.i_hi, n.tripped, n.prime)
+              n.joint.v_des, n.joint.i_lo, n.joint.i_hi, n.tripped, n.prime, n.d_words,
+              n.d_base, n.cd_words, n.cd_base, n.d_pending, n._commit_seen)
              for n in backend.nodes]
     enc = [(e.count, e.velocity, e.errors) for e in backend.encoders]
-    return result, payloads, state, enc, backend, plant
+    # what the master saw of every period: the cycle of every event, reply and node strobe
+    # (a strobe the fast path lost or moved shows here, not in the trace)
+    seen = [(r.index, r.start, r.events, r.arrivals, r.node_events, r.complete)
+            for r in master.records]
+    return result, payloads, state, enc, backend, plant, seen
 
 
 @needs_numba
@@ -241,16 +246,25 @@ def test_compiled_and_python_paths_give_the_same_trace(robot, controller):
     steps = fast[4].fast_steps
     assert sum(steps.values()) > 0.8 * cycles / 500 and steps["free"] > 0, steps
     assert steps["stick-slip"] + steps["solve"] > 0, steps
-    # and some of its runs ended with a step whose replies or strobes it handed to the master
+    # and some of its runs ended with a step whose replies or strobes it handed to the master,
+    # some with a step whose nodes had events (its plant in the kernel, ModelBackend._fast)
     assert fast[4].fast_handovers > 0
-    # the nodes' boundaries, commits, time-codes and packets ran with their tick state in the
-    # kernel's row (KernelNode._boundary_in_row, _commit_in_row, timecode, packet)
-    for event in ("boundary", "commit", "timecode", "packet"):
+    assert fast[4].event_steps > 0
+    # the nodes' boundaries, time-codes and packets ran with their tick state in the kernel's
+    # row (KernelNode._boundary_in_row, timecode, packet), the commits inside fast steps
+    # (KernelNode.arm_commit), and the row's references are the object's
+    for event in ("boundary", "timecode", "packet"):
         assert sum(node.in_row[event] for node in fast[4].nodes) > 0, event
+    assert sum(node.fast_commits for node in fast[4].nodes) > 0
+    for node in fast[4].nodes:
+        assert node._row[src.N_D0:src.N_D0 + 4].tolist() == node.d_words
+        assert node._row[src.N_DBASE] == node.d_base
+        assert node._row[src.N_COMMIT_C] == src.NEVER
     assert slow[4].fast_steps == {"free": 0, "stick-slip": 0, "solve": 0}
     assert fast[1] == slow[1] and len(fast[1]) > 0
     assert fast[2] == slow[2]
     assert fast[3] == slow[3]
+    assert fast[6] == slow[6] and len(fast[6]) >= 7
     assert np.ptp(fast[0].q, axis=0).min() > 2e-5                 # every joint moved (counts)
     # the torques changed (torque-only nodes hold the master's torque for a period)
     assert max(len(np.unique(col)) for col in fast[0].tau.T) > \
@@ -272,12 +286,14 @@ def test_compiled_and_python_paths_give_the_same_trace_on_the_compliant_plant(ro
     assert type(fast[4].nodes[0]).__name__ == "KernelNode"
     assert fast[0].violations == slow[0].violations == []
     assert fast[0].trace_sha256 == slow[0].trace_sha256
+    assert sum(node.fast_commits for node in fast[4].nodes) > 0
     steps = fast[4].fast_steps      # (a compliant step has no stick-slip solve through ABA)
     assert steps["free"] > 0.8 * cycles / 500 and steps["stick-slip"] == steps["solve"] == 0
-    assert fast[4].fast_handovers > 0
+    assert fast[4].fast_handovers > 0 and fast[4].event_steps > 0
     assert fast[1] == slow[1] and len(fast[1]) > 0
     assert fast[2] == slow[2]
     assert fast[3] == slow[3]
+    assert fast[6] == slow[6] and len(fast[6]) >= 7
     # every link moved by counts of its motor-side encoder (≈ 1.3e5 counts/rad; mrm6's heavy
     # links follow their gears' 25 Hz swing by 1e-5 rad in 8 ms)
     assert np.ptp(fast[0].q, axis=0).min() > 5e-6
@@ -499,3 +515,19 @@ def test_compiled_vdc_step_equals_the_reference(th, K, rho, bounds, inv_t, prev,
         assert fast.step(x) == ref.step(x)
         assert (fast.theta, fast.prev_C, fast.prev_qd_r, fast.primed) == \
             (ref.theta, ref.prev_C, ref.prev_qd_r, ref.primed)
+
+
+@needs_numba
+@settings(max_examples=300, deadline=None)
+@given(rows=st.lists(st.tuples(st.booleans(), st.booleans(), st.integers(-10**6, 10**6),
+                               st.integers(0, 10**6)), min_size=1, max_size=7),
+       c=st.integers(-10**6, 3 * 10**6))
+def test_any_trip_is_every_node_s_brake_test(rows, c):
+    """:func:`any_trip` (ModelBackend.brake's shortcut) is the per-node test of a node the
+    kernel holds: tripped, or armed with the watchdog's trip by ``c``."""
+    N = np.zeros((len(rows), src.N_SIZE), dtype=np.int64)
+    for k, (tripped, armed, last, timeout) in enumerate(rows):
+        N[k, src.N_TRIPPED], N[k, src.N_ARMED] = tripped, armed
+        N[k, src.N_LAST_PACKET], N[k, src.N_TIMEOUT] = last, timeout
+    want = any(t or (a and c >= last + 2 + to) for t, a, last, to in rows)
+    assert kern.any_trip(N, c) is want
