@@ -225,21 +225,25 @@ class ClosedLoop:
                     self.backend.send(action)
 
     def _ahead(self, fast, i: int, stop: int) -> int:
-        """Before a general step (the fast path has declined it): the master's packets due
-        inside the step handed over at once, as sent in their cycle, where the backend allows
-        it (:meth:`GatewareSide.send_ahead`), and the step offered to the fast path again.
-        The polls are the general step's: at the step's first cycle, then at the packets'.
-        Returns the steps the fast path ran (0: the general step runs; it polls again, which
-        returns nothing, and needs no split where the packets left)."""
+        """Before a general step (the fast path has declined it): the master polled at the
+        step's first cycle, its packets due inside the step handed over at once, as sent in
+        their cycle, where the backend allows it (:meth:`GatewareSide.send_ahead`), and the
+        step offered to the fast path again — also when nothing more is due in it (the
+        period start: the time-code and Comm A leave at its first cycle, the step becomes
+        one with node events). The polls are the general step's: at the step's first cycle,
+        then at the packets'. Returns the steps the fast path ran (0: the general step runs;
+        it polls again, which returns nothing, and needs no split where the packets left)."""
         master, backend, s = self.master, self.backend, self.step_cycles
         for action in master.poll(self.cycle):
             backend.send(action)
         due = master.next_due()
-        if due is None or not self.cycle < due < self.cycle + s or \
-                not backend.send_ahead(due, self.cycle + s):
-            return 0
-        for action in master.poll(due):
-            backend.send(action)
+        if due is not None and self.cycle < due < self.cycle + s:
+            if not backend.send_ahead(due, self.cycle + s):
+                return 0
+            for action in master.poll(due):
+                backend.send(action)
+        # nothing more due inside the step (the period start's time-code and Comm A went out
+        # at its first cycle): the fast path may take it as a step with node events
         return fast(i, stop, self.cycle, master.quiet_end(s))
 
     # --- the run -----------------------------------------------------------------------------
