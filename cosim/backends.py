@@ -590,7 +590,8 @@ class PysimBackend(LineSide):
         eng = self._engine
 
         def get(name):
-            return ctx.get(getattr(dut, name))
+            sig = getattr(dut, name)
+            return ctx.get(sig.as_value() if hasattr(sig, "as_value") else sig)
 
         if eng is None:
             n_nodes = plan.n_domains - 1

@@ -113,6 +113,8 @@ class ClockConfig:
             if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 7:
                 raise InputError(f"{prefix}.{name}", f"must be an integer from 0 to 7, not {v!r}")
         _ppm(self.range_ppm, f"{prefix}.range_ppm")
+        if self.range_ppm < 0:
+            raise InputError(f"{prefix}.range_ppm", f"must be at least 0, not {self.range_ppm!r}")
         _ppm(self.master_ppm, f"{prefix}.master_ppm")
         _phase(self.master_phase, f"{prefix}.master_phase")
         for name, check in (("ppm", _ppm), ("phase", _phase)):
