@@ -12,7 +12,7 @@ from mrm_cosim.hdl.system import System
 
 def test_the_common_clock_is_todays_system():
     s = System(1, clocks="common")
-    assert s.verilog_ports().keys() == System(1).verilog_ports().keys()
+    assert s.node_domains == [] and not any("_clk" in p for p in s.verilog_ports())
     a = verilog.convert(s, name="system", emit_src=False)
     assert "down_d_out1" not in a and "n1_clk" not in a and "n1_" not in a
 
