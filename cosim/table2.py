@@ -14,7 +14,9 @@ nothing) holds::
     torques.png           torque commands per controller with the peak-torque limits
     <controller>/         summary.json, trace.csv (1 ms), timeline.json, tracking.png (every
                           plant step),
-                          timeline.png (Gantt of one period), parameters.png
+                          timeline.png (Gantt of one period), parameters.png, and with
+                          [clocks] set skew.png (each node's period start against the
+                          master's over the run, docs/clocks.md)
 """
 
 from __future__ import annotations
@@ -465,6 +467,14 @@ def _write_controller(folder: Path, robot, controller, config, result, summary, 
     except ValueError:
         plot_parameters(folder / "timeline.png", title=title,
                         note="no complete period in this run: no timeline to draw")
+    if not config.clocks.common or config.clocks.discipline:
+        from mrm_cosim.cosim.skew import plot_skew
+
+        plot_skew(folder / "skew.png", result.master.records, robot.n,
+                  config.timing.period_cycles,
+                  f"{controller}: period starts, clocks {config.clocks.mode}, timers "
+                  + ("disciplined" if config.clocks.discipline else "free-running"),
+                  strobes=getattr(result.master, "boundary_strobes", None))
     theta = getattr(result, "theta", None)
     if theta is not None:
         plot_parameters(folder / "parameters.png", result.t, theta, title=title)

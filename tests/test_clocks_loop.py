@@ -45,6 +45,7 @@ def test_table2_with_drawn_clocks_and_discipline_reports_a_small_skew(tmp_path):
     assert on_disk["controllers"]["vdc"]["period_skew"] == skew
     table = (tmp_path / "out" / "table2.md").read_text()
     assert "disciplined by the time-code" in table and "between nodes" in table
+    assert (tmp_path / "out" / "vdc" / "skew.png").stat().st_size > 0
     assert ec.loads((tmp_path / "out" / "config.toml").read_text()) == config
 
 
