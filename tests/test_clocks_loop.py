@@ -106,3 +106,13 @@ def test_drawn_clocks_come_from_the_seed_alone():
     assert len(ppm) == 7 and all(abs(p) <= 100 for p in ppm)
     assert all(0 <= f < 1 for f in phase)
     assert ClockConfig().resolve(3, 5) == ((0.0,) * 4, (0.0,) * 4)
+
+
+def test_the_clocks_table_is_the_default_table_on_drawn_clocks():
+    from dataclasses import replace
+    from pathlib import Path
+
+    clocks = ec.load(Path(ec.DEFAULT_CONFIG).with_name("table2-clocks.toml"))
+    assert clocks.clocks == ClockConfig(mode="drawn", range_ppm=100.0, discipline=True)
+    assert clocks.backend == "compiled"
+    assert replace(ec.load(), backend="compiled", clocks=clocks.clocks) == clocks
