@@ -104,7 +104,11 @@ def system_verilog(factory, key: str) -> tuple[str, dict]:
     if path.exists() and side.exists():
         return path.read_text(), json.loads(side.read_text())
     design = factory()
-    text = verilog.convert(design, name="system", emit_src=False)
+    if getattr(design, "clocks", "common") == "node":     # the node domains' clocks as ports
+        text = verilog.convert(design, name="system", emit_src=False,
+                               ports=design.verilog_ports())
+    else:
+        text = verilog.convert(design, name="system", emit_src=False)
     if _hdl_fingerprint() != fingerprint:
         # The sources changed while this process ran: a module imported lazily after the
         # edit could mix old and new code, so this Verilog is used but not cached.
@@ -401,24 +405,43 @@ class CompiledBackend(LineSide):
         little slower), tracing switched on only inside the window.
     faults, line_slots, record
         As :class:`LineSide`.
+    clocks : cosim.clocks.ClockPlan, optional
+        A clock per node: ``factory`` builds a ``System(..., clocks="node")`` and the model
+        runs the event-ordered loop over every clock's edges (docs/clocks.md); no VCD.
     """
 
     name = "compiled"
 
     def __init__(self, factory, key: str, quiet: bool = True, vcd: VcdWindow | None = None,
-                 faults=(), line_slots: int = DEFAULT_SLOTS, record: bool = False):
+                 faults=(), line_slots: int = DEFAULT_SLOTS, record: bool = False,
+                 clocks=None):
         from mrm_cosim.cosim.compiled import CompiledModel
 
         super().__init__(faults, line_slots, record)
+        if clocks is not None and vcd is not None:
+            raise InputError("vcd", "no waveforms with clocks of their own (docs/clocks.md)")
         text, signed = system_verilog(factory, key)
         self.model = CompiledModel(None, "system", quiet=quiet, verilog_text=text,
                                    signed_ports=signed,
                                    trace=False if vcd is None else vcd.format)
+        self.clocks = clocks
+        if clocks is not None:
+            from mrm_cosim.cosim.clocks import system_lines
+
+            n_nodes = clocks.n_domains - 1
+            self.model.setup_clocks(clocks, system_lines(n_nodes), _observed(n_nodes))
         self.vcd = vcd
         self._raw: Path | None = None
         self._vcd_done = False
 
+    @property
+    def merged_strobes(self) -> int:
+        """Node strobes merged into a master cycle that held the same one (docs/clocks.md)."""
+        return self.model.merged_strobes if self.clocks is not None else 0
+
     async def run(self, n, inputs, outputs):
+        if self.clocks is not None:
+            return self.model.run_clocked(n, inputs, outputs)
         if self.vcd is None or self._vcd_done:
             return self.model.run(n, inputs, outputs)
         parts, lo = [], 0
@@ -483,9 +506,13 @@ class PysimBackend(LineSide):
     name = "pysim"
 
     def __init__(self, system, vcd: VcdWindow | None = None, faults=(),
-                 line_slots: int = DEFAULT_SLOTS, record: bool = False):
+                 line_slots: int = DEFAULT_SLOTS, record: bool = False, clocks=None):
         super().__init__(faults, line_slots, record)
+        if clocks is not None and vcd is not None:
+            raise InputError("vcd", "no waveforms with clocks of their own (docs/clocks.md)")
         self.system = system
+        self.clocks = clocks
+        self._engine = None
         self.vcd = vcd
         self._cycle = 0
         self._ctx = None
@@ -497,6 +524,13 @@ class PysimBackend(LineSide):
         from amaranth.sim import Simulator
 
         sim = Simulator(self.system)
+        if self.clocks is not None:
+            # cycle 0 of clock d from its phase to its first rising edge (docs/clocks.md)
+            plan = self.clocks
+            for d in range(plan.n_domains):
+                sim.add_clock(_fs(plan.periods[d]), phase=_fs(plan.phases[d] + plan.periods[d]),
+                              domain="sync" if d == 0 else f"n{d}")
+            return sim
         sim.add_clock(1 / CLOCK_HZ)
         if self.vcd is not None:
             # Amaranth 0.5 names signals per fragment only inside the simulator it built
@@ -525,6 +559,8 @@ class PysimBackend(LineSide):
         return box["result"]
 
     async def run(self, n, inputs, outputs):
+        if self.clocks is not None:
+            return await self._run_clocked(n, inputs, outputs)
         ctx, dut = self._ctx, self.system
         ins = [(getattr(dut, k), np.broadcast_to(np.asarray(v), (n,))) for k, v in inputs.items()]
         outs = [getattr(dut, k) for k in outputs]
@@ -542,6 +578,80 @@ class PysimBackend(LineSide):
             if vcd is not None and self._cycle == vcd.stop:
                 self.finish()
         return {k: rec[:, j] for j, k in enumerate(outputs)}
+
+    async def _run_clocked(self, n, inputs, outputs):
+        """:meth:`run` on the master's grid with every clock's edges in time order: the same
+        loop as the compiled harness's (:mod:`cosim.clocks`, ``mrm_clk_run``). Before an edge
+        at ``t`` (at ``t − 1`` fs) its domain's line inputs are set and its outputs taken;
+        after it (at ``t + 1``) its line outputs are recorded."""
+        from mrm_cosim.cosim.clocks import ClockedEngine, system_lines
+
+        ctx, dut, plan = self._ctx, self.system, self.clocks
+        eng = self._engine
+
+        def get(name):
+            sig = getattr(dut, name)
+            return ctx.get(sig.as_value() if hasattr(sig, "as_value") else sig)
+
+        if eng is None:
+            n_nodes = plan.n_domains - 1
+            eng = self._engine = ClockedEngine(plan, system_lines(n_nodes))
+            self._now = 0
+            self._obs = _observed(n_nodes)
+            self._latest = {name: get(name) for name, _d, _s in self._obs}
+            self._acc = {name: 0 for name, _d, strobe in self._obs if strobe}
+            for i, (src, _s, _dst, _r) in enumerate(eng.lines):
+                eng.hist[i][0] = get(src)
+        ins = [(getattr(dut, k), np.broadcast_to(np.asarray(v), (n,))) for k, v in inputs.items()]
+        rec = np.zeros((n, len(outputs)), dtype=np.int64)
+
+        async def until(t):
+            if t > self._now:
+                await ctx.delay((t - self._now) * 1e-15)
+                self._now = t
+
+        async def edges(group, t):
+            await until(t - 1)
+            for d in group:
+                for i, (_src, _s, dst, r) in enumerate(eng.lines):
+                    if r == d:
+                        ctx.set(getattr(dut, dst), eng.level_word(i, d))
+                for name, od, strobe in self._obs:
+                    if od == d:
+                        v = get(name)
+                        if strobe:
+                            if self._acc[name] & v:
+                                eng.merged += 1
+                            self._acc[name] |= v
+                        else:
+                            self._latest[name] = v
+            await until(t + 1)
+            for d in group:
+                eng.cycle[d] += 1
+                eng.record(d, get)
+
+        for g in range(n):
+            for sig, values in ins:
+                ctx.set(sig.as_value() if hasattr(sig, "as_value") else sig, int(values[g]))
+            t1 = eng.edge(0)
+            master_done = False
+            while (group := eng.node_group(t1)) is not None:
+                t = eng.edge(group[0])
+                master_done = t == t1           # (nodes at the master's edge: before it)
+                await edges(group + [0] if master_done else group, t)
+                if master_done:
+                    break
+            if not master_done:
+                await edges([0], t1)
+            for j, name in enumerate(outputs):
+                rec[g, j] = self._acc[name] if name in self._acc else self._latest[name]
+            for name in self._acc:
+                self._acc[name] = 0
+        return {k: rec[:, j] for j, k in enumerate(outputs)}
+
+    @property
+    def merged_strobes(self) -> int:
+        return 0 if self._engine is None else self._engine.merged
 
     def _sample(self, ctx) -> None:
         if self._trace is None:
@@ -573,6 +683,22 @@ class PysimBackend(LineSide):
         write_gtkw(self.vcd.path, names)
         self.vcd = None
         return names
+
+
+def _observed(n_nodes: int) -> list[tuple[str, int, bool]]:
+    """The System outputs a per-node-clock harness keeps on the master's grid: ``(port,
+    domain, strobe)`` (:mod:`cosim.clocks`)."""
+    from mrm_cosim.cosim.clocks import is_strobe, output_domain
+
+    names = ["rx_valid", "rx_char", "tx_level", "tx_overflow", "running", "link_errors"]
+    names += [f"{p}{k}" for k in range(1, n_nodes + 1)
+              for p in ("torque", "brake", "status", "count", "events")]
+    return [(name, output_domain(name), is_strobe(name)) for name in names]
+
+
+def _fs(t: int) -> float:
+    """Femtoseconds as the seconds Amaranth's simulator truncates back to exactly ``t``."""
+    return (t + 0.5) * 1e-15
 
 
 def _pysim_names(design, vcd: VcdWindow) -> list[tuple[tuple[str, ...], str, object]]:

@@ -143,8 +143,118 @@ def cxx_member(name: str) -> str:
     return "".join(out)
 
 
+_CLOCK_RE = re.compile(r"^n\d+_clk$")
+
+#: The event-ordered loop over every clock's edges of a per-node-clock System (docs/clocks.md,
+#: :mod:`cosim.clocks`): generated into the wrapper only when the design has node clocks.
+_CLOCKED = r"""
+#include <vector>
+static const int HIST = 16;
+struct Clocked {
+  int nd, slots, nl, no;
+  std::vector<int> clk, lsrc, lsd, ldst, ldd, oport, odom, ostrobe;
+  std::vector<int64_t> period, phase;
+  std::vector<uint64_t> cyc, hist, latest, acc;
+  uint64_t merged;
+};
+
+static inline uint64_t line_word(Clocked* c, int l, int d) {
+  int s = c->lsd[l];
+  int64_t pr = c->period[d], ps = c->period[s], phis = c->phase[s];
+  int64_t t0 = c->phase[d] + (int64_t)c->cyc[d] * pr;
+  uint64_t w = 0;
+  for (int j = 0; j < c->slots; j++) {
+    int64_t rel = t0 + (j * pr) / c->slots - phis;
+    uint64_t cc = 0; int k = 0;
+    if (rel >= 0) {
+      cc = (uint64_t)(rel / ps);
+      k = (int)(((rel - (int64_t)cc * ps) * c->slots) / ps);
+    }
+    w |= ((c->hist[l * HIST + cc % HIST] >> k) & 1) << j;
+  }
+  return w;
+}
+
+// One rising edge of domain d: its line inputs resampled for its current cycle, settle, its
+// outputs taken (levels kept, strobes OR-ed into the master cycle, a strobe already there
+// counted as merged), the edge, its line outputs of the next cycle recorded.
+static inline void clocked_edge(Handle* h, Clocked* c, int d) {
+  CLS* m = h->m;
+  for (int l = 0; l < c->nl; l++) if (c->ldd[l] == d) set_port(m, c->ldst[l], line_word(c, l, d));
+  set_port(m, c->clk[d], 0);
+  m->eval();
+  for (int o = 0; o < c->no; o++) {
+    if (c->odom[o] != d) continue;
+    uint64_t v = get_port(m, c->oport[o]);
+    if (c->ostrobe[o]) { if (c->acc[o] & v) c->merged++; c->acc[o] |= v; }
+    else c->latest[o] = v;
+  }
+  set_port(m, c->clk[d], 1);
+  m->eval();
+  c->cyc[d]++;
+  for (int l = 0; l < c->nl; l++)
+    if (c->lsd[l] == d) c->hist[l * HIST + c->cyc[d] % HIST] = get_port(m, c->lsrc[l]);
+}
+
+extern "C" {
+void mrm_clk_setup(void* p, int nd, const int* clk, const int64_t* period, const int64_t* phase,
+                   int slots, int nl, const int* lsrc, const int* lsd, const int* ldst,
+                   const int* ldd, int no, const int* oport, const int* odom,
+                   const int* ostrobe) {
+  Handle* h = (Handle*)p;
+  Clocked* c = new Clocked;
+  c->nd = nd; c->slots = slots; c->nl = nl; c->no = no; c->merged = 0;
+  c->clk.assign(clk, clk + nd);
+  c->period.assign(period, period + nd);
+  c->phase.assign(phase, phase + nd);
+  c->cyc.assign(nd, 0);
+  c->lsrc.assign(lsrc, lsrc + nl); c->lsd.assign(lsd, lsd + nl);
+  c->ldst.assign(ldst, ldst + nl); c->ldd.assign(ldd, ldd + nl);
+  c->oport.assign(oport, oport + no); c->odom.assign(odom, odom + no);
+  c->ostrobe.assign(ostrobe, ostrobe + no);
+  for (int d = 0; d < nd; d++) set_port(h->m, clk[d], 0);
+  h->m->eval();
+  c->hist.assign((size_t)nl * HIST, 0);
+  for (int l = 0; l < nl; l++) c->hist[l * HIST] = get_port(h->m, lsrc[l]);
+  c->latest.assign(no, 0);
+  c->acc.assign(no, 0);
+  for (int o = 0; o < no; o++) c->latest[o] = get_port(h->m, oport[o]);
+  delete (Clocked*)h->clocked;
+  h->clocked = c;
+}
+uint64_t mrm_clk_merged(void* p) { return ((Clocked*)((Handle*)p)->clocked)->merged; }
+void mrm_clk_run(void* p, uint64_t n, int n_in, const int* in_idx, const uint64_t* in_buf,
+                 int n_out, const int* out_obs, uint64_t* out_buf) {
+  Handle* h = (Handle*)p;
+  Clocked* c = (Clocked*)h->clocked;
+  for (uint64_t g = 0; g < n; g++) {
+    for (int j = 0; j < n_in; j++) set_port(h->m, in_idx[j], in_buf[g * n_in + j]);
+    int64_t t1 = c->phase[0] + (int64_t)(c->cyc[0] + 1) * c->period[0];
+    for (;;) {
+      int best = -1; int64_t be = 0;
+      for (int d = 1; d < c->nd; d++) {
+        int64_t e = c->phase[d] + (int64_t)(c->cyc[d] + 1) * c->period[d];
+        if (e <= t1 && (best < 0 || e < be)) { best = d; be = e; }
+      }
+      if (best < 0) break;
+      clocked_edge(h, c, best);
+    }
+    clocked_edge(h, c, 0);
+    for (int j = 0; j < n_out; j++) {
+      int o = out_obs[j];
+      out_buf[g * n_out + j] = c->ostrobe[o] ? c->acc[o] : c->latest[o];
+    }
+    for (int o = 0; o < c->no; o++) if (c->ostrobe[o]) c->acc[o] = 0;
+    h->cycle++;
+  }
+}
+}
+"""
+
+
 def _wrapper(top: str, ports: list[Port], trace) -> str:
     cls = f"V{top}"
+    clocked = any(_CLOCK_RE.match(p.name) for p in ports)
     narrow = [p for p in ports if p.width <= 64]
     wide = [p for p in ports if p.width > 64]
     mem = {p.name: cxx_member(p.name) for p in ports}
@@ -183,6 +293,10 @@ void mrm_trace_close(void* p) {
         trace_fini = "mrm_trace_close(h);"
     else:
         trace_include = trace_member = trace_dump = trace_api = trace_init = trace_fini = ""
+    # (all empty for a design of one clock: its wrapper, and so its build, stay as they were)
+    clocked_member = " void* clocked;" if clocked else ""
+    clocked_init = "h->clocked = nullptr;" if clocked else ""
+    clocked_api = _CLOCKED.replace("CLS", cls) if clocked else ""
     return f"""// Generated by cosim/compiled.py (wrapper v{_WRAPPER_VERSION}); do not edit.
 #include "{cls}.h"
 #include "verilated.h"
@@ -190,7 +304,7 @@ void mrm_trace_close(void* p) {
 #include <cstdint>
 
 struct Handle {{
-  VerilatedContext* ctx; {cls}* m; uint64_t cycle; uint64_t period; {trace_member}
+  VerilatedContext* ctx; {cls}* m; uint64_t cycle; uint64_t period; {trace_member}{clocked_member}
 }};
 
 static inline void set_port({cls}* m, int idx, uint64_t v) {{
@@ -243,7 +357,7 @@ void* mrm_create() {{
   h->ctx = new VerilatedContext;
   h->cycle = 0;
   h->period = 1;
-  {trace_init}
+  {trace_init}{clocked_init}
   h->m = new {cls}(h->ctx);
   h->m->clk = 0;
   h->m->eval();
@@ -278,7 +392,7 @@ void mrm_run(void* p, uint64_t n, int n_in, const int* in_idx, const uint64_t* i
   }}
 }}
 }}
-"""
+{clocked_api}"""
 
 
 class CompiledModel:
@@ -358,6 +472,16 @@ class CompiledModel:
         lib.mrm_run.argtypes = [ctypes.c_void_p, ctypes.c_uint64,
                                 ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p,
                                 ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p]
+        self.clocked = any(_CLOCK_RE.match(p) for p in self.ports)
+        if self.clocked:
+            ptr = ctypes.c_void_p
+            lib.mrm_clk_setup.argtypes = [ptr, ctypes.c_int, ptr, ptr, ptr, ctypes.c_int,
+                                          ctypes.c_int, ptr, ptr, ptr, ptr,
+                                          ctypes.c_int, ptr, ptr, ptr]
+            lib.mrm_clk_run.argtypes = [ptr, ctypes.c_uint64, ctypes.c_int, ptr, ptr,
+                                        ctypes.c_int, ptr, ptr]
+            lib.mrm_clk_merged.argtypes = [ptr]
+            lib.mrm_clk_merged.restype = ctypes.c_uint64
         if trace:
             lib.mrm_trace_open.argtypes = [ctypes.c_void_p, ctypes.c_char_p, ctypes.c_uint64]
             lib.mrm_trace_open.restype = ctypes.c_int
@@ -480,6 +604,65 @@ class CompiledModel:
                           len(out_ports), out_idx.ctypes.data, out_buf.ctypes.data)
         self.cycles += n
         return {p.name: _signed_array(out_buf[:, j], p) for j, p in enumerate(out_ports)}
+
+    # --- clocks of their own -------------------------------------------------------------
+    def setup_clocks(self, plan, lines, observed) -> None:
+        """Start the event-ordered loop over every clock's edges (:mod:`cosim.clocks`).
+
+        Parameters
+        ----------
+        plan : cosim.clocks.ClockPlan
+            Domain 0 is ``sync`` (port ``clk``, the global cycle grid), domain ``k`` port
+            ``n<k>_clk``.
+        lines : sequence of (str, int, str, int)
+            ``(sender port, sender domain, receiver port, receiver domain)`` per line word.
+        observed : sequence of (str, int, bool)
+            ``(output port, domain, strobe)``: every output :meth:`run_clocked` may return.
+        """
+        if not self.clocked:
+            raise RuntimeError(f"{self.name} has no node clocks")
+        nd = plan.n_domains
+        clk = [self._port("clk" if d == 0 else f"n{d}_clk", "input").index for d in range(nd)]
+        self._observed = {name: i for i, (name, _d, _s) in enumerate(observed)}
+
+        def ints(values, dtype=np.int32):
+            return np.ascontiguousarray(np.array(list(values), dtype=dtype))
+
+        arrays = [ints(clk), ints(plan.periods, np.int64), ints(plan.phases, np.int64),
+                  ints(self._port(a).index for a, _, _, _ in lines),
+                  ints(s for _, s, _, _ in lines),
+                  ints(self._port(b, "input").index for _, _, b, _ in lines),
+                  ints(r for _, _, _, r in lines),
+                  ints(self._port(o).index for o, _, _ in observed),
+                  ints(d for _, d, _ in observed), ints(int(b) for _, _, b in observed)]
+        self._clk_arrays = arrays          # (kept alive while the model runs)
+        a = [x.ctypes.data for x in arrays]
+        self._lib.mrm_clk_setup(self._h, nd, a[0], a[1], a[2], plan.slots, len(lines),
+                                a[3], a[4], a[5], a[6], len(observed), a[7], a[8], a[9])
+
+    @property
+    def merged_strobes(self) -> int:
+        """Node strobes that fell into a master cycle already holding the same strobe."""
+        return int(self._lib.mrm_clk_merged(self._h))
+
+    def run_clocked(self, n: int, inputs: dict | None = None, outputs=()) -> dict:
+        """:meth:`run` on the master port's cycle grid with every clock of :meth:`setup_clocks`
+        (docs/clocks.md): ``n`` master cycles, the ``inputs`` set at each one's start, the
+        ``outputs`` (of ``observed``) as of its end."""
+        inputs = inputs or {}
+        outputs = list(outputs)
+        in_ports = [self._port(k, "input") for k in inputs]
+        in_buf = np.empty((n, len(in_ports)), dtype=np.uint64)
+        for j, (port, values) in enumerate(zip(in_ports, inputs.values(), strict=True)):
+            v = np.broadcast_to(np.asarray(values, dtype=np.int64), (n,))
+            in_buf[:, j] = (v & ((1 << port.width) - 1)).astype(np.uint64)
+        obs = np.array([self._observed[k] for k in outputs], dtype=np.int32)
+        out_buf = np.zeros((n, len(outputs)), dtype=np.uint64)
+        in_idx = np.array([p.index for p in in_ports], dtype=np.int32)
+        self._lib.mrm_clk_run(self._h, n, len(in_ports), in_idx.ctypes.data, in_buf.ctypes.data,
+                              len(outputs), obs.ctypes.data, out_buf.ctypes.data)
+        self.cycles += n
+        return {k: _signed_array(out_buf[:, j], self.ports[k]) for j, k in enumerate(outputs)}
 
     # --- waveforms --------------------------------------------------------------------------
     def trace_open(self, path) -> None:

@@ -12,6 +12,9 @@ folder plus its ``config.toml`` reproduces the run bit for bit::
     [gains]        cosim.closed_loop.Gains: lam, k_j, K, adapt, pid_fpga_hz, pid_1khz_hz,
                    friction_comp, pid_fpga_base_hz, pid_1khz_base_hz, vdc_base_fb
     [timing]       master.cycle.MasterTiming: period_cycles, kinematics_cycles, force_cycles
+    [clocks]       cosim.clocks.ClockConfig: mode ("common", "list", "drawn"), ppm, phase,
+                   master_ppm, master_phase (mode "list"), range_ppm (mode "drawn"),
+                   discipline, kp, ki (docs/clocks.md)
 
 Every key is optional (defaults are the dataclasses' own); an unknown key, a wrong type or an
 out-of-range value raises :class:`mrm_cosim.errors.InputError` naming the dotted field
@@ -26,6 +29,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 from mrm_cosim import configs
+from mrm_cosim.cosim.clocks import ClockConfig
 from mrm_cosim.errors import (
     InputError,
     reject_control_characters,
@@ -131,6 +135,9 @@ class ExperimentConfig:
     plant : models.plant.PlantConfig
     gains : cosim.closed_loop.Gains
     timing : master.cycle.MasterTiming
+    faults : FaultsConfig
+    clocks : cosim.clocks.ClockConfig
+        A clock per node (default: one common clock) and the nodes' time-code discipline.
     """
 
     name: str = "table2"
@@ -144,6 +151,7 @@ class ExperimentConfig:
     gains: Gains = field(default_factory=Gains)
     timing: MasterTiming = field(default_factory=MasterTiming)
     faults: FaultsConfig = field(default_factory=FaultsConfig)
+    clocks: ClockConfig = field(default_factory=ClockConfig)
 
     def with_overrides(self, *, backend: str | None = None, seed: int | None = None,
                        duration: float | None = None, field_prefix: str = ""
@@ -158,6 +166,8 @@ class ExperimentConfig:
             cfg = replace(cfg, duration=_duration(duration, f"{field_prefix}duration"))
             check_duration_covers_periods(cfg.duration, cfg.timing.period_cycles,
                                           f"{field_prefix}duration")
+        if backend is not None:
+            _clocks_fit_the_backend(cfg.clocks, cfg.backend, f"{field_prefix}backend")
         return cfg
 
     def to_dict(self) -> dict:
@@ -178,6 +188,7 @@ class ExperimentConfig:
             "safety": {"line_faults": list(self.faults.lines),
                        "on_trip": self.faults.on_trip, "rearm_blend": self.faults.rearm_blend,
                        **asdict(self.faults.safe_stop)},
+            **({} if self.clocks == ClockConfig() else {"clocks": _clocks_dict(self.clocks)}),
         }
 
     def to_toml(self) -> str:
@@ -206,7 +217,8 @@ def loads(text: str, base_dir=None) -> ExperimentConfig:
 
 def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
     """Validate a parsed configuration (the TOML layout)."""
-    _keys(data, "", {"experiment", "trajectory", "plant", "gains", "timing", "safety"})
+    _keys(data, "", {"experiment", "trajectory", "plant", "gains", "timing", "safety",
+                     "clocks"})
     exp = _table(data, "experiment")
     _keys(exp, "experiment.", {"name", "robot", "controllers", "backend", "seed", "duration"})
     d = ExperimentConfig()
@@ -242,8 +254,55 @@ def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
     if plant.joints == "compliant":
         _gears_fit_the_step(robot, plant, seed)
     faults = _safety(_table(data, "safety"))
+    clocks = _clocks(_table(data, "clocks"), robot)
+    _clocks_fit_the_backend(clocks, backend, "experiment.backend")
     return ExperimentConfig(name, robot, controllers, backend, seed, duration, trajectory,
-                            plant, gains, timing, faults)
+                            plant, gains, timing, faults, clocks)
+
+
+def _clocks(table: dict, robot: str) -> ClockConfig:
+    """``[clocks]``: a :class:`ClockConfig`, every field checked by name (``clocks.ppm[2]``),
+    the lists one value per module of ``robot``."""
+    from mrm_cosim.models.robot import load_robot
+
+    _keys(table, "clocks.", {f.name for f in fields(ClockConfig)})
+    values = {}
+    for f in fields(ClockConfig):
+        if f.name not in table:
+            continue
+        v = table[f.name]
+        if f.name in ("ppm", "phase"):
+            if not isinstance(v, list):
+                raise InputError(f"clocks.{f.name}", f"must be a list, one value per node, "
+                                 f"not {v!r}")
+            v = tuple(v)
+        values[f.name] = v
+    clocks = ClockConfig(**values)
+    clocks.check(load_robot(robot).n)
+    return clocks
+
+
+def _clocks_dict(clocks: ClockConfig) -> dict:
+    out = {f.name: getattr(clocks, f.name) for f in fields(ClockConfig)}
+    out["ppm"], out["phase"] = list(clocks.ppm), list(clocks.phase)
+    if clocks.mode != "list":
+        for name in ("ppm", "phase", "master_ppm", "master_phase"):
+            del out[name]
+    return out
+
+
+def _clocks_fit_the_backend(clocks: ClockConfig, backend: str, field: str) -> None:
+    """The model backend keeps one clock: ``InputError`` naming ``clocks`` (or the backend
+    ``field`` an override named) for clocks of their own there."""
+    if backend == "model" and clocks.discipline:
+        raise InputError("clocks.discipline" if field == "experiment.backend" else field,
+                         "the model backend's nodes keep the free-running period timer "
+                         "(CONFIG TC_DISCIPLINE 0); the discipline needs compiled or pysim")
+    if backend == "model" and not clocks.common:
+        raise InputError("clocks" if field == "experiment.backend" else field,
+                         "the model backend runs every node on one clock; clocks of their own "
+                         "(clocks.mode "f"{clocks.mode!r}) need the compiled or pysim backend "
+                         "(docs/clocks.md)")
 
 
 #: The shortest run: one master period (half a period ran "clean" with the tip at rest, a

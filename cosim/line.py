@@ -80,7 +80,8 @@ def line_reference(robot, plan, profile: str = "trig", dt: float = 1e-3) -> Join
 def run_line(robot, plan, *, profile: str = "trig", controller: str = "vdc",
              backend: str = "model", seed: int = 0, gains=None, timing=None,
              plant_config=None, duration: float | None = None, hold: float = HOLD_S,
-             progress=None, reference: JointReference | None = None) -> LineRun:
+             progress=None, reference: JointReference | None = None,
+             clocks=None) -> LineRun:
     """Run a planned Cartesian line in closed loop.
 
     Parameters
@@ -94,7 +95,7 @@ def run_line(robot, plan, *, profile: str = "trig", controller: str = "vdc",
         Simulated seconds from period 0 (default: the move plus ``hold``).
     reference : JointReference, optional
         A reference computed before (e.g. by :func:`line_reference`, to check it before a run).
-    gains, timing, plant_config, seed, controller, backend, progress
+    gains, timing, plant_config, seed, controller, backend, progress, clocks
         As :func:`cosim.track.run_track`.
 
     Returns
@@ -112,7 +113,7 @@ def run_line(robot, plan, *, profile: str = "trig", controller: str = "vdc",
     start_robot = robot_at(robot, ref.q[0])
     result, summary = run_track(start_robot, controller, backend, duration, seed, gains=gains,
                                 timing=timing, plant_config=plant_config, progress=progress,
-                                profile=ref)
+                                profile=ref, clocks=clocks)
     q_d = ref.evaluate(result.t)[0]
     errors = tool_errors(start_robot, q_d, result.q)
     reference_summary = ref.summary()

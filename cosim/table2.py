@@ -14,7 +14,9 @@ nothing) holds::
     torques.png           torque commands per controller with the peak-torque limits
     <controller>/         summary.json, trace.csv (1 ms), timeline.json, tracking.png (every
                           plant step),
-                          timeline.png (Gantt of one period), parameters.png
+                          timeline.png (Gantt of one period), parameters.png, and with
+                          [clocks] set skew.png (each node's period start against the
+                          master's over the run, docs/clocks.md)
 """
 
 from __future__ import annotations
@@ -129,6 +131,10 @@ def _run_kwargs(runner, config: ExperimentConfig, robot) -> dict:
     """Keyword arguments for ``runner`` beyond the common ones; refuses what it cannot run."""
     params = inspect.signature(runner).parameters
     kw = _safety_kwargs(params, config, robot)
+    if "clocks" in params:
+        kw["clocks"] = config.clocks
+    elif not config.clocks.common or config.clocks.discipline:
+        raise InputError("clocks", "this runner runs every node on one clock")
     tr = config.trajectory
     paper = tr.amplitude == PAPER_AMPLITUDE and tr.duration == PAPER_DURATION
     if paper:
@@ -363,6 +369,8 @@ def table_markdown(summary: dict) -> str:
     if not any(faults.values()):
         lines.append("Every run clean: no overrun, missing, late or unexpected reply, upload "
                      "or link error, watchdog trip or node counter.")
+    if "clocks" in summary.get("config", {}):
+        lines += [""] + skew_lines(summary)
     order = summary["ordering"]
     lines += ["", "Ordering by ρ, best first: " + " < ".join(order["best_to_worst"])
               + (" — as in the paper." if order["as_paper"] else
@@ -377,6 +385,35 @@ def table_markdown(summary: dict) -> str:
               "one trajectory); the tip velocity is the desired one. See docs/experiments.md.",
               ""]
     return "\n".join(lines)
+
+
+def skew_lines(summary: dict) -> list[str]:
+    """The clocks a table ran on and each controller's period-start skew (``period_skew``,
+    :mod:`cosim.skew`), Markdown."""
+    clk = summary["config"]["clocks"]
+    first = next(iter(summary["controllers"].values()))
+    ran = first.get("clocks", {})
+    ppm = ", ".join(f"{p:+g}" for p in ran.get("ppm", []))
+    out = [f"Clocks: `{clk['mode']}`"
+           + (f" within ±{clk['range_ppm']:g} ppm" if clk["mode"] == "drawn" else "")
+           + (f" — master port {ran['master_ppm']:+g} ppm, nodes {ppm} ppm" if ran else "")
+           + "; node timers " + ("disciplined by the time-code (CONFIG TC_DISCIPLINE)."
+                                 if clk["discipline"] else "free-running."),
+           "",
+           "| controller | node vs master, max (cycles) | RMS (cycles) | between nodes, max "
+           "(cycles) | RMS (cycles) | merged strobes |",
+           "|---|---|---|---|---|---|"]
+
+    def num(x):
+        return "–" if x is None else f"{x:.3g}"
+
+    for c, s in summary["controllers"].items():
+        sk = s["period_skew"]
+        nm, bn = sk["node_vs_master"], sk["between_nodes"]
+        out.append(f"| `{c}` | {num(nm['max_abs_cycles'])} | {num(nm['rms_cycles'])} "
+                   f"| {num(bn['max_cycles'])} | {num(bn['rms_cycles'])} "
+                   f"| {s.get('clocks', {}).get('merged_strobes', 0)} |")
+    return out
 
 
 def timeline_json(records) -> list:
@@ -430,6 +467,14 @@ def _write_controller(folder: Path, robot, controller, config, result, summary, 
     except ValueError:
         plot_parameters(folder / "timeline.png", title=title,
                         note="no complete period in this run: no timeline to draw")
+    if not config.clocks.common or config.clocks.discipline:
+        from mrm_cosim.cosim.skew import plot_skew
+
+        plot_skew(folder / "skew.png", result.master.records, robot.n,
+                  config.timing.period_cycles,
+                  f"{controller}: period starts, clocks {config.clocks.mode}, timers "
+                  + ("disciplined" if config.clocks.discipline else "free-running"),
+                  strobes=getattr(result.master, "boundary_strobes", None))
     theta = getattr(result, "theta", None)
     if theta is not None:
         plot_parameters(folder / "parameters.png", result.t, theta, title=title)

@@ -88,7 +88,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
               vcd: str | None = None, signals: str | None = None, vcd_path=None, faults=(),
               references: str = "full", dmp=None, dmp_step_cycles: int = 50_000,
               commit_cycles: int | None = None, on_trip: str | None = "rearm",
-              rearm_blend: float = 0.2, safe_stop=None):
+              rearm_blend: float = 0.2, safe_stop=None, clocks=None):
     """Run the quintic test (q_i = i·q_d, 0.1571 rad in 1 s, then hold) in closed loop.
 
     Parameters
@@ -119,6 +119,10 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         the trajectory after a re-arm (:mod:`master.recovery`, ``[safety]``).
     safe_stop : protocol.safe_stop.SafeStopParams, optional
         The nodes' safe stop the master uploads (default: its defaults).
+    clocks : cosim.clocks.ClockConfig, optional
+        A clock per node and for the master port, and the nodes' time-code discipline
+        (``[clocks]``, docs/clocks.md; default: one common clock, no discipline). The
+        summary's ``clocks`` says what ran.
 
     Returns
     -------
@@ -140,8 +144,18 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
                          f"not {duration!r}")
     profile = profile or paper_test_profile(robot)
     trajectory = _trajectory(robot, profile)
+    from mrm_cosim.cosim.clocks import ClockConfig, plan_clocks
+    from mrm_cosim.protocol.link import DEFAULT_SLOTS
+
+    clocks = clocks or ClockConfig()
+    clocks.check(robot.n)
+    if backend == "model" and not clocks.common:
+        raise InputError("clocks", "the model backend runs every node on one clock; "
+                         "clocks of their own need compiled or pysim (docs/clocks.md)")
+    plan = plan_clocks(clocks, robot.n, seed, DEFAULT_SLOTS)
     uploads = node_uploads(robot, controller, gains, period_cycles=timing.period_cycles,
-                           commit_cycles=commit_cycles, safe_stop=safe_stop)
+                           commit_cycles=commit_cycles, safe_stop=safe_stop,
+                           discipline=(clocks.kp, clocks.ki) if clocks.discipline else None)
     if references == "dmp":
         from mrm_cosim.master.uploads import dmp_uploads
 
@@ -172,8 +186,9 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         if vcd_path is None:
             raise InputError("vcd", "needs an output file")
         window = VcdWindow.parse(vcd, vcd_path, signals=signals, offset=start / CLOCK_HZ)
-    result, _ = run_loop(robot, backend, master, plant, start, uploads, duration_cycles,
-                         quiet=progress is None, vcd=window, progress=progress, faults=faults)
+    result, be = run_loop(robot, backend, master, plant, start, uploads, duration_cycles,
+                          quiet=progress is None, vcd=window, progress=progress, faults=faults,
+                          clocks=plan, keep=True)
     wall = time.perf_counter() - t0
     q_d, qd_d, _, _ = profile.evaluate(result.t)
     tip_d, speed = tip_points(robot, q_d[::10], qd_d[::10])
@@ -212,6 +227,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         "period_skew": period_skew(master.records, robot.n, timing.period_cycles,
                                    strobes=master.boundary_strobes),
         "trace_sha256": result.trace_sha256,
+        "clocks": clocks_summary(clocks, robot.n, seed, be),
         "wall_s": wall,
         "rtf": wall / (duration + start / CLOCK_HZ),
     }
@@ -324,61 +340,86 @@ def _trajectory(robot, profile=None):
     return trajectory
 
 
+def clocks_summary(clocks, n: int, seed: int, backend=None) -> dict:
+    """What ran of ``[clocks]`` (:class:`cosim.clocks.ClockConfig`), for a summary: the mode,
+    every clock's offset (ppm) and phase (cycles), master port first, whether the nodes'
+    timers were disciplined, and the node strobes the per-node-clock harness merged
+    (docs/clocks.md; 0 on a common clock)."""
+    ppm, phase = clocks.resolve(n, seed)
+    return {"mode": clocks.mode, "discipline": clocks.discipline,
+            "master_ppm": ppm[0], "master_phase": phase[0],
+            "ppm": list(ppm[1:]), "phase": list(phase[1:]),
+            "merged_strobes": int(getattr(backend, "merged_strobes", 0))}
+
+
 def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
              duration_cycles: int, record: bool = False, quiet: bool = True, vcd=None,
-             progress=None, faults=()):
+             progress=None, faults=(), clocks=None, keep: bool = False):
     """Run the closed loop of ``robot`` on the backend named ``backend``: this picks the
     gateware side (:func:`loop_backend`); :class:`cosim.closed_loop.ClosedLoop` runs it.
 
     ``vcd``: a :class:`cosim.backends.VcdWindow` to record (pysim, compiled); ``progress``:
     ``progress(t_sim, t_total)`` about every simulated millisecond; ``faults``: line faults
-    to inject (:class:`cosim.closed_loop.LineFault`; pysim and compiled).
+    to inject (:class:`cosim.closed_loop.LineFault`; pysim and compiled); ``clocks``: a
+    :class:`cosim.clocks.ClockPlan` (a clock per node; None: one clock).
 
     Returns
     -------
     (LoopResult, GatewareSide or None)
-        With ``record``, the backend, which holds every per-cycle output the loop sampled
-        (:meth:`cosim.backends.LineSide.trace`).
+        With ``record`` (or ``keep``), the backend, which holds every per-cycle output the loop
+        sampled (:meth:`cosim.backends.LineSide.trace`).
     """
-    be = loop_backend(robot, backend, record=record, quiet=quiet, vcd=vcd, faults=faults)
+    be = loop_backend(robot, backend, record=record, quiet=quiet, vcd=vcd, faults=faults,
+                      clocks=clocks)
     loop = ClosedLoop(robot, be, master, plant, start_cycle, uploads)
-    return loop.run(duration_cycles, progress=progress), (be if record else None)
+    return loop.run(duration_cycles, progress=progress), (be if record or keep else None)
 
 
 def loop_backend(robot, backend: str, record: bool = False, quiet: bool = True, vcd=None,
-                 faults=()):
+                 faults=(), clocks=None):
     """The gateware side of ``robot``'s loop on the backend named ``backend``
     (:data:`BACKENDS`): :func:`loop_system` simulated (pysim) or compiled, or the nodes'
     references (model, which has no signals to record and a link at packet level: it takes
-    line cuts, :mod:`cosim.model_link`)."""
+    line cuts, :mod:`cosim.model_link`). ``clocks``: a :class:`cosim.clocks.ClockPlan` runs
+    each node on a clock of its own (pysim, compiled; the model refuses it)."""
     if backend == "model":
         from mrm_cosim.cosim.model import ModelBackend
 
+        if clocks is not None:
+            raise InputError("clocks", "the model backend runs every node on one clock; "
+                             "clocks of their own need compiled or pysim (docs/clocks.md)")
         if record or vcd is not None:
             raise InputError("vcd" if vcd is not None else "record",
                              "the model backend has no signals; use pysim or compiled")
         return ModelBackend(encoder=node_encoders(robot), pid_shift=pid_shifts(robot),
                             faults=faults)
+    node = "common" if clocks is None else "node"
     if backend == "compiled":
-        return CompiledBackend(lambda: loop_system(robot), loop_system_key(robot),
-                               quiet=quiet, vcd=vcd, faults=faults, record=record)
+        return CompiledBackend(lambda: loop_system(robot, node), loop_system_key(robot, node),
+                               quiet=quiet, vcd=vcd, faults=faults, record=record,
+                               clocks=clocks)
     if backend == "pysim":
-        return PysimBackend(loop_system(robot), vcd=vcd, faults=faults, record=record)
+        return PysimBackend(loop_system(robot, node), vcd=vcd, faults=faults, record=record,
+                            clocks=clocks)
     raise InputError("backend", f"must be one of {', '.join(BACKENDS)}, not {backend!r}")
 
 
-def loop_system(robot):
+def loop_system(robot, clocks: str = "common"):
     """The design every closed-loop run of ``robot`` simulates: :class:`hdl.system.System`
     with a node per module, each built for its module's encoder (:func:`node_encoders`) and
     PID gains (:func:`master.uploads.pid_shifts`), and the line-fault inputs (held at zero
-    unless a run injects faults)."""
+    unless a run injects faults); ``clocks``: :class:`hdl.system.System`'s (``"node"``: a
+    clock domain per node)."""
     from mrm_cosim.hdl.system import System
 
+    if clocks == "common":
+        return System(robot.n, encoder=node_encoders(robot), pid_shift=pid_shifts(robot),
+                      line_faults=True)
     return System(robot.n, encoder=node_encoders(robot), pid_shift=pid_shifts(robot),
-                  line_faults=True)
+                  line_faults=True, clocks=clocks)
 
 
-def loop_system_key(robot) -> str:
+def loop_system_key(robot, clocks: str = "common") -> str:
     """The compiled-model cache key of :func:`loop_system`: the number of nodes, the nodes'
     PID gain shifts and, where they are not the gateware's default, their counts per
     revolution."""
@@ -388,6 +429,8 @@ def loop_system_key(robot) -> str:
     key = f"system{robot.n}-faults-pid" + "-".join(str(s) for s in pid_shifts(robot))
     if any(c != EncoderParams().counts_per_rev for c in cprs):
         key += "-cpr" + "-".join(str(c) for c in cprs)
+    if clocks != "common":
+        key += f"-clocks-{clocks}"
     return key
 
 

@@ -26,10 +26,12 @@ from .link.chars import Char, ErrorCounts, LinkState, saturating_sum
 from .master_port import MasterPort
 from .node.top import SlaveNode
 
-__all__ = ["System", "check_n_nodes", "MAX_NODES"]
+__all__ = ["System", "check_n_nodes", "MAX_NODES", "CLOCKS"]
 
 #: slave nodes one System (and so one co-simulated robot) holds
 MAX_NODES = 16
+#: the System's clocking: one clock, or one per node (docs/clocks.md)
+CLOCKS = ("common", "node")
 
 
 def check_n_nodes(n_nodes) -> None:
@@ -81,12 +83,33 @@ class System(wiring.Component):
         capability (``cosim``), not part of the robot's gateware.
     events1 … eventsN : Out(16)
         The nodes' observation ports (:class:`~mrm_cosim.protocol.regs.NodeEvent` strobes).
+    clocks : str
+        ``"common"`` (the default): every node on the master port's clock ``sync``, the lines
+        wired through. ``"node"``: node ``k`` in a clock domain of its own, ``n<k>``
+        (ports ``n<k>_clk``, ``n<k>_rst``; the master port in ``sync``), and the lines of
+        hop ``k`` brought out instead of wired, for a harness to resample between the
+        domains (docs/clocks.md):
+    down_d_out<k>, down_s_out<k>, up_d_in<k>, up_s_in<k> : Out(slots), In(slots)
+        ``"node"`` only: the upstream end of hop ``k`` (the master port, or node ``k − 1``'s
+        downstream port), in the upstream's domain.
+    up_d_out<k>, up_s_out<k>, down_d_in<k>, down_s_in<k> : Out(slots), In(slots)
+        ``"node"`` only: node ``k``'s end of hop ``k``, in its domain. With ``line_faults``
+        the fault ports act on the receiving end (``fault_down<k>`` on ``down_*_in<k>`` in
+        node ``k``'s domain, ``fault_up<k>`` on ``up_*_in<k>`` in the upstream's).
     """
 
     def __init__(self, n_nodes: int, *, codec: dict | None = None, encoder=None,
-                 pid_shift=0, line_faults: bool = False):
+                 pid_shift=0, line_faults: bool = False, clocks: str = "common"):
         check_n_nodes(n_nodes)
+        if clocks not in CLOCKS:
+            raise ValueError(f"clocks must be one of {', '.join(map(repr, CLOCKS))}, "
+                             f"not {clocks!r}")
         self.n_nodes = n_nodes
+        self.clocks = clocks
+        #: ``"node"``: node k's clock domain (its ``clk`` a port of the Verilog:
+        #: :meth:`verilog_ports`; its reset undriven, held low)
+        self.node_domains = ([ClockDomain(f"n{k}") for k in range(1, n_nodes + 1)]
+                             if clocks == "node" else [])
         self.line_faults = bool(line_faults)
         self.master = MasterPort(codec=codec)
         self.nodes = [SlaveNode(codec=codec, encoder=e, pid_shift=s)
@@ -118,9 +141,19 @@ class System(wiring.Component):
                 members[f"fault_down{k}"] = In(layout)
                 members[f"fault_up{k}"] = In(layout)
             members[f"events{k}"] = Out(16)
+        if clocks == "node":
+            slots = self.master.codec.slots
+            for k in range(1, n_nodes + 1):
+                for w in ("d", "s"):
+                    members[f"down_{w}_out{k}"] = Out(slots)
+                    members[f"up_{w}_in{k}"] = In(slots)
+                    members[f"up_{w}_out{k}"] = Out(slots)
+                    members[f"down_{w}_in{k}"] = In(slots)
         super().__init__(members)
 
     def elaborate(self, platform):
+        if self.clocks == "node":
+            return self._elaborate_node_clocks()
         m = Module()
         m.submodules.master = master = self.master
         for name in ("tx_valid", "tx_char", "tick_in", "time_in"):
@@ -155,5 +188,66 @@ class System(wiring.Component):
                 upstream.s_in.eq(up_s),
             ]
             m.d.comb += getattr(self, f"events{k + 1}").eq(node.events)
+            upstream = node.down
+        return m
+
+    def verilog_ports(self) -> dict:
+        """The ports ``verilog.convert(..., ports=)`` takes: the signature's and, with
+        ``clocks="node"``, every node domain's clock ``n<k>_clk`` (an input)."""
+        from amaranth.hdl._ir import PortDirection
+
+        ports = {}
+        for path, member, value in self.signature.flatten(self):
+            value = value.as_value() if hasattr(value, "as_value") else value
+            direction = PortDirection.Input if member.flow == In else PortDirection.Output
+            ports["__".join(map(str, path))] = (value, direction)
+        for cd in self.node_domains:
+            ports[f"{cd.name}_clk"] = (cd.clk, PortDirection.Input)
+        return ports
+
+    def _master_ports(self, m, master) -> None:
+        for name in ("tx_valid", "tx_char", "tick_in", "time_in"):
+            m.d.comb += getattr(master, name).eq(getattr(self, name))
+        for name in ("tx_level", "tx_overflow", "rx_valid", "rx_char", "running", "state",
+                     "errors"):
+            m.d.comb += getattr(self, name).eq(getattr(master, name))
+        m.d.comb += self.link_errors.eq(saturating_sum(master.errors[f] for f in ERROR_CLASSES))
+
+    def _elaborate_node_clocks(self):
+        """Node ``k`` in domain ``n<k>``, the hops' lines on ports (class docstring)."""
+        m = Module()
+        m.submodules.master = master = self.master
+        self._master_ports(m, master)
+        upstream = master.line
+        for k, node in enumerate(self.nodes, start=1):
+            domain = f"n{k}"
+            m.domains += self.node_domains[k - 1]
+            m.submodules[f"node{k}"] = DomainRenamer(domain)(node)
+            m.d.comb += [
+                node.address.eq(k),
+                node.enc_a.eq(self.enc_a[k - 1]),
+                node.enc_b.eq(self.enc_b[k - 1]),
+                getattr(self, f"torque{k}").eq(node.torque),
+                getattr(self, f"brake{k}").eq(node.brake),
+                getattr(self, f"status{k}").eq(node.status),
+                getattr(self, f"count{k}").eq(node.count),
+                getattr(self, f"events{k}").eq(node.events),
+            ]
+            down_d, down_s = getattr(self, f"down_d_in{k}"), getattr(self, f"down_s_in{k}")
+            up_d, up_s = getattr(self, f"up_d_in{k}"), getattr(self, f"up_s_in{k}")
+            if self.line_faults:
+                down, up = getattr(self, f"fault_down{k}"), getattr(self, f"fault_up{k}")
+                down_d, down_s = faulty_line(down_d, down, "d"), faulty_line(down_s, down, "s")
+                up_d, up_s = faulty_line(up_d, up, "d"), faulty_line(up_s, up, "s")
+            m.d.comb += [
+                getattr(self, f"down_d_out{k}").eq(upstream.d_out),
+                getattr(self, f"down_s_out{k}").eq(upstream.s_out),
+                getattr(self, f"up_d_out{k}").eq(node.up.d_out),
+                getattr(self, f"up_s_out{k}").eq(node.up.s_out),
+                node.up.d_in.eq(down_d),
+                node.up.s_in.eq(down_s),
+                upstream.d_in.eq(up_d),
+                upstream.s_in.eq(up_s),
+            ]
             upstream = node.down
         return m

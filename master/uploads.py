@@ -20,13 +20,18 @@ from mrm_cosim.models.actuators import ACTUATORS
 from mrm_cosim.models.encoder import counts_per_rad, joint_counts
 from mrm_cosim.models.robot import Robot
 from mrm_cosim.protocol import packet as ref
+from mrm_cosim.protocol.discipline import Discipline
 from mrm_cosim.protocol.fixed import FORCE
 from mrm_cosim.protocol.joint_program import PID_SHIFT_MAX, JointParams, pid_formats
 from mrm_cosim.protocol.regs import MODES, Config, config_payloads, joint_upload, vdc_upload
 from mrm_cosim.protocol.safe_stop import SafeStopParams, safe_stop_config, stop_trail_counts
 from mrm_cosim.units import CLOCK_HZ
 
-__all__ = ["Gains", "pid_gains", "triple_pole_gains", "hold_gains", "node_uploads",
+#: The nodes' time-code latency per hop, cycles (docs/link.md: the chain forwards a time-code in
+#: 12 cycles a hop), the target phase of node k's period timer loop: ``HOP_TARGET · k``.
+HOP_TARGET = 12
+
+__all__ = ["HOP_TARGET", "Gains", "pid_gains", "triple_pole_gains", "hold_gains", "node_uploads",
            "check_node_period", "startup_sends", "dmp_uploads", "dmp_retarget"]
 
 
@@ -154,8 +159,14 @@ def trail_cap_counts(kp: float, peak_torque: float, counts_per_rev: int) -> int:
 def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int = 50,
                  timeout_cycles: int | None = None, period_cycles: int = 50_000,
                  commit_cycles: int | None = None, sync_window: int = 2_500,
-                 safe_stop: SafeStopParams | None = None) -> list[tuple[int, int, bytes]]:
+                 safe_stop: SafeStopParams | None = None,
+                 discipline: tuple[int, int] | None = None) -> list[tuple[int, int, bytes]]:
     """``(dest, type, payload)`` packets that configure every node before the run.
+
+    ``discipline``: ``(kp, ki)`` turns on every node's period timer loop on the time-code
+    (CONFIG TC_DISCIPLINE, :mod:`~mrm_cosim.protocol.discipline`), node k's target phase its
+    time-code latency, :data:`HOP_TARGET` cycles a hop (docs/clocks.md); None: off (the
+    register's reset value, nothing sent).
 
     Safe stop (docs/node.md "Safe stop", :mod:`~mrm_cosim.protocol.safe_stop`): every node
     gets STOP_CYCLES, BRAKE_CYCLES and, with the standstill rule on, STANDSTILL and
@@ -203,6 +214,11 @@ def node_uploads(robot: Robot, controller: str, gains: Gains, tick_cycles: int =
     out = [(k + 1, ref.PacketType.CONFIG, p) for k in range(robot.n) for p in config_payloads(
         {Config.PERIOD: period_cycles, Config.COMMIT: commit_cycles,
          Config.SYNC_WINDOW: sync_window})]
+    if discipline is not None:
+        kp, ki = discipline
+        out += [(k, ref.PacketType.CONFIG, p) for k in range(1, robot.n + 1)
+                for p in config_payloads({Config.TC_DISCIPLINE: Discipline(
+                    target=HOP_TARGET * k, kp=kp, ki=ki).word})]
     # The PID words: the node's PID where it runs it, else the safe stop's hold gains (a
     # tracking gain a run never uses must not stop it: gains.pid_fpga_hz is bounded for the
     # pid-fpga runs alone).

@@ -314,7 +314,8 @@ def _track(args) -> int:
                                         vcd_path=vcd_path, faults=faults,
                                         on_trip=config.faults.on_trip,
                                         rearm_blend=config.faults.rearm_blend,
-                                        safe_stop=config.faults.safe_stop)
+                                        safe_stop=config.faults.safe_stop,
+                                        clocks=config.clocks)
         summary["version"] = __version__
         _write_track(tmp, args, config, robot, result, summary, profile)
     if args.json:
@@ -456,7 +457,7 @@ def _line(args) -> int:
                                   backend=config.backend, seed=config.seed, gains=config.gains,
                                   timing=config.timing, plant_config=config.plant,
                                   duration=args.duration, progress=progress,
-                                  reference=references[name])
+                                  reference=references[name], clocks=config.clocks)
         summary = {"command": "mrm run line", "file": str(Path(args.file).resolve()),
                    "robot": robot.name, "controller": args.controller,
                    "backend": config.backend, "seed": config.seed, "version": __version__,
