@@ -503,10 +503,11 @@ def skew_line(skew: dict) -> str:
 
 
 def plot_skew(path, runs: dict, title: str, period_s: float = 1e-3,
-              clock_hz: float = float(CLOCK_HZ)):
+              clock_hz: float = float(CLOCK_HZ), spread: bool = False):
     """Each node's period start against the master's over a run (issue 21 item 3): one panel
     per run (e.g. ``{"discipline on": b_on, "discipline off": b_off}``), one line per node,
-    ns against the period's time.
+    ns against the period's time; with ``spread`` a last panel of each run's spread between
+    the nodes per period (``max_k b − min_k b`` over periods every node saw).
 
     Parameters
     ----------
@@ -521,11 +522,12 @@ def plot_skew(path, runs: dict, title: str, period_s: float = 1e-3,
     -------
     Figure
         One axis per run, in ``runs``' order; on each, one line per node (node 1 first) whose
-        data are the offsets in ns, and the run's largest ``|offset|`` in the axis title.
+        data are the offsets in ns, and the run's largest ``|offset|`` in the axis title; with
+        ``spread``, then the spread axis, one line per run.
     """
-    fig, axes = _figure(len(runs), 2.4, 9.0)
+    fig, axes = _figure(len(runs) + bool(spread), 2.4, 9.0)
     ns = 1e9 / clock_hz
-    for ax, (label, b) in zip(axes, runs.items(), strict=True):
+    for ax, (label, b) in zip(axes[:len(runs)], runs.items(), strict=True):
         b = np.asarray(b, dtype=float)
         t = np.arange(b.shape[0]) * period_s
         for k in range(b.shape[1]):
@@ -537,6 +539,16 @@ def plot_skew(path, runs: dict, title: str, period_s: float = 1e-3,
         ax.axhline(0.0, color="k", lw=0.5)
         ax.grid(True, lw=0.3)
         ax.legend(loc="upper left", fontsize=7, ncol=min(6, b.shape[1]))
+    if spread:
+        ax = axes[-1]
+        for label, b in runs.items():
+            b = np.asarray(b, dtype=float)
+            full = ~np.isnan(b).any(axis=1)
+            t = np.arange(b.shape[0])[full] * period_s
+            ax.plot(t, (b[full].max(axis=1) - b[full].min(axis=1)) * ns, lw=0.9, label=label)
+        ax.set_ylabel("spread between nodes (ns)", fontsize=8)
+        ax.grid(True, lw=0.3)
+        ax.legend(loc="upper left", fontsize=7)
     axes[-1].set_xlabel("time (s)")
     fig.suptitle(title, fontsize=10)
     _save(fig, path)

@@ -117,28 +117,3 @@ def period_skew(records, n_nodes: int, period_cycles: int,
         "timecode_latency_cycles": latency,
         "missing": int(np.isnan(b).sum()),
     }
-
-
-def plot_skew(path, records, n_nodes: int, period_cycles: int, title: str, strobes=None):
-    """Each node's period-start offset against the master (:func:`start_offsets`, cycles of
-    the reference clock) over a run, one line per node, and each period's spread between the
-    nodes: one PNG. Returns the figure (tests read its data)."""
-    from mrm_cosim.cosim.plots import _figure, _save
-
-    b = start_offsets(records, n_nodes, period_cycles, strobes=strobes)
-    periods = np.array([r.index for r in records if r.start is not None])
-    fig, axes = _figure(2, height=2.4)
-    ax = axes[0]
-    for k in range(n_nodes):
-        ax.plot(periods, b[:, k], ".-", ms=2, lw=0.8, label=f"node {k + 1}")
-    ax.axhline(0.0, color="0.5", lw=0.6)
-    ax.set_ylabel("node − master (cycles)")
-    ax.legend(loc="best", fontsize="small")
-    ax.set_title(title, fontsize="medium")
-    full = ~np.isnan(b).any(axis=1)
-    spread = b[full].max(axis=1) - b[full].min(axis=1) if full.any() else np.zeros(0)
-    axes[1].plot(periods[full], spread, ".-", ms=2, lw=0.8, color="k")
-    axes[1].set_ylabel("between nodes (cycles)")
-    axes[1].set_xlabel("master period")
-    _save(fig, path)
-    return fig

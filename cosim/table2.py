@@ -468,13 +468,16 @@ def _write_controller(folder: Path, robot, controller, config, result, summary, 
         plot_parameters(folder / "timeline.png", title=title,
                         note="no complete period in this run: no timeline to draw")
     if not config.clocks.common or config.clocks.discipline:
-        from mrm_cosim.cosim.skew import plot_skew
+        from mrm_cosim.cosim.plots import plot_skew
+        from mrm_cosim.cosim.skew import start_offsets
+        from mrm_cosim.units import CLOCK_HZ
 
-        plot_skew(folder / "skew.png", result.master.records, robot.n,
-                  config.timing.period_cycles,
-                  f"{controller}: period starts, clocks {config.clocks.mode}, timers "
-                  + ("disciplined" if config.clocks.discipline else "free-running"),
-                  strobes=getattr(result.master, "boundary_strobes", None))
+        timers = "disciplined" if config.clocks.discipline else "free-running"
+        b = start_offsets(result.master.records, robot.n, config.timing.period_cycles,
+                          strobes=getattr(result.master, "boundary_strobes", None))
+        plot_skew(folder / "skew.png", {f"timers {timers}": b},
+                  f"{controller}: period starts, clocks {config.clocks.mode}",
+                  period_s=config.timing.period_cycles / CLOCK_HZ, spread=True)
     theta = getattr(result, "theta", None)
     if theta is not None:
         plot_parameters(folder / "parameters.png", result.t, theta, title=title)

@@ -290,3 +290,13 @@ def test_skew_plot_draws_each_nodes_offsets_in_ns_per_run(tmp_path):
             np.testing.assert_allclose(ln.get_xdata(), [0.0, 1e-3, 2e-3])
     assert ax_on.get_title() == "on: max |offset| 80 ns"
     assert ax_off.get_title() == "off: max |offset| 2000 ns"
+
+
+def test_skew_plot_adds_the_spread_between_nodes_over_periods_every_node_saw(tmp_path):
+    b = np.array([[1.0, -2.0, 0.0], [np.nan, 3.0, 1.0], [0.5, -4.0, 2.0]])
+    fig = plots.plot_skew(tmp_path / "s.png", {"run": b}, "skew", spread=True)
+    _, ax = fig.axes
+    (line,) = ax.get_lines()
+    assert line.get_label() == "run"
+    np.testing.assert_array_equal(line.get_ydata(), [3.0 * 20, 6.0 * 20])
+    np.testing.assert_allclose(line.get_xdata(), [0.0, 2e-3])
