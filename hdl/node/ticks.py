@@ -143,18 +143,25 @@ class ControlTicks(wiring.Component):
         pos_now  = Signal(signed(WORD)) # the count as a POS word (counts · 2^4), saturated
         lim = 1 << (WORD - 1 + POS.lsb)
         # the trailing target: clamp(q_d0, pos − E, pos + E), E = trail · 2^4 (a POS word);
-        # the result lies between q_d0 and pos_now, so it needs no saturation
+        # the result lies between q_d0 and pos_now, so it needs no saturation. The tick
+        # registers pos and pos ± E; the cycle after it writes the clamp into j_in.qd0 (the
+        # engine, started by the tick, first reads an input two cycles after it: its ROM's
+        # registered read, then stage R), so the count's saturation, the adders and the
+        # compares are not one path (they were the node's slowest, 23 ns on ECP5)
         span = Signal(16 - POS.lsb)
         lo, hi = Signal(signed(WORD + 2)), Signal(signed(WORD + 2))
+        pos_r = Signal(signed(WORD))
+        first_r = Signal()              # the hold's first tick: the target is the count
+        trail_due = Signal()            # the cycle after a stopping hold tick
         trailed = Signal(signed(WORD))
         qd0 = j_in.qd0
         m.d.comb += [
             span.eq(self.trail << -POS.lsb),
-            lo.eq(pos_now - span),
-            hi.eq(pos_now + span),
-            trailed.eq(Mux(~hold_run, pos_now,
-                           Mux(qd0 < lo, lo, Mux(qd0 > hi, hi, qd0)))),
+            trailed.eq(Mux(first_r, pos_r, Mux(qd0 < lo, lo, Mux(qd0 > hi, hi, qd0)))),
         ]
+        m.d.sync += trail_due.eq(0)
+        with m.If(trail_due):
+            m.d.sync += j_in.qd0.eq(trailed)
         m.d.comb += [
             pos_now.eq(Mux(self.count >= lim, (1 << (WORD - 1)) - 1,
                            Mux(self.count < -lim, -(1 << (WORD - 1)),
@@ -183,7 +190,11 @@ class ControlTicks(wiring.Component):
                     ]
                     with m.If(~hold_set):       # stopping: trails the count; kept from rest
                         m.d.sync += [
-                            j_in.qd0.eq(trailed),
+                            pos_r.eq(pos_now),
+                            lo.eq(pos_now - span),
+                            hi.eq(pos_now + span),
+                            first_r.eq(~hold_run),
+                            trail_due.eq(1),
                             hold_set.eq(self.rest),
                             hold_run.eq(1),
                         ]
