@@ -37,9 +37,9 @@ def run_both(cycles, timecodes, writes, window):
     rtl, exp = [], []
 
     async def tb(ctx):
-        ctx.set(dut.period, PERIOD)
-        ctx.set(dut.window, window)
-        ctx.set(dut.tick, TICK)
+        for name, value in (("period", PERIOD), ("window", window), ("tick", TICK)):
+            ctx.set(getattr(dut, name), value)
+            ctx.set(getattr(dut, f"{name}_next"), value)
         ctx.set(dut.armed, 1)
         for c in range(cycles):
             tc = c in tcs

@@ -72,6 +72,9 @@ class NodeConfig(wiring.Component):
     discipline, discipline_set : Out(DisciplineWord), Out(1)
         CONFIG TC_DISCIPLINE (:mod:`~protocol.discipline`) and its write strobe (the period
         timer clears its loop).
+    tick_next, period_next, window_next : Out(16), Out(24), Out(24)
+        The values ``tick``, ``period`` and ``window`` take in the next cycle (this cycle's
+        write, or the register): the period timer computes its thresholds from them.
     """
 
     config:       In(stream.Signature(ConfigRecord, always_ready=True))
@@ -105,12 +108,22 @@ class NodeConfig(wiring.Component):
     stop_trail:   Out(16, init=CONFIG_DEFAULTS[Config.STOP_TRAIL])
     discipline:   Out(DisciplineWord)        # reset 0: off (CONFIG_DEFAULTS)
     discipline_set: Out(1)
+    tick_next:    Out(16)
+    period_next:  Out(24)
+    window_next:  Out(24)
 
     def elaborate(self, platform):
         m = Module()
         arm_pending = Signal()          # CONFIG ARM=1 received
         arming      = Signal()          # armed at the coming boundary (integral cleared)
         value = self.config.p.value
+        # the values tick, period and window take at the next cycle (the period timer keeps
+        # its comparisons' thresholds in registers, computed from them)
+        m.d.comb += [
+            self.tick_next.eq(self.tick),
+            self.period_next.eq(self.period),
+            self.window_next.eq(self.window),
+        ]
 
         with m.If(self.config.valid):
             with m.Switch(self.config.p.id):
@@ -120,6 +133,7 @@ class NodeConfig(wiring.Component):
                 with m.Case(Config.TICK):
                     with m.If((value != 0) & (value < (1 << 16))):
                         m.d.sync += self.tick.eq(value)
+                        m.d.comb += self.tick_next.eq(value)
                 with m.Case(Config.TIMEOUT):
                     m.d.sync += self.timeout.eq(value)
                 with m.Case(Config.RAMP):
@@ -131,9 +145,11 @@ class NodeConfig(wiring.Component):
                 with m.Case(Config.PERIOD):
                     with m.If((value >= 2) & (value < (1 << 24))):
                         m.d.sync += self.period.eq(value)
+                        m.d.comb += self.period_next.eq(value)
                 with m.Case(Config.SYNC_WINDOW):
                     with m.If(value < (1 << 24)):
                         m.d.sync += self.window.eq(value)
+                        m.d.comb += self.window_next.eq(value)
                 with m.Case(Config.COMMIT):
                     with m.If(value < (1 << 24)):
                         m.d.sync += self.commit.eq(value)

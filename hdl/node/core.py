@@ -331,6 +331,9 @@ class NodeCore(wiring.Component):
             timer.discipline.eq(cfg.discipline),
             timer.restart.eq(cfg.discipline_set),
             timer.tick.eq(cfg.tick),
+            timer.period_next.eq(cfg.period_next),
+            timer.window_next.eq(cfg.window_next),
+            timer.tick_next.eq(cfg.tick_next),
             ticks.tail.eq(timer.tail),
         ]
 

@@ -35,6 +35,7 @@ from amaranth.lib.wiring import In, Out
 from mrm_cosim.protocol.discipline import (E_BITS, FRAC, GAIN_BITS, LATENCY, RATE_BITS,
                                            TARGET_BITS)
 from mrm_cosim.protocol.fixed import WORD
+from mrm_cosim.protocol.regs import CONFIG_DEFAULTS, Config
 
 __all__ = ["PeriodTimer", "Snapshot", "DisciplineWord"]
 
@@ -93,6 +94,13 @@ class PeriodTimer(wiring.Component):
         CONFIG TC_DISCIPLINE; ``restart`` (In(1)) its write strobe, which clears the loop.
     tick : In(16)
         CONFIG TICK.
+    period_next, window_next, tick_next : In(24), In(24), In(16)
+        The values ``period``, ``window`` and ``tick`` take in the next cycle
+        (:class:`~hdl.node.config.NodeConfig`'s): the comparisons with the cycles to the
+        boundary, ``rem = PERIOD + adj − phase``, are ``phase`` against thresholds kept in
+        registers (``PERIOD + adj − 1``, ``− SYNC_WINDOW``, ``− TICK + 1``), computed a cycle
+        ahead from these and the loop's next ``adj``. The adder in front of each compare had
+        made ``phase`` → ``rem`` → window → resync → boundary the node's slowest path.
     tail : Out(1)
         The loop on and fewer than TICK cycles to the boundary: no control tick.
     """
@@ -112,6 +120,9 @@ class PeriodTimer(wiring.Component):
     discipline:   In(DisciplineWord)
     restart:      In(1)
     tick:         In(16)
+    period_next:  In(24, init=CONFIG_DEFAULTS[Config.PERIOD])
+    window_next:  In(24, init=CONFIG_DEFAULTS[Config.SYNC_WINDOW])
+    tick_next:    In(16, init=CONFIG_DEFAULTS[Config.TICK])
     tail:         Out(1)
 
     def elaborate(self, platform):
@@ -122,22 +133,38 @@ class PeriodTimer(wiring.Component):
         rem   = Signal(signed(26))      # cycles to the boundary (1 in the period's last phase)
         late  = Signal()                # past the window after the boundary
         early = Signal()                # the loop on and within the window before one
+        adj_next = Signal.like(adj)
+        p0, w0, t0 = (CONFIG_DEFAULTS[r] for r in (Config.PERIOD, Config.SYNC_WINDOW,
+                                                   Config.TICK))
+        # PERIOD + adj, and the thresholds rem ≤ 1, rem ≤ window, rem < tick become on phase
+        base  = Signal(signed(27), init=p0)
+        thr1  = Signal(signed(27), init=p0 - 1)
+        thrw  = Signal(signed(27), init=p0 - w0)
+        thrt  = Signal(signed(27), init=p0 - t0 + 1)
+        base_next = Signal(signed(27))
+        m.d.comb += base_next.eq(self.period_next + adj_next)
+        m.d.sync += [
+            base.eq(base_next),
+            thr1.eq(base_next - 1),
+            thrw.eq(base_next - self.window_next),
+            thrt.eq(base_next - self.tick_next + 1),
+        ]
         m.d.comb += [
-            rem.eq(self.period + adj - phase),
+            rem.eq(base - phase),
             late.eq(phase >= self.window),
-            early.eq(self.discipline.enable & late & (rem <= self.window)),
+            early.eq(self.discipline.enable & late & (phase >= thrw)),
             self.resync.eq(self.time_code & late & ~early),
             self.boundary.eq((phase == 0) | self.resync),
-            self.pre_boundary.eq(rem == 1),
+            self.pre_boundary.eq(phase == thr1),
             self.elapsed.eq(Mux(self.boundary, 0, phase)),
-            self.tail.eq(self.discipline.enable & (rem < self.tick)),
+            self.tail.eq(self.discipline.enable & (phase >= thrt)),
         ]
-        self._loop(m, adj, rem, early)
+        self._loop(m, adj, adj_next, rem, early)
         with m.If(self.resync & self.discipline.enable):
             m.d.sync += phase.eq(self.discipline.target + 1)     # acquisition at the target
         with m.Elif(self.boundary):
             m.d.sync += phase.eq(1)
-        with m.Elif(rem <= 1):
+        with m.Elif(phase >= thr1):                             # rem ≤ 1
             m.d.sync += phase.eq(0)
         with m.Else():
             m.d.sync += phase.eq(phase + 1)
@@ -152,7 +179,7 @@ class PeriodTimer(wiring.Component):
             ]
         return m
 
-    def _loop(self, m, adj, rem, early):
+    def _loop(self, m, adj, adj_next, rem, early):
         """The discipline's step at an in-window time-code
         (:func:`~protocol.discipline.loop_step`), serially: in the time-code's cycle the
         arrival's phase, or minus the cycles to the boundary, clipped to 14 bits (``e``
@@ -161,8 +188,10 @@ class PeriodTimer(wiring.Component):
         two shift registers, ``e·2^FRAC`` and ``e``, each already shifted right once if
         ``ki ≥ 1`` (``kp ≥ 1``); in each of the next cycles ``k`` up to 2^GAIN_BITS − 1 each
         shifts right by one while ``k ≤ ki`` (``kp``), which leaves ``(e·2^FRAC) >> ki`` and
-        ``e >> kp`` without a barrel shifter; then the sums, into ``f``, ``a``, ``adj`` —
-        :data:`~protocol.discipline.LATENCY` cycles after the time-code. (The error had been
+        ``e >> kp`` without a barrel shifter; the sums are formed with the last shift (step
+        LATENCY − 2) and go into ``f``, ``a``, ``adj`` in the next cycle —
+        :data:`~protocol.discipline.LATENCY` cycles after the time-code (the timer's thresholds
+        take the new ``adj`` from them a cycle ahead). (The error had been
         formed in the time-code's cycle, behind the cycles-to-boundary adder and the window's
         compare: 45 logic levels, the node's slowest path, 42 MHz on ECP5.) ``step`` ≠ 0: a
         step under way, a time-code then is not taken."""
@@ -184,6 +213,11 @@ class PeriodTimer(wiring.Component):
         sf   = Signal(signed(RATE_BITS))        # e·2^FRAC, shifted right ki times
         sp   = Signal(signed(E_BITS))           # e, shifted right kp times
         step = Signal(range(LATENCY))           # 0 idle; 1 … LATENCY − 2 shifts; the sums
+        sf_last = Signal.like(sf)
+        sp_last = Signal.like(sp)
+        f_pre   = Signal.like(f)                # the sums, formed a cycle before they apply
+        a_pre   = Signal.like(a)
+        adj_pre = Signal.like(adj)
         top  = raw[E_BITS - 1:]                 # all equal: raw fits E_BITS
         rtop = rem[13:]                         # all equal: rem fits 14 bits
         rfit = (rtop == 0) | (rtop == (1 << len(rtop)) - 1)
@@ -193,7 +227,10 @@ class PeriodTimer(wiring.Component):
             raw.eq(x_r - d.target),
             sat.eq(~((top == 0) | (top == (1 << len(top)) - 1))),
             e.eq(Mux(sat, Mux(raw[-1], -e_max, e_max - 1), raw)),
-            fsum.eq(f + sf),
+            # the sums are formed in step LATENCY − 2, from the values its shifts leave
+            sf_last.eq(Mux(step <= d.ki, sf >> 1, sf)),
+            sp_last.eq(Mux(step <= d.kp, sp >> 1, sp)),
+            fsum.eq(f + sf_last),
             f2.eq(Mux(sat_r, f,
                       Mux(fsum[-1] == fsum[-2], fsum,                   # no overflow
                           Mux(fsum[-1], -f_max, f_max - 1)))),
@@ -215,9 +252,9 @@ class PeriodTimer(wiring.Component):
             ]
         with m.Elif(step == LATENCY - 1):
             m.d.sync += [
-                f.eq(f2),
-                a.eq(s[:FRAC]),
-                adj.eq((s >> FRAC) + sp),
+                f.eq(f_pre),
+                a.eq(a_pre),
+                adj.eq(adj_pre),
                 step.eq(0),
             ]
         with m.Else():
@@ -225,4 +262,12 @@ class PeriodTimer(wiring.Component):
                 m.d.sync += sf.eq(sf >> 1)
             with m.If(step <= d.kp):
                 m.d.sync += sp.eq(sp >> 1)
+            with m.If(step == LATENCY - 2):
+                m.d.sync += [
+                    f_pre.eq(f2),
+                    a_pre.eq(s[:FRAC]),
+                    adj_pre.eq((s >> FRAC) + sp_last),
+                ]
             m.d.sync += step.eq(step + 1)
+        m.d.comb += adj_next.eq(Mux(self.restart, 0,
+                                    Mux(step == LATENCY - 1, adj_pre, adj)))
