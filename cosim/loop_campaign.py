@@ -88,6 +88,12 @@ def check_loop_campaign(camp: dict, base_dir: Path) -> dict:
         config = load(_config_path(source, base_dir))
     except InputError as exc:
         raise InputError("campaign.config", f"{exc.field}: {exc.message}") from None
+    clocks = config.clocks
+    if not clocks.common or clocks.discipline:
+        # run_probe builds its loop on one clock, without the discipline's upload
+        raise InputError("campaign.config", f"{source}: [clocks] (mode {clocks.mode!r}, "
+                         f"discipline {clocks.discipline}): the loop campaign runs every node "
+                         "on one clock and free-running timers; use a config without [clocks]")
     controller = camp.get("controller", "vdc")
     if controller not in CONTROLLERS:
         raise InputError("campaign.controller", f"unknown controller {controller!r}; known: "

@@ -191,3 +191,17 @@ def test_a_short_master_stall_pays_for_an_earlier_fault():
     row = camp.judge(stall)
     assert row["corrupted"] == 0 and row["went_down"] and row["moved"]["a.credit"] == 1
     assert row["credit_skew"] == [1, 0]                  # the restart settled the account
+
+
+def test_a_loop_campaign_refuses_a_config_with_clocks_of_their_own(tmp_path):
+    """The loop campaign's runs are built on one clock without the discipline's upload: a
+    config with [clocks] is refused by field before anything runs, not run on one clock."""
+    from mrm_cosim.cosim import sweep
+    from mrm_cosim.errors import InputError
+
+    text = (SPECS / "link-faults-loop-ci.toml").read_text()
+    text = text.replace('config = "table2"', 'config = "table2-clocks"')
+    (tmp_path / "c.toml").write_text(text)
+    with pytest.raises(InputError) as exc:
+        sweep.load_spec(tmp_path / "c.toml")
+    assert exc.value.field == "campaign.config" and "[clocks]" in exc.value.message
