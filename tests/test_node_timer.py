@@ -208,3 +208,18 @@ def test_the_model_backend_refuses_the_loop_and_takes_zero():
     ref = NodeModel()
     ref.packet(10, PacketType.CONFIG, on)
     assert ref.config[Config.TC_DISCIPLINE] == Discipline(target=12).word
+
+
+@pytest.mark.parametrize("window", [24, 60])
+def test_rtl_equals_reference_with_time_codes_at_the_early_windows_edge(window):
+    """Time-codes just inside, at and just outside the early side of the two-sided window
+    (``rem`` = SYNC_WINDOW − 1, SYNC_WINDOW, SYNC_WINDOW + 1 cycles before the boundary): the
+    window compare against its registered threshold (``PERIOD + adj − SYNC_WINDOW``)
+    decides take or resync in the cycle the reference does."""
+    word = Discipline(target=0, kp=7, ki=7).word
+    tcs, c = [], 0
+    for k in range(1, 25):
+        c = k * PERIOD - (window - 1 + k % 3)
+        tcs.append(c)
+    rtl, exp, _ = run_both(26 * PERIOD, tcs, {3: word}, window)
+    assert_same(rtl, exp)
