@@ -519,12 +519,7 @@ class KernelNode(FastNode):
             self.push()
         E, vis, pipe, due = self._erows
         self._kern.node_plain(self._row, self._prow, E, vis, pipe, due, c + 1)
-        self._commit_seen = self._lb
-        if self.d_pending:
-            if self.events is not None:
-                self.events.append((c, NodeEvent.COMMIT))
-            self._take_d(self.d_next, self.d_next_base)
-            self.d_pending = False
+        if self._commit_taken(c):
             row = self._row
             row[src.N_DBASE] = self.d_base
             row[src.N_D0:src.N_D0 + 4] = self.d_words
@@ -580,13 +575,21 @@ class KernelNode(FastNode):
         if row[src.N_COMMIT_C] != src.NEVER:
             row[src.N_COMMIT_C] = src.NEVER
             return False
-        self._commit_seen = self._lb
-        if self.d_pending:
-            if self.events is not None:
-                self.events.append((c, NodeEvent.COMMIT))
-            self._take_d(self.d_next, self.d_next_base)
-            self.d_pending = False
+        self._commit_taken(c)
         self.fast_commits += 1
+        return True
+
+    def _commit_taken(self, c: int) -> bool:
+        """The object's side of a commit the kernel took in cycle ``c``: the period's commit
+        seen and, with a Comm D pending, its COMMIT strobe and :meth:`NodeModel._take_d
+        <hdl.node.core_ref.NodeModel._take_d>`. Returns whether a Comm D took effect."""
+        self._commit_seen = self._lb
+        if not self.d_pending:
+            return False
+        if self.events is not None:
+            self.events.append((c, NodeEvent.COMMIT))
+        self._take_d(self.d_next, self.d_next_base)
+        self.d_pending = False
         return True
 
     _row_packet = False     # NodeModel.packet running with the tick state in the row

@@ -1100,12 +1100,10 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
         if not plant_src.stuck(S, a) and plant_src.likely_pattern(S, M, h) != 1:
             return 4
     plant_src.finish(S, h, hh)
-    if pre_next < 0:            # the plant's part only: the nodes run on the general path
-        return _step_plant_end(IB, F, S, rec, i, plant_src.Q_START, plant_src.V_START,
-                               plant_src.A_PREV, plant_src.Q, plant_src.Q)
+    # pre_next −1: the plant's part only, the nodes run on the general path
     r = _step_nodes(IB, F, S, rec, i, start, plant_src.Q_START, plant_src.V_START,
-                    plant_src.A_PREV, plant_src.Q, plant_src.Q)
-    if r:
+                    plant_src.A_PREV, plant_src.Q, plant_src.Q, pre_next < 0)
+    if r or pre_next < 0:
         return r
     if pre_next:
         n = IB[H_N]
@@ -1114,16 +1112,19 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     return 0
 
 
-def _step_nodes(IB, F, S, rec, i, start, start_row, velocity_row, acc_row, end_row, q_row):
+def _step_nodes(IB, F, S, rec, i, start, start_row, velocity_row, acc_row, end_row, q_row,
+                plant_only):
     """The end of a fast step, after the plant's: the trace row ``i`` (``S[q_row]`` the
     angles, the torques that drove the step), the count changes of the encoder's motion
     (``S[start_row]``, ``S[velocity_row]``, ``S[acc_row]``, ``S[end_row]``: start angle and
     velocity, the step's acceleration, end angle; :func:`step_changes`) and every node's plain
-    ticks to the step's last cycle with the torques they output there (:func:`plain_step`).
-    Returns 0; 2 if a joint moved more than one count in a cycle; 3 as :func:`plain_step`'s
-    True."""
+    ticks to the step's last cycle with the torques they output there (:func:`plain_step`;
+    not with ``plant_only``: the nodes run on the general path). Returns 0; 2 if a joint moved
+    more than one count in a cycle; 3 as :func:`plain_step`'s True."""
     if _step_plant_end(IB, F, S, rec, i, start_row, velocity_row, acc_row, end_row, q_row):
         return 2
+    if plant_only:
+        return 0
     n = IB[H_N]
     N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR = blob_views(IB)
     tau = F[F_SIZE + n:F_SIZE + 2 * n]
@@ -1181,12 +1182,9 @@ def fast_step_compliant(IB, F, S, acc, rec, i, start, C, noise, pre_next):
     hh = F[F_HH]
     compliant_src.finish(S, acc, h, hh)
     # the motor-side encoder counts the motor (θ); the trace records the link (q)
-    if pre_next < 0:            # the plant's part only (as fast_step's)
-        return _step_plant_end(IB, F, S, rec, i, compliant_src.TH_START, compliant_src.W_START,
-                               compliant_src.AM_PREV, compliant_src.TH, compliant_src.Q)
     r = _step_nodes(IB, F, S, rec, i, start, compliant_src.TH_START, compliant_src.W_START,
-                    compliant_src.AM_PREV, compliant_src.TH, compliant_src.Q)
-    if r:
+                    compliant_src.AM_PREV, compliant_src.TH, compliant_src.Q, pre_next < 0)
+    if r or pre_next < 0:       # the plant's part only (as fast_step's)
         return r
     if pre_next:
         n = IB[H_N]

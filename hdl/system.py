@@ -156,12 +156,7 @@ class System(wiring.Component):
             return self._elaborate_node_clocks()
         m = Module()
         m.submodules.master = master = self.master
-        for name in ("tx_valid", "tx_char", "tick_in", "time_in"):
-            m.d.comb += getattr(master, name).eq(getattr(self, name))
-        for name in ("tx_level", "tx_overflow", "rx_valid", "rx_char", "running", "state",
-                     "errors"):
-            m.d.comb += getattr(self, name).eq(getattr(master, name))
-        m.d.comb += self.link_errors.eq(saturating_sum(master.errors[f] for f in ERROR_CLASSES))
+        self._master_ports(m, master)
         upstream = master.line
         for k, node in enumerate(self.nodes):
             m.submodules[f"node{k + 1}"] = node
