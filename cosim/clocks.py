@@ -48,7 +48,7 @@ import numpy as np
 from mrm_cosim.errors import InputError
 
 __all__ = ["ClockConfig", "ClockPlan", "MODES", "NOMINAL_FS", "MAX_PPM", "DEFAULT_RANGE_PPM",
-           "system_lines", "node_domain", "plan_clocks", "ClockedEngine"]
+           "system_lines", "node_domain", "plan_clocks", "ClockedEngine", "NodeTime"]
 
 MODES = ("common", "list", "drawn")
 #: one nominal cycle (20 ns) in femtoseconds
@@ -188,6 +188,35 @@ class ClockPlan:
     @property
     def n_domains(self) -> int:
         return len(self.periods)
+
+
+class NodeTime:
+    """Node ``k``'s cycles against the master port's, on the global grid (module docstring):
+    the model backend's clock of a node (:class:`cosim.model.ModelBackend` with a
+    :class:`ClockPlan`), the same arithmetic as :class:`ClockedEngine`'s event order.
+
+    Node cycle ``c`` ends at ``t1 = φ_k + (c + 1)·P_k`` and belongs to the master cycle ``g``
+    with ``T0(g) < t1 ≤ T1(g)`` (:meth:`master_cycle`; the edges before the master's first
+    belong to its cycle 0, as the harnesses take every edge up to the end of the current master
+    cycle); master cycle ``g``'s inputs reach node cycles from :meth:`node_cycle` ``(g)`` on,
+    the first whose end lies after ``T0(g)``."""
+
+    __slots__ = ("p0", "f0", "pk", "fk")
+
+    def __init__(self, plan: ClockPlan, k: int):
+        self.p0, self.f0 = plan.periods[0], plan.phases[0]
+        self.pk, self.fk = plan.periods[k], plan.phases[k]
+
+    def master_cycle(self, c: int) -> int:
+        """The master cycle node cycle ``c`` belongs to (its outputs are that cycle's)."""
+        g = -((self.f0 - self.fk - (c + 1) * self.pk) // self.p0) - 1     # ⌈(t1 − φ0)/P0⌉ − 1
+        return g if g > 0 else 0
+
+    def node_cycle(self, g: int) -> int:
+        """The first node cycle belonging to master cycle ``g`` or a later one."""
+        if g <= 0:
+            return 0
+        return (self.f0 + g * self.p0 - self.fk) // self.pk
 
 
 def plan_clocks(config: ClockConfig, n_nodes: int, seed: int, slots: int) -> ClockPlan | None:

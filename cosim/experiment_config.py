@@ -166,8 +166,6 @@ class ExperimentConfig:
             cfg = replace(cfg, duration=_duration(duration, f"{field_prefix}duration"))
             check_duration_covers_periods(cfg.duration, cfg.timing.period_cycles,
                                           f"{field_prefix}duration")
-        if backend is not None:
-            _clocks_fit_the_backend(cfg.clocks, cfg.backend, f"{field_prefix}backend")
         return cfg
 
     def to_dict(self) -> dict:
@@ -255,7 +253,6 @@ def from_dict(data: dict, base_dir=None) -> ExperimentConfig:
         _gears_fit_the_step(robot, plant, seed)
     faults = _safety(_table(data, "safety"))
     clocks = _clocks(_table(data, "clocks"), robot)
-    _clocks_fit_the_backend(clocks, backend, "experiment.backend")
     return ExperimentConfig(name, robot, controllers, backend, seed, duration, trajectory,
                             plant, gains, timing, faults, clocks)
 
@@ -289,20 +286,6 @@ def _clocks_dict(clocks: ClockConfig) -> dict:
         for name in ("ppm", "phase", "master_ppm", "master_phase"):
             del out[name]
     return out
-
-
-def _clocks_fit_the_backend(clocks: ClockConfig, backend: str, field: str) -> None:
-    """The model backend keeps one clock: ``InputError`` naming ``clocks`` (or the backend
-    ``field`` an override named) for clocks of their own there."""
-    if backend == "model" and clocks.discipline:
-        raise InputError("clocks.discipline" if field == "experiment.backend" else field,
-                         "the model backend's nodes keep the free-running period timer "
-                         "(CONFIG TC_DISCIPLINE 0); the discipline needs compiled or pysim")
-    if backend == "model" and not clocks.common:
-        raise InputError("clocks" if field == "experiment.backend" else field,
-                         "the model backend runs every node on one clock; clocks of their own "
-                         "(clocks.mode "f"{clocks.mode!r}) need the compiled or pysim backend "
-                         "(docs/clocks.md)")
 
 
 #: The shortest run: one master period (half a period ran "clean" with the tip at rest, a

@@ -83,6 +83,16 @@ __all__ = ["ModelBackend", "ModelAssumptionError"]
 _MARGIN = 500           # cycles of margin the model wants around every timing condition
 
 
+def _near_window(node, c: int, phase: int, window: int) -> bool:
+    """A time-code in node cycle ``c`` at ``phase`` within the margin of the sync window's
+    edge: the window after the boundary, and with TC_DISCIPLINE on the one before it too
+    (``rem = PERIOD + adj − phase`` cycles to the boundary, :mod:`protocol.discipline`)."""
+    m = min(_MARGIN, window // 2)
+    if not node._disciplined:
+        return window - phase < m
+    return abs(phase - window) < m or abs(node.next_boundary() - c - window) < m
+
+
 class ModelAssumptionError(RuntimeError):
     """A model run left the conditions under which it equals the gateware."""
 
@@ -122,13 +132,19 @@ class ModelBackend(GatewareSide):
     name = "model"
 
     def __init__(self, encoder=None, strict: bool = False, lazy: bool = True, pid_shift=0,
-                 kernel: str | None = None, faults=()):
+                 kernel: str | None = None, faults=(), clocks=None):
         for f in faults:
             if f.kind != "cut":
                 raise InputError("faults", f"the model backend's link has no bits: it takes "
                                  f"'cut' faults, not {f.kind!r} (use compiled or pysim)")
         self._faults = list(faults)
-        self.kernel = kernel_choice(kernel)
+        #: a clock per node (:class:`cosim.clocks.ClockPlan`; None: one clock): the nodes run
+        #: on the pure-Python path, each in cycles of its own clock ("Clocks of their own")
+        self.clocks = clocks
+        self._times = None
+        #: node strobes merged into a master cycle that held the same one (docs/clocks.md)
+        self.merged_strobes = 0
+        self.kernel = "python" if clocks is not None else kernel_choice(kernel)
         self._kern = None
         self._encoder = encoder
         self._pid_shift = pid_shift
@@ -151,6 +167,13 @@ class ModelBackend(GatewareSide):
     def power_on(self, counts) -> None:
         counts = [int(c) for c in counts]
         self.n = len(counts)
+        if self.clocks is not None:
+            from mrm_cosim.cosim.clocks import NodeTime
+
+            if self.clocks.n_domains != self.n + 1:
+                raise InputError("clocks", f"a plan of {self.clocks.n_domains - 1} nodes for "
+                                 f"a chain of {self.n}")
+            self._times = [NodeTime(self.clocks, k + 1) for k in range(self.n)]
         encs = encoders_per_node(self._encoder, self.n)
         kern = load() if self.lazy and self.kernel == "numba" else None
         self._kern = kern
@@ -220,6 +243,13 @@ class ModelBackend(GatewareSide):
         <cosim.model_node.FastNode.safe_stop_near>` keeps those on the reference), so its
         brake is its trip with STOP_CYCLES = 0: tripped by then."""
         c = self.cycle - 1
+        if self._times is not None:             # each node's last cycle of master cycle c
+            out = []
+            for node, tm in zip(self.nodes, self._times, strict=True):
+                nc = tm.node_cycle(self.cycle) - 1
+                node._watch(nc)
+                out.append(bool(node.brake_at(nc)))
+            return np.array(out, dtype=bool)
         if self._kern is not None:
             for node in self.nodes:
                 if not node.in_kernel:
@@ -270,7 +300,9 @@ class ModelBackend(GatewareSide):
             self._sync_done()
         if self._link.errors:                   # a cut's codec errors, before the nodes reply
             self._count_cuts(end)
-        if self._kern is not None:
+        if self._times is not None:
+            events = self._run_clocked(start, n, lines, offset)
+        elif self._kern is not None:
             events = self._run_kernel(start, n, lines, offset)
         elif self.lazy:
             changes = lines.changes()
@@ -283,7 +315,7 @@ class ModelBackend(GatewareSide):
             for k, enc in enumerate(self.encoders):
                 enc.feed(start, np.full(n, lines.counts[k]) if lines.at_rest
                          else lines.cycles().counts[offset:offset + n, k])
-        if self._kern is None:
+        if self._kern is None and self._times is None:
             events = self._run_nodes(end)
         if self._link.errors:
             self._count_cuts(end)
@@ -679,7 +711,8 @@ class ModelBackend(GatewareSide):
         if len(self._violations) < 100:
             self._violations.append(message)
 
-    def _check_packet(self, k: int, node: NodeModel, c: int, ptype: int) -> None:
+    def _check_packet(self, k: int, node: NodeModel, c: int, ptype: int,
+                      nc: int | None = None) -> None:
         start = self._start
         if start is None or c < start:
             if ptype == ref.PacketType.CONFIG:
@@ -690,7 +723,9 @@ class ModelBackend(GatewareSide):
                                   "(an ARM may miss its boundary)")
             return
         cfg = node.config
-        ph = node.phase(c)
+        if nc is None:
+            nc = c                              # (with a clock per node: the node's cycle)
+        ph = node.phase(nc)
         if ptype == ref.PacketType.COMM_D:
             self.phases["comm_d"] = max(self.phases["comm_d"], ph)
         if ptype == ref.PacketType.COMM_D and node.armed:
@@ -704,8 +739,8 @@ class ModelBackend(GatewareSide):
             # boundary; a Comm B needs the boundary's CORDIC, 60 cycles, in the VDC first)
             self._violate(f"node {k + 1}: {ref.PacketType(ptype).name} at phase {ph} "
                           f"(cycle {c}), too near a boundary")
-        if node.armed and c - node.last_packet > cfg[Config.TIMEOUT] - _MARGIN:
-            self._violate(f"node {k + 1}: {c - node.last_packet} cycles without a packet "
+        if node.armed and nc - node.last_packet > cfg[Config.TIMEOUT] - _MARGIN:
+            self._violate(f"node {k + 1}: {nc - node.last_packet} cycles without a packet "
                           f"(watchdog timeout {cfg[Config.TIMEOUT]})")
 
     # --- the nodes -------------------------------------------------------------------------
@@ -816,6 +851,101 @@ class ModelBackend(GatewareSide):
                 node.run(end - 1, sample)
                 self._torque[k] = FORCE.decode(node.torque_at(end - 1))
             self._collect(k, node, end, out)
+        return out
+
+    def _run_clocked(self, start: int, n: int, lines: PlantLines, offset: int) -> list:
+        """:meth:`advance`'s nodes with a clock each (:class:`cosim.clocks.NodeTime`): master
+        cycles ``start … start + n − 1`` hold node ``k``'s cycles ``N(start) … N(start + n) −
+        1``. The encoder lines a master cycle shows reach the node cycles belonging to it, a
+        packet or time-code the model link delivers in master cycle ``c`` reaches the node in
+        the first of its cycles belonging to ``c`` or later (the link's timeline is the
+        master's: :mod:`cosim.model_link`), the torque the plant samples at the end of the
+        piece is the node's in its last cycle there, and the node's strobes and replies are
+        those of the master cycle their node cycle belongs to — a strobe repeated within one
+        master cycle merged and counted (:attr:`merged_strobes`), as the gateware harnesses
+        OR them."""
+        end = start + n
+        at_rest = lines.at_rest
+        if self.lazy and not at_rest:
+            changes = lines.changes()
+            whole = offset == 0 and n == self._step_len(lines)
+        elif not self.lazy and not at_rest:
+            counts = lines.cycles().counts
+        out = []
+        strt = self._start
+        for k, (node, enc, tm) in enumerate(zip(self.nodes, self.encoders, self._times,
+                                                strict=True)):
+            n0, n1 = tm.node_cycle(start), tm.node_cycle(end)
+            node_cycle, master_cycle = tm.node_cycle, tm.master_cycle
+            # the encoder lines, master cycle by master cycle, onto the node's cycles
+            if self.lazy:
+                ch = []
+                if not at_rest:
+                    for i, c in changes[k]:
+                        if not whole:
+                            if not offset <= i < offset + n:
+                                continue
+                            i -= offset
+                        j = node_cycle(start + i) - n0
+                        if ch and ch[-1][0] == j:       # a master cycle with no node cycle
+                            self._violate(f"node {k + 1}: encoder changes in master cycles "
+                                          f"{start + i - 1} and {start + i} reach one node "
+                                          "cycle (the last is taken)")
+                            ch[-1] = (j, c)
+                        elif j < n1 - n0:
+                            ch.append((j, c))
+                enc.feed_changes(n0, n1 - n0, ch)
+            elif n1 > n0:
+                g = np.array([master_cycle(c) for c in range(n0, n1)]) - start
+                enc.feed(n0, np.full(n1 - n0, lines.counts[k]) if at_rest
+                         else counts[offset + g, k])
+            sample = self._samplers[k]
+            box = self._link.inbox[k]
+            if box:
+                if len(box) > 1:
+                    box.sort(key=_arrival)
+                i = 0
+                while i < len(box) and box[i][0] < end:
+                    cm, _, kind, data = box[i]
+                    c = node_cycle(cm)
+                    i += 1
+                    if kind == "timecode":
+                        node.run(c, sample)
+                        ph_before = node.phase(c) if c < node.next_boundary() else 0
+                        window = node.config[Config.SYNC_WINDOW]
+                        if strt is not None and cm >= strt:
+                            self.phases["timecode"] = max(self.phases["timecode"], ph_before)
+                        if node.timecode(c, data, sample):
+                            self._violate(f"node {k + 1}: time-code at phase {ph_before} "
+                                          f"(cycle {cm}) resynchronised the timer")
+                        elif _near_window(node, c, ph_before, window):
+                            self._violate(f"node {k + 1}: time-code at phase {ph_before}, "
+                                          f"near the sync window {window}")
+                        continue
+                    ptype, payload, seq = data
+                    node.run(c + 1, sample)
+                    self._check_packet(k, node, cm, ptype, c)
+                    reply = node.packet(c, ptype, payload, sample=sample)
+                    if reply is not None:
+                        self._link.reply(k, master_cycle(node.reply_cycle(c, ptype)), ptype,
+                                         reply, seq)
+                del box[:i]
+            node.run(n1 - 1, sample)
+            self._torque[k] = FORCE.decode(node.torque_at(n1 - 1))
+            if node.events:
+                later, seen = [], set()
+                for c, flag in node.events:
+                    if c >= n1:
+                        later.append((c, flag))
+                        continue
+                    cm = master_cycle(c)
+                    if (cm, flag) in seen:
+                        self.merged_strobes += 1
+                        continue
+                    seen.add((cm, flag))
+                    name = _EVENT_NAMES.get(flag)
+                    out.append((cm, k + 1, flag.name if name is None else name))
+                node.events = later
         return out
 
     @staticmethod

@@ -32,6 +32,7 @@ from functools import cache
 import numpy as np
 
 from mrm_cosim.cosim.model_node import _BRAKE, _CYCLES_MAX, _STOP, FastNode
+from mrm_cosim.errors import InputError
 from mrm_cosim.hdl.node.core_ref import NodeModel
 from mrm_cosim.hdl.node.trig_ref import sin_cos
 from mrm_cosim.protocol.cordic import bam_constant
@@ -402,6 +403,16 @@ class KernelNode(FastNode):
     def _param(self, bank: int, addr: int, w: int) -> None:
         self._prow_of = None                # a host write may change a joint word
         FastNode._param(self, bank, addr, w)
+
+    def _config(self, now: int, reg: int, value: int) -> None:
+        if reg == Config.TC_DISCIPLINE and value:
+            # the kernel keeps PERIOD-cycle periods and every tick
+            raise InputError("config.tc_discipline",
+                             f"{value:#x}: the model backend's compiled kernel does not model "
+                             "the disciplined period timer (issue 21 item 3); the backend's "
+                             "pure-Python path does (ModelBackend(kernel='python'), or a "
+                             "[clocks] run)")
+        FastNode._config(self, now, reg, value)
 
     _kern = None
 

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from mrm_cosim.errors import InputError
 from mrm_cosim.hdl.node.core_ref import _NEVER, _TIME_MAX, NodeModel
 from mrm_cosim.hdl.node.encoder_ref import (
     AGE_MAX,
@@ -34,9 +33,10 @@ __all__ = ["FastNode", "EncoderEvents"]
 _PHASE = {(0, 0): 0, (1, 0): 1, (1, 1): 2, (0, 1): 3}
 _CYCLES = tuple(joint_microcode().cycles(m) for m in JOINT_MODES)
 _CYCLES_MAX = max(_CYCLES)
-_TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX, _COMMIT, _STOP, _BRAKE = (int(c) for c in (
-    Config.TICK, Config.MODE, Config.TIMEOUT, Config.TAU_MIN, Config.TAU_MAX, Config.COMMIT,
-    Config.STOP_CYCLES, Config.BRAKE_CYCLES))
+_TICK, _MODE, _TIMEOUT, _TAU_MIN, _TAU_MAX, _COMMIT, _STOP, _BRAKE, _PERIOD, _CFG_TC = (
+    int(c) for c in (Config.TICK, Config.MODE, Config.TIMEOUT, Config.TAU_MIN, Config.TAU_MAX,
+                     Config.COMMIT, Config.STOP_CYCLES, Config.BRAKE_CYCLES, Config.PERIOD,
+                     Config.TC_DISCIPLINE))
 
 
 class FastNode(NodeModel):
@@ -78,15 +78,6 @@ class FastNode(NodeModel):
     def _param(self, bank: int, addr: int, w: int) -> None:
         self._materialize()                 # a host write comes after the Part B before it
         NodeModel._param(self, bank, addr, w)
-
-    def _config(self, now: int, reg: int, value: int) -> None:
-        if reg == Config.TC_DISCIPLINE and value:
-            # the fast paths (and the compiled kernel) keep PERIOD-cycle periods and every tick
-            raise InputError("config.tc_discipline",
-                             f"{value:#x}: the model backend does not model the disciplined "
-                             "period timer (issue 21 item 3); use the pysim or compiled "
-                             "backend, or 0")
-        NodeModel._config(self, now, reg, value)
 
     def _tick(self, now, sample, tt, ramped=False, hold=None):   # the event loop's ticks
         if hold or self.safe_stop_near(now + 1):
@@ -132,6 +123,11 @@ class FastNode(NodeModel):
                 break
             special = self.next_special()
             lim = special if special < until else until
+            if cfg[_CFG_TC] and self._disciplined:
+                # the disciplined period's tail (no tick) and the boundary are the reference's
+                tail = self._lb + cfg[_PERIOD] + self.tc_loop[2] - cfg[_TICK] + 1
+                if tail < lim:
+                    lim = tail
             if dead is not None:
                 step = cfg[_TICK]
                 cyc = _CYCLES[cfg[_MODE]]
@@ -184,8 +180,11 @@ class FastNode(NodeModel):
                 special = commit
         if self.arm_pending and self._pre_seen != nb and nb - 1 < special:
             special = nb - 1
-        if self.dmp_running and self._dmp_due < special:
+        if self.dmp_running and self._dmp_due < special and not (
+                cfg[_CFG_TC] and self._disciplined and self._dmp_due - lb >= cfg[_PERIOD]):
             special = self._dmp_due                     # a step of the generator
+        if self._tc_pending is not None and self._tc_pending[0] < special:
+            special = self._tc_pending[0]               # the discipline's step applies
         if cfg[_STOP] or cfg[_BRAKE]:
             if self.tripped:
                 return -1

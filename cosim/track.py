@@ -149,9 +149,6 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
 
     clocks = clocks or ClockConfig()
     clocks.check(robot.n)
-    if backend == "model" and not clocks.common:
-        raise InputError("clocks", "the model backend runs every node on one clock; "
-                         "clocks of their own need compiled or pysim (docs/clocks.md)")
     plan = plan_clocks(clocks, robot.n, seed, DEFAULT_SLOTS)
     uploads = node_uploads(robot, controller, gains, period_cycles=timing.period_cycles,
                            commit_cycles=commit_cycles, safe_stop=safe_stop,
@@ -188,7 +185,7 @@ def run_track(robot="mrm3", controller="vdc", backend="compiled", duration: floa
         window = VcdWindow.parse(vcd, vcd_path, signals=signals, offset=start / CLOCK_HZ)
     result, be = run_loop(robot, backend, master, plant, start, uploads, duration_cycles,
                           quiet=progress is None, vcd=window, progress=progress, faults=faults,
-                          clocks=plan, keep=True)
+                          clocks=plan, keep=True, discipline=clocks.discipline)
     wall = time.perf_counter() - t0
     q_d, qd_d, _, _ = profile.evaluate(result.t)
     tip_d, speed = tip_points(robot, q_d[::10], qd_d[::10])
@@ -354,14 +351,16 @@ def clocks_summary(clocks, n: int, seed: int, backend=None) -> dict:
 
 def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
              duration_cycles: int, record: bool = False, quiet: bool = True, vcd=None,
-             progress=None, faults=(), clocks=None, keep: bool = False):
+             progress=None, faults=(), clocks=None, keep: bool = False,
+             discipline: bool = False):
     """Run the closed loop of ``robot`` on the backend named ``backend``: this picks the
     gateware side (:func:`loop_backend`); :class:`cosim.closed_loop.ClosedLoop` runs it.
 
     ``vcd``: a :class:`cosim.backends.VcdWindow` to record (pysim, compiled); ``progress``:
     ``progress(t_sim, t_total)`` about every simulated millisecond; ``faults``: line faults
     to inject (:class:`cosim.closed_loop.LineFault`; pysim and compiled); ``clocks``: a
-    :class:`cosim.clocks.ClockPlan` (a clock per node; None: one clock).
+    :class:`cosim.clocks.ClockPlan` (a clock per node; None: one clock); ``discipline``: the
+    master uploads CONFIG TC_DISCIPLINE (the model backend then runs its pure-Python path).
 
     Returns
     -------
@@ -370,29 +369,30 @@ def run_loop(robot, backend: str, master, plant, start_cycle: int, uploads,
         sampled (:meth:`cosim.backends.LineSide.trace`).
     """
     be = loop_backend(robot, backend, record=record, quiet=quiet, vcd=vcd, faults=faults,
-                      clocks=clocks)
+                      clocks=clocks, discipline=discipline)
     loop = ClosedLoop(robot, be, master, plant, start_cycle, uploads)
     return loop.run(duration_cycles, progress=progress), (be if record or keep else None)
 
 
 def loop_backend(robot, backend: str, record: bool = False, quiet: bool = True, vcd=None,
-                 faults=(), clocks=None):
+                 faults=(), clocks=None, discipline: bool = False):
     """The gateware side of ``robot``'s loop on the backend named ``backend``
     (:data:`BACKENDS`): :func:`loop_system` simulated (pysim) or compiled, or the nodes'
     references (model, which has no signals to record and a link at packet level: it takes
     line cuts, :mod:`cosim.model_link`). ``clocks``: a :class:`cosim.clocks.ClockPlan` runs
-    each node on a clock of its own (pysim, compiled; the model refuses it)."""
+    each node on a clock of its own (the model: each node's reference in cycles of its own
+    clock, docs/clocks.md); ``discipline``: the nodes' timers will be disciplined (CONFIG
+    TC_DISCIPLINE), which the model's compiled kernel does not model: its pure-Python path
+    runs."""
     if backend == "model":
         from mrm_cosim.cosim.model import ModelBackend
 
-        if clocks is not None:
-            raise InputError("clocks", "the model backend runs every node on one clock; "
-                             "clocks of their own need compiled or pysim (docs/clocks.md)")
         if record or vcd is not None:
             raise InputError("vcd" if vcd is not None else "record",
                              "the model backend has no signals; use pysim or compiled")
         return ModelBackend(encoder=node_encoders(robot), pid_shift=pid_shifts(robot),
-                            faults=faults)
+                            faults=faults, clocks=clocks,
+                            kernel="python" if discipline else None)
     node = "common" if clocks is None else "node"
     if backend == "compiled":
         return CompiledBackend(lambda: loop_system(robot, node), loop_system_key(robot, node),

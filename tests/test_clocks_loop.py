@@ -82,22 +82,6 @@ def test_bad_clocks_are_refused_by_field(table, field):
     assert exc.value.field == field
 
 
-def test_the_model_backend_refuses_clocks_of_their_own():
-    with pytest.raises(InputError) as exc:
-        ec.loads("[experiment]\nbackend = 'model'\n[clocks]\nmode = 'drawn'\n")
-    assert exc.value.field == "clocks"
-    with pytest.raises(InputError) as exc:
-        ec.loads("[experiment]\nbackend = 'model'\n[clocks]\ndiscipline = true\n")
-    assert exc.value.field == "clocks.discipline"
-    with pytest.raises(InputError) as exc:
-        run_track("mrm3", "vdc", "model", duration=0.001, clocks=ClockConfig(mode="drawn"))
-    assert exc.value.field == "clocks"
-    cfg = ec.loads("[experiment]\nbackend = 'compiled'\n[clocks]\nmode = 'drawn'\n")
-    with pytest.raises(InputError) as exc:
-        cfg.with_overrides(backend="model", field_prefix="--")
-    assert exc.value.field == "--backend"
-
-
 def test_drawn_clocks_come_from_the_seed_alone():
     c = ClockConfig(mode="drawn", range_ppm=100.0)
     assert c.resolve(3, 0) == c.resolve(3, 0)

@@ -190,26 +190,6 @@ def test_word_round_trips_and_rejects_bad_fields():
         Discipline(ki=-1)
 
 
-def test_the_model_backend_refuses_the_loop_and_takes_zero():
-    """The ``model`` backend's nodes keep PERIOD-cycle periods and every tick in their fast
-    paths: a nonzero TC_DISCIPLINE is refused with the field named, 0 (today's timer) is
-    taken; the node reference takes both."""
-    from mrm_cosim.cosim.model_node import FastNode
-    from mrm_cosim.hdl.node.core_ref import NodeModel
-    from mrm_cosim.protocol.packet import PacketType
-    from mrm_cosim.protocol.regs import Config, config_payloads
-
-    on, off = (config_payloads({Config.TC_DISCIPLINE: w})[0]
-               for w in (Discipline(target=12).word, 0))
-    node = FastNode()
-    node.packet(10, PacketType.CONFIG, off)
-    with pytest.raises(InputError, match="config.tc_discipline"):
-        node.packet(20, PacketType.CONFIG, on)
-    ref = NodeModel()
-    ref.packet(10, PacketType.CONFIG, on)
-    assert ref.config[Config.TC_DISCIPLINE] == Discipline(target=12).word
-
-
 @pytest.mark.parametrize("window", [24, 60])
 def test_rtl_equals_reference_with_time_codes_at_the_early_windows_edge(window):
     """Time-codes just inside, at and just outside the early side of the two-sided window
