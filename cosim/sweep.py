@@ -63,6 +63,10 @@ FIGURES = ("rho_s", "max_tip_error_m", "max_tip_speed_m_s", "max_joint_error_rad
 #: A track's robustness figures (:func:`cosim.track.hold_figures`), kept too: the tuning's
 #: constraints (cosim/tune.py).
 HOLD_FIGURES = ("max_torque_ratio", "hold_error_rad", "hold_ripple_rad")
+#: The period-start skew (:func:`cosim.skew.period_skew`), kept for a config with clocks of its
+#: own (``[clocks]``, docs/clocks.md): cycles, against the master (largest, RMS) and between the
+#: nodes (largest).
+SKEW_FIGURES = ("skew_max_cycles", "skew_rms_cycles", "skew_between_max_cycles")
 #: A line's figures (its summary's ``line``), kept beside the common ones.
 LINE_FIGURES = ("max_position_error_mm", "max_orientation_error_mrad", "max_se3_error")
 #: The two figures summary.md and the plots show per kind: (key, label, scale to the label).
@@ -444,6 +448,12 @@ def run_point(point: dict, report=None) -> dict:
                                plant_config=config.plant,
                                **_run_kwargs(run_track, config, robot))
         figures = {k: summary[k] for k in FIGURES + HOLD_FIGURES}
+        if not config.clocks.common:
+            skew = summary["period_skew"]
+            figures.update(zip(SKEW_FIGURES, (skew["node_vs_master"]["max_abs_cycles"],
+                                              skew["node_vs_master"]["rms_cycles"],
+                                              skew["between_nodes"]["max_cycles"]),
+                               strict=True))
     out = {"figures": figures, "faults": run_faults(summary),
            "trace_sha256": summary["trace_sha256"], "wall_s": time.perf_counter() - t0}
     if point.get("folder"):
@@ -474,6 +484,8 @@ def summary_markdown(spec: SweepSpec, rows: list[dict]) -> str:
         lines += [f"**{len(failed)} point(s) failed** (points.jsonl has the errors).", ""]
     if spec.kind == "track" and len(spec.seeds) > 1:
         lines += distribution_table(ok, spec.controllers)
+    if any(SKEW_FIGURES[0] in r["figures"] for r in ok):
+        lines += skew_table(ok, spec.controllers)
     (k1, l1, _), (k2, l2, _) = SHOWN[spec.kind]
     axes = ["controller"] + (["backend"] if len(spec.backends) > 1 else []) + \
         (["profile"] if len(spec.profiles) > 1 else []) + \
@@ -526,6 +538,27 @@ def distribution_table(ok: list[dict], controllers) -> list[str]:
         lines.append(f"| {c} | {rho['n']} | {rho['median']:.4g} | {rho['p5']:.4g} | "
                      f"{rho['p95']:.4g} | {'–' if paper is None else f'{paper[2]:.2g}'} | "
                      f"{err['median']:.4g} | {err['p5']:.4g} – {err['p95']:.4g} |")
+    return lines + [""]
+
+
+def skew_table(ok: list[dict], controllers) -> list[str]:
+    """The period-start skew over the points (clocks drawn from each seed, docs/clocks.md):
+    per controller, the median, 5–95 % interval and worst of each run's largest offset
+    against the master, its RMS and the largest spread between the nodes, in cycles."""
+    lines = ["## Period-start skew over clock draws (cycles)", "",
+             "| controller | points | max vs master: median | 5–95 % | worst | "
+             "RMS: median | 5–95 % | between nodes, max: median | worst |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for c in controllers:
+        sel = [r["figures"] for r in ok if r["controller"] == c and
+               all(r["figures"].get(k) is not None for k in SKEW_FIGURES)]
+        if not sel:
+            continue
+        mx, rms, btw = (_stats([f[k] for f in sel]) for k in SKEW_FIGURES)
+        lines.append(f"| {c} | {mx['n']} | {mx['median']:.4g} | {mx['p5']:.4g} – "
+                     f"{mx['p95']:.4g} | {max(f[SKEW_FIGURES[0]] for f in sel):.4g} | "
+                     f"{rms['median']:.3g} | {rms['p5']:.3g} – {rms['p95']:.3g} | "
+                     f"{btw['median']:.4g} | {max(f[SKEW_FIGURES[2]] for f in sel):.4g} |")
     return lines + [""]
 
 

@@ -127,6 +127,25 @@ def _hms(seconds: float) -> str:
     return f"{h}h{m:02d}m{s:02d}s" if h else f"{m}m{s:02d}s" if m else f"{s}s"
 
 
+def skew_figure(path, result, n: int, config: ExperimentConfig, controller: str) -> bool:
+    """``skew.png``: each node's period start against the master's over a run on clocks of
+    their own or with the discipline (:func:`cosim.plots.plot_skew`); nothing (False) on a
+    common clock with free-running timers, where every offset is 0."""
+    if config.clocks.common and not config.clocks.discipline:
+        return False
+    from mrm_cosim.cosim.plots import plot_skew
+    from mrm_cosim.cosim.skew import start_offsets
+    from mrm_cosim.units import CLOCK_HZ
+
+    timers = "disciplined" if config.clocks.discipline else "free-running"
+    b = start_offsets(result.master.records, n, config.timing.period_cycles,
+                      strobes=getattr(result.master, "boundary_strobes", None))
+    plot_skew(path, {f"timers {timers}": b},
+              f"{controller}: period starts, clocks {config.clocks.mode}",
+              period_s=config.timing.period_cycles / CLOCK_HZ, spread=True)
+    return True
+
+
 def _run_kwargs(runner, config: ExperimentConfig, robot) -> dict:
     """Keyword arguments for ``runner`` beyond the common ones; refuses what it cannot run."""
     params = inspect.signature(runner).parameters
@@ -467,17 +486,7 @@ def _write_controller(folder: Path, robot, controller, config, result, summary, 
     except ValueError:
         plot_parameters(folder / "timeline.png", title=title,
                         note="no complete period in this run: no timeline to draw")
-    if not config.clocks.common or config.clocks.discipline:
-        from mrm_cosim.cosim.plots import plot_skew
-        from mrm_cosim.cosim.skew import start_offsets
-        from mrm_cosim.units import CLOCK_HZ
-
-        timers = "disciplined" if config.clocks.discipline else "free-running"
-        b = start_offsets(result.master.records, robot.n, config.timing.period_cycles,
-                          strobes=getattr(result.master, "boundary_strobes", None))
-        plot_skew(folder / "skew.png", {f"timers {timers}": b},
-                  f"{controller}: period starts, clocks {config.clocks.mode}",
-                  period_s=config.timing.period_cycles / CLOCK_HZ, spread=True)
+    skew_figure(folder / "skew.png", result, robot.n, config, controller)
     theta = getattr(result, "theta", None)
     if theta is not None:
         plot_parameters(folder / "parameters.png", result.t, theta, title=title)

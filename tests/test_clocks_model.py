@@ -147,3 +147,23 @@ discipline = true
     # and the compiled configuration switches to the model from the command line
     cfg = ec.loads("[experiment]\nbackend = 'compiled'\n[clocks]\nmode = 'drawn'\n")
     assert cfg.with_overrides(backend="model", field_prefix="--").backend == "model"
+
+
+def test_run_track_on_clocks_of_their_own_draws_the_skew(tmp_path, capsys):
+    """``mrm run track`` with a ``[clocks]`` config: summary.json's ``period_skew`` and a
+    ``skew.png`` beside the timeline, as each Table 2 controller's folder has."""
+    from mrm_cosim.mrm import cli
+
+    config = tmp_path / "clocks.toml"
+    config.write_text("[experiment]\nbackend = 'model'\nduration = 0.01\n"
+                      "[clocks]\nmode = 'drawn'\ndiscipline = true\n")
+    out = tmp_path / "run"
+    assert cli.main(["run", "track", "--controller", "vdc", "--config", str(config),
+                     "--out", str(out)]) == 0
+    assert "skew.png" in capsys.readouterr().out
+    assert (out / "skew.png").stat().st_size > 0
+    common = tmp_path / "common"
+    config.write_text("[experiment]\nbackend = 'model'\nduration = 0.01\n")
+    assert cli.main(["run", "track", "--controller", "vdc", "--config", str(config),
+                     "--out", str(common), "--quiet"]) == 0
+    assert not (common / "skew.png").exists()

@@ -196,6 +196,39 @@ def test_shipped_sweeps_are_valid():
         assert len({p["params"][field] for p in points}) == 5
 
 
+def test_a_sweep_over_clock_draws_reports_the_skew(tmp_path):
+    """A config with clocks of its own: each seed draws its clocks, every point keeps the
+    period-start skew, summary.md gives its distribution; the shipped spec is valid."""
+    root = Path(__file__).resolve().parents[1] / "configs"
+    shipped = sweep.load_spec(root / "sweeps" / "clocks-seeds.toml")
+    assert shipped.backends == ("model",) and 0 not in shipped.seeds
+    assert shipped.config["clocks"]["mode"] == "drawn" and shipped.config["clocks"]["discipline"]
+    spec = sweep.load_spec(_spec(tmp_path, f"""
+[sweep]
+name = "clocks"
+config = "{root / 'table2-clocks.toml'}"
+controllers = ["vdc"]
+backends = ["model"]
+seeds = [5, 6]
+duration = 0.006
+"""))
+    with SerialExecutor() as ex:
+        outcome = sweep.run_sweep(spec, tmp_path / "out", ex)
+    assert outcome["failed"] == 0
+    figures = [r["figures"] for r in outcome["rows"]]
+    assert all(set(sweep.SKEW_FIGURES) <= set(f) for f in figures)
+    assert all(f["skew_max_cycles"] > 0 for f in figures)
+    assert figures[0]["skew_max_cycles"] != figures[1]["skew_max_cycles"]  # other clocks
+    text = (tmp_path / "out" / "summary.md").read_text()
+    assert "## Period-start skew over clock draws (cycles)" in text
+    # a common clock keeps no skew figures
+    common = sweep.load_spec(_spec(tmp_path, TINY.replace('seeds = [3, 4]', 'seeds = [3]'),
+                                   "common.toml"))
+    with SerialExecutor() as ex:
+        rows = sweep.run_sweep(common, tmp_path / "common", ex)["rows"]
+    assert not any("skew_max_cycles" in r["figures"] for r in rows)
+
+
 def test_a_sweep_of_the_cartesian_line(tmp_path):
     """kind = "line": the six-module arm's line (configs/line.toml by default) over profiles;
     the tool's errors are the figures; the same points give the same traces serially and on

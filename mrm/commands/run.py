@@ -351,7 +351,7 @@ def _wave_field(wave):
 
 def _write_track(tmp: Path, args, config, robot, result, summary, profile) -> None:
     from mrm_cosim.cosim.plots import pick_period, plot_timeline, plot_tracking
-    from mrm_cosim.cosim.table2 import timeline_json
+    from mrm_cosim.cosim.table2 import skew_figure, timeline_json
     from mrm_cosim.results import usual_mode, write_json
 
     wave = _waveform(args)
@@ -381,6 +381,7 @@ def _write_track(tmp: Path, args, config, robot, result, summary, profile) -> No
                       skew=summary.get("period_skew"))
     plot_tracking(tmp / "tracking.png", result.t, q_d, result.q, result.tau,
                   f"{robot.name}: quintic test, {args.controller} on {config.backend}")
+    skew_figure(tmp / "skew.png", result, robot.n, config, args.controller)
 
 
 def _print_track(args, config, summary) -> None:
@@ -397,7 +398,9 @@ def _print_track(args, config, summary) -> None:
         print("link faults counted at: " + link_fault_places(summary["link_error_detail"]))
     for event in summary.get("recovery", []):
         print(f"safety, {event['t_s']:.4f} s: {event['event']}")
+    skew = not config.clocks.common or config.clocks.discipline
     print(f"results in {args.out}/ (summary.json, config.toml, timeline.json, tracking.png"
+          + (", skew.png" if skew else "")
           + (", waves.vcd: the --vcd window" if args.vcd else "")
           + (", waves.fst: the --fst window" if args.fst else "")
           + ("; waves.gtkw opens it in GTKWave)" if args.vcd or args.fst else ")"))
