@@ -483,7 +483,9 @@ def plot_timeline(path, record, n_nodes: int, period_cycles: int, title: str,
     ax.set_xlim(-0.02 * right - 1.0, 1.08 * right + 1.0)
     ax.grid(True, axis="x", lw=0.3)
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
-    ax.set_title(title if skew is None else f"{title}\n{skew_line(skew)}", fontsize=10)
+    if skew is not None:        # (one line would run past the figure's left edge)
+        title += "\n" + skew_line(skew).replace("; between nodes", "\nbetween nodes")
+    ax.set_title(title, fontsize=10)
     _save(fig, path)
     return fig
 

@@ -481,7 +481,9 @@ def _write_controller(folder: Path, robot, controller, config, result, summary, 
     try:
         record = pick_period(result.master.records, when=0.5 * config.trajectory.duration)
         plot_timeline(folder / "timeline.png", record, robot.n, config.timing.period_cycles,
-                      f"{controller}: period {record.index} exchange (gateware in the loop)",
+                      f"{controller}: period {record.index} exchange ("
+                      + ("the nodes' references" if config.backend == "model" else
+                         "gateware") + " in the loop)",
                       skew=summary.get("period_skew"))
     except ValueError:
         plot_parameters(folder / "timeline.png", title=title,
