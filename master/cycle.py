@@ -209,9 +209,11 @@ class Master:
         self.dt = timing.period_cycles / clock_hz
         self.start = None
         self.records: list[PeriodRecord] = []
-        #: every ``(cycle, node)`` BOUNDARY strobe from period 0 on (a record keeps only each
-        #: period's first: a node starting a period early strobes late in the previous one)
+        #: every ``(cycle, node)`` BOUNDARY strobe from half a period before period 0 on (a
+        #: record keeps only each period's first: a node starting a period early strobes late
+        #: in the previous one, period 0's before the master's start)
         self.boundary_strobes: list[tuple[int, int]] = []
+        self._early_strobes: list[tuple[int, int]] = []     # BOUNDARY strobes before begin()
         self.overruns = 0        # periods whose exchange did not finish within the period
         self.missing = 0         # replies that never came
         self.unexpected = 0      # replies that were not asked for, or malformed
@@ -271,6 +273,9 @@ class Master:
         """Start the cycle: period 0 begins at ``start_cycle``."""
         self.start = start_cycle
         self._wake = 0
+        early = start_cycle - self.timing.period_cycles // 2
+        self.boundary_strobes += [s for s in self._early_strobes if s[0] >= early]
+        self._early_strobes = []
 
     def poll(self, now: int) -> list[Send]:
         """Actions due at cycle ``now`` or before (called by the harness on its time grid, and
@@ -409,7 +414,11 @@ class Master:
         harness's call for a piece's strobes: the period's record looked up once, not per
         strobe)."""
         start = self.start
-        if start is None:
+        if start is None:               # (period 0's early boundaries: begin() keeps them)
+            early = self._early_strobes
+            early += [(now, node) for now, node, name in events if name == "BOUNDARY"]
+            if len(early) > 64:
+                del early[:-32]
             return
         period = self.timing.period_cycles
         lo = hi = start         # the period [lo, hi) whose record's strobes are ``seen``
@@ -417,6 +426,8 @@ class Master:
         for now, node, name in events:
             if not lo <= now < hi:
                 if now < start:
+                    if name == "BOUNDARY" and now >= start - period // 2:
+                        self.boundary_strobes.append((now, node))
                     continue
                 index = (now - start) // period
                 lo = start + index * period

@@ -93,3 +93,22 @@ def test_the_master_keeps_every_boundary_a_record_would_drop():
     firsts = period_skew(master.records, 1, P)
     assert with_all["missing"] == 0 and with_all["node_vs_master"]["max_abs_cycles"] == 5
     assert firsts["missing"] == 1
+
+
+def test_period_zeros_early_boundary_is_kept():
+    """A node whose clock runs early starts period 0 a few cycles before the master does:
+    strobed before :meth:`Master.begin` (or before the start, after it), it is kept if it lies
+    within half a period of period 0's start — older boundaries are earlier periods'."""
+    from mrm_cosim.master.cycle import Master
+    from mrm_cosim.models.robot import load_robot
+
+    robot = load_robot("mrm3")
+    master = Master(robot, "pid-fpga", lambda t: (np.zeros(3),) * 3, robot.counts_per_rev)
+    master.on_node_events([(1000 - P, 1, "BOUNDARY"), (1000 - 7, 1, "BOUNDARY"),
+                           (1000 - 7, 1, "RX_A")])
+    master.begin(1000)
+    master.on_node_events([(1000 - 3, 2, "BOUNDARY"), (1000 - P // 2 - 1, 3, "BOUNDARY")])
+    assert master.boundary_strobes == [(1000 - 7, 1), (1000 - 3, 2)]
+    master.records = _records(periods=1)
+    b = start_offsets(master.records, 3, P, strobes=master.boundary_strobes)
+    assert b[0, :2].tolist() == [-7, -3] and np.isnan(b[0, 2])
