@@ -407,7 +407,8 @@ class CompiledBackend(LineSide):
         As :class:`LineSide`.
     clocks : cosim.clocks.ClockPlan, optional
         A clock per node: ``factory`` builds a ``System(..., clocks="node")`` and the model
-        runs the event-ordered loop over every clock's edges (docs/clocks.md); no VCD.
+        runs the event-ordered loop over every clock's edges (docs/clocks.md); a waveform then
+        has every signal at each of its domain's rising edges, in femtoseconds.
     """
 
     name = "compiled"
@@ -418,8 +419,6 @@ class CompiledBackend(LineSide):
         from mrm_cosim.cosim.compiled import CompiledModel
 
         super().__init__(faults, line_slots, record)
-        if clocks is not None and vcd is not None:
-            raise InputError("vcd", "no waveforms with clocks of their own (docs/clocks.md)")
         text, signed = system_verilog(factory, key)
         self.model = CompiledModel(None, "system", quiet=quiet, verilog_text=text,
                                    signed_ports=signed,
@@ -440,10 +439,9 @@ class CompiledBackend(LineSide):
         return self.model.merged_strobes if self.clocks is not None else 0
 
     async def run(self, n, inputs, outputs):
-        if self.clocks is not None:
-            return self.model.run_clocked(n, inputs, outputs)
+        run = self.model.run if self.clocks is None else self.model.run_clocked
         if self.vcd is None or self._vcd_done:
-            return self.model.run(n, inputs, outputs)
+            return run(n, inputs, outputs)
         parts, lo = [], 0
         while lo < n:
             cycle = self.model.cycles
@@ -453,7 +451,7 @@ class CompiledBackend(LineSide):
                 self.finish()
             edge = self.vcd.start if self._raw is None else self.vcd.stop
             hi = n if edge <= cycle or self._vcd_done else min(n, lo + edge - cycle)
-            parts.append(self.model.run(hi - lo, _slice_inputs(inputs, n, lo, hi), outputs))
+            parts.append(run(hi - lo, _slice_inputs(inputs, n, lo, hi), outputs))
             lo = hi
         if self._raw is not None and self.model.cycles == self.vcd.stop:
             self.finish()
@@ -478,7 +476,8 @@ class CompiledBackend(LineSide):
         tmp = _atomic_target(self.vcd.path)
         try:
             rewrite = filter_fst if self.vcd.format == "fst" else filter_vcd
-            names = rewrite(self._raw, tmp, "system", self.vcd.matches, _PERIOD_PS)
+            names = rewrite(self._raw, tmp, "system", self.vcd.matches, _PERIOD_PS,
+                            fs=self.clocks is not None)
             os.replace(tmp, self.vcd.path)
             write_gtkw(self.vcd.path, names)
         finally:
@@ -509,7 +508,8 @@ class PysimBackend(LineSide):
                  line_slots: int = DEFAULT_SLOTS, record: bool = False, clocks=None):
         super().__init__(faults, line_slots, record)
         if clocks is not None and vcd is not None:
-            raise InputError("vcd", "no waveforms with clocks of their own (docs/clocks.md)")
+            raise InputError("vcd", "no pysim waveforms with clocks of their own; the compiled "
+                             "backend writes them (docs/clocks.md)")
         self.system = system
         self.clocks = clocks
         self._engine = None

@@ -136,14 +136,17 @@ def read_fst(path) -> dict[str, list[tuple[int, int | str]]]:
     return out
 
 
-def filter_fst(src, dst, top: str, keep, period_ps: int = 20_000) -> list[str]:
+def filter_fst(src, dst, top: str, keep, period_ps: int = 20_000, fs: bool = False) -> list[str]:
     """Rewrite Verilator's raw FST of a trace window for users, as ``filter_vcd`` does VCD.
 
     Keeps the variables inside the first scope named ``top`` whose dotted name relative to it
     satisfies ``keep(name)`` (not the ``$`` temporaries of the Verilog backend, nor the top's
-    ``clk``/``rst``), under one ``top`` scope; time stamps (cycle numbers) become picoseconds,
-    ``period_ps`` per cycle. Returns the dotted names kept.
+    ``clk``/``rst``, nor a node domain's), under one ``top`` scope; time stamps (cycle
+    numbers) become picoseconds, ``period_ps`` per cycle, or with ``fs`` stay (femtoseconds:
+    a per-node-clock model's edge times). Returns the dotted names kept.
     """
+    from mrm_cosim.cosim.compiled import _TOP_CLOCK_RE
+
     pylibfst = require_fst()
     lib, ffi = pylibfst.lib, pylibfst.ffi
     fst = lib.fstReaderOpen(str(src).encode())
@@ -155,7 +158,7 @@ def filter_fst(src, dst, top: str, keep, period_ps: int = 20_000) -> list[str]:
                  for scope, name, width, handle in _fst_vars(pylibfst, fst) if top in scope]
         # the top's clk and rst (and their aliases below): one sample per cycle says nothing
         clocks = {handle for rel, name, _, handle in found
-                  if not rel and name in ("clk", "rst")}
+                  if not rel and _TOP_CLOCK_RE.match(name)}
         kept = [(rel, name, width, handle) for rel, name, width, handle in found
                 if handle not in clocks and not name.startswith("$")
                 and keep(".".join([*rel, name]))]
@@ -175,7 +178,9 @@ def filter_fst(src, dst, top: str, keep, period_ps: int = 20_000) -> list[str]:
     if ctx == ffi.NULL:
         raise OSError(f"cannot write {dst}")
     try:
-        lib.fstWriterSetTimescale(ctx, -12)
+        lib.fstWriterSetTimescale(ctx, -15 if fs else -12)
+        if fs:
+            period_ps = 1
         lib.fstWriterSetScope(ctx, lib.FST_ST_VCD_MODULE, top.encode(), ffi.NULL)
         cur: tuple[str, ...] = ()
         out_handle: dict[int, int] = {}

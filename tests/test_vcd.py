@@ -209,3 +209,66 @@ def test_track_refuses_bad_waveform_requests_before_running(tmp_path, capsys, ar
     assert main(["run", "track", "--quiet", "--out", str(out), *argv]) == 2
     assert field in capsys.readouterr().err
     assert not out.exists()
+
+
+class TwoClocks(wiring.Component):
+    """A counter on the master's clock (``sync``) and one on a node's (``n1``)."""
+
+    inc:    In(8)
+    total:  Out(8)
+    count1: Out(8)
+
+    def __init__(self):
+        super().__init__()
+        self.n1 = ClockDomain("n1")
+
+    def elaborate(self, platform):
+        m = Module()
+        m.domains += self.n1
+        m.d.sync += self.total.eq(self.total + self.inc)
+        m.d.n1 += self.count1.eq(self.count1 + 1)
+        return m
+
+
+def test_a_clock_per_domain_traces_every_edge_at_its_time(tmp_path):
+    """A per-node-clock model's waveform (docs/clocks.md): each domain's signals change at
+    that domain's rising edges, stamped in femtoseconds (``$timescale 1fs``), a 1,000 ppm
+    faster node drifting against the master; the domains' clock ports are not kept."""
+    from amaranth.back import verilog
+    from amaranth.hdl._ir import PortDirection
+
+    from mrm_cosim.cosim.clocks import ClockPlan
+    from mrm_cosim.cosim.compiled import CompiledModel, filter_vcd
+
+    d = TwoClocks()
+    ports = {"inc": (d.inc, PortDirection.Input), "total": (d.total, PortDirection.Output),
+             "count1": (d.count1, PortDirection.Output),
+             "n1_clk": (d.n1.clk, PortDirection.Input)}
+    text = verilog.convert(d, name="two_clocks", emit_src=False, ports=ports)
+    model = CompiledModel(d, "two_clocks", verilog_text=text, trace="vcd")
+    plan = ClockPlan.from_ppm([0, 1000], [0.25, 0.5], 6)
+    model.setup_clocks(plan, [], [("total", 0, False), ("count1", 1, False)])
+    model.run_clocked(5, {"inc": 1}, ["total"])
+    model.trace_open(tmp_path / "raw.vcd")
+    out = model.run_clocked(600, {"inc": 1}, ["total", "count1"])
+    model.trace_close()
+    names = filter_vcd(tmp_path / "raw.vcd", tmp_path / "two.vcd", "two_clocks",
+                       lambda n: True, fs=True)
+    assert names == ["count1", "inc", "total"]
+    text = (tmp_path / "two.vcd").read_text()
+    assert "$timescale 1fs $end" in text and "clk" not in text
+    ch = _vcd(tmp_path / "two.vcd")
+    (p0, p1), (f0, f1) = plan.periods, plan.phases
+    # total: +1 at every master edge, count1: +1 at every node edge, each at its edge's time
+    for name, phase, period in (("total", f0, p0), ("count1", f1, p1)):
+        times = [t for t, _ in ch[name][1:]]
+        assert len(times) >= 599, name
+        assert all((t - phase) % period == 0 for t in times), name
+        assert set(np.diff(times)) == {period}, name
+        assert set(np.diff([v for _, v in ch[name]]) % 256) == {1}, name      # (8 bits)
+    # a 1,000 ppm faster node fits 600.6 cycles into 600 master cycles
+    assert (out["count1"][-1] - out["count1"][0]) % 256 == 600 % 256
+    # the simultaneous edges (node and master at one instant, once here) dumped once, after
+    # both: total changed there too
+    both = set(t for t, _ in ch["total"][1:]) & set(t for t, _ in ch["count1"][1:])
+    assert len(both) >= 1
