@@ -230,7 +230,15 @@ class TwoClocks(wiring.Component):
         return m
 
 
-def test_a_clock_per_domain_traces_every_edge_at_its_time(tmp_path):
+def _native_fst() -> bool:
+    from mrm_cosim.cosim.compiled import fst_headers_missing
+
+    return not fst_headers_missing()
+
+
+@pytest.mark.parametrize("fmt", ["vcd", pytest.param("fst", marks=pytest.mark.skipif(
+    not _native_fst(), reason="Verilator's FST writer needs lz4.h (Debian: liblz4-dev)"))])
+def test_a_clock_per_domain_traces_every_edge_at_its_time(tmp_path, fmt):
     """A per-node-clock model's waveform (docs/clocks.md): each domain's signals change at
     that domain's rising edges, stamped in femtoseconds (``$timescale 1fs``), a 1,000 ppm
     faster node drifting against the master; the domains' clock ports are not kept."""
@@ -245,19 +253,27 @@ def test_a_clock_per_domain_traces_every_edge_at_its_time(tmp_path):
              "count1": (d.count1, PortDirection.Output),
              "n1_clk": (d.n1.clk, PortDirection.Input)}
     text = verilog.convert(d, name="two_clocks", emit_src=False, ports=ports)
-    model = CompiledModel(d, "two_clocks", verilog_text=text, trace="vcd")
+    model = CompiledModel(d, "two_clocks", verilog_text=text, trace=fmt)
     plan = ClockPlan.from_ppm([0, 1000], [0.25, 0.5], 6)
     model.setup_clocks(plan, [], [("total", 0, False), ("count1", 1, False)])
     model.run_clocked(5, {"inc": 1}, ["total"])
-    model.trace_open(tmp_path / "raw.vcd")
+    model.trace_open(tmp_path / f"raw.{fmt}")
     out = model.run_clocked(600, {"inc": 1}, ["total", "count1"])
     model.trace_close()
-    names = filter_vcd(tmp_path / "raw.vcd", tmp_path / "two.vcd", "two_clocks",
-                       lambda n: True, fs=True)
-    assert names == ["count1", "inc", "total"]
-    text = (tmp_path / "two.vcd").read_text()
-    assert "$timescale 1fs $end" in text and "clk" not in text
-    ch = _vcd(tmp_path / "two.vcd")
+    if fmt == "vcd":
+        names = filter_vcd(tmp_path / "raw.vcd", tmp_path / "two.vcd", "two_clocks",
+                           lambda n: True, fs=True)
+        text = (tmp_path / "two.vcd").read_text()
+        assert "$timescale 1fs $end" in text and "clk" not in text
+        ch = _vcd(tmp_path / "two.vcd")
+    else:
+        from mrm_cosim.cosim.waves import filter_fst, read_fst
+
+        names = filter_fst(tmp_path / "raw.fst", tmp_path / "two.fst", "two_clocks",
+                           lambda n: True, fs=True)
+        ch = read_fst(tmp_path / "two.fst")
+        assert not any("clk" in n for n in ch)
+    assert sorted(names) == ["count1", "inc", "total"]
     (p0, p1), (f0, f1) = plan.periods, plan.phases
     # total: +1 at every master edge, count1: +1 at every node edge, each at its edge's time
     for name, phase, period in (("total", f0, p0), ("count1", f1, p1)):
