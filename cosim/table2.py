@@ -406,6 +406,17 @@ def table_markdown(summary: dict) -> str:
     return "\n".join(lines)
 
 
+#: What a model-backend table on clocks of their own is (docs/clocks.md "The model backend").
+_MODEL_CLOCKS = {
+    False: "The model backend with free-running timers: each node's reference on its own "
+           "clock, the gateware's run bit for bit.",
+    True: "The model backend with the discipline: its link delivers the time-code 12 cycles a "
+          "hop exactly, so the skew is the loop's and the clocks', without the link's "
+          "character jitter the gateware adds (about one cycle RMS), and the runs follow the "
+          "gateware's within it, not bit for bit (docs/clocks.md \"The model backend\").",
+}
+
+
 def skew_lines(summary: dict) -> list[str]:
     """The clocks a table ran on and each controller's period-start skew (``period_skew``,
     :mod:`cosim.skew`), Markdown."""
@@ -418,6 +429,8 @@ def skew_lines(summary: dict) -> list[str]:
            + (f" — master port {ran['master_ppm']:+g} ppm, nodes {ppm} ppm" if ran else "")
            + "; node timers " + ("disciplined by the time-code (CONFIG TC_DISCIPLINE)."
                                  if clk["discipline"] else "free-running."),
+           *([""] + [_MODEL_CLOCKS[bool(clk["discipline"])]]
+             if summary["config"]["experiment"].get("backend") == "model" else []),
            "",
            "| controller | node vs master, max (cycles) | RMS (cycles) | between nodes, max "
            "(cycles) | RMS (cycles) | merged strobes |",

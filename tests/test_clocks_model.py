@@ -145,6 +145,7 @@ discipline = true
     assert s["period_skew"]["missing"] == 0         # period 0's early boundaries kept too
     assert 0 < s["period_skew"]["node_vs_master"]["max_abs_cycles"] < 20
     assert (tmp_path / "out" / "vdc" / "skew.png").stat().st_size > 0
+    assert "not bit for bit" in (tmp_path / "out" / "table2.md").read_text()
     # and the compiled configuration switches to the model from the command line
     cfg = ec.loads("[experiment]\nbackend = 'compiled'\n[clocks]\nmode = 'drawn'\n")
     assert cfg.with_overrides(backend="model", field_prefix="--").backend == "model"
