@@ -46,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mrm_cosim.errors import InputError
+from mrm_cosim.protocol.link import slot_at
 
 __all__ = ["ClockConfig", "ClockPlan", "MODES", "NOMINAL_FS", "MAX_PPM", "DEFAULT_RANGE_PPM",
            "system_lines", "node_domain", "plan_clocks", "ClockedEngine", "NodeTime"]
@@ -294,13 +295,8 @@ class ClockedEngine:
         hist = self.hist[line]
         word = 0
         for j in range(slots):
-            t = t0 + (j * p_r) // slots
-            rel = t - phi_s
-            if rel < 0:
-                c, k = 0, 0
-            else:
-                c, r = divmod(rel, p_s)
-                k = r * slots // p_s
+            at = slot_at(t0 + (j * p_r) // slots, phi_s, p_s, slots)
+            c, k = (0, 0) if at is None else at     # (before its cycle 0: its reset word)
             word |= ((hist[c] >> k) & 1) << j
         return word
 

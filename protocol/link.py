@@ -27,7 +27,7 @@ __all__ = ["CharKind", "ControlCode", "LinkState", "ERROR_CLASSES",
            "DEFAULT_SLOTS", "DEFAULT_RUN_DIV",
            "MAX_SLOTS", "MAX_BITS_PER_CYCLE", "min_div", "check_slots", "check_div",
            "check_cycles", "rest_credit",
-           "codec_params"]
+           "codec_params", "slot_at"]
 
 
 class CharKind(enum.IntEnum):
@@ -98,6 +98,19 @@ MAX_SLOTS = 8
 #: rule (a group of at least 4 bits per cycle keeps the line busy) rely on. A bit period is
 #: therefore at least ``min_div(slots)`` slots.
 MAX_BITS_PER_CYCLE = 4
+
+
+def slot_at(t: int, phase: int, period: int, slots: int) -> tuple[int, int] | None:
+    """Where a sender's line level at time ``t`` lies (clocks of their own, docs/clocks.md):
+    ``(cycle, slot)`` — bit ``slot`` of its line word of cycle ``cycle``, the cycle
+    ``[phase + cycle·period, phase + (cycle+1)·period)`` cut into ``slots`` equal slots — or
+    None before its cycle 0. Exact integers in any time unit; the one resampler of
+    :class:`cosim.clocks.ClockedEngine` and :mod:`testbench.clocks`."""
+    rel = t - phase
+    if rel < 0:
+        return None
+    c, r = divmod(rel, period)
+    return c, r * slots // period
 
 
 def min_div(slots: int) -> int:

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from math import lcm
 
 from mrm_cosim.hdl.link.codec_ref import CodecRef, char_value
+from mrm_cosim.protocol.link import slot_at
 
 __all__ = ["ClockRun", "run_two_clocks"]
 
@@ -53,12 +54,11 @@ class _Side:
 
     def level(self, t: int) -> tuple[int, int]:
         """This side's (D, S) at time ``t``; zero before its cycle 0."""
-        rel = t - self.phase
-        if rel < 0:
+        at = slot_at(t, self.phase, self.cycle_len, self.slots)
+        if at is None:
             return 0, 0
-        c, r = divmod(rel, self.cycle_len)
+        c, k = at
         i = c - self.base
-        k = r * self.slots // self.cycle_len
         return (self.d_hist[i] >> k) & 1, (self.s_hist[i] >> k) & 1
 
 
