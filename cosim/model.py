@@ -378,6 +378,12 @@ class ModelBackend(GatewareSide):
         F[ksrc.F_FRICTION] = 1.0 if plant.friction_on else 0.0
         F[ksrc.F_SIZE:ksrc.F_SIZE + self.n] = plant.counts_per_rad
         self._arrays.IB[ksrc.H_CYCLES] = plant.cycles_per_step
+        # the stick-slip cache (model_kernel_src.stick_cache): empty for a new plant
+        n = self.n
+        self._X = X = np.zeros(1 + 3 * n + n * n)
+        self._X_M = X[1 + 3 * n:].reshape((n, n))
+        #: stick-slip steps that took pinocchio's bias and matrix from the cache
+        self.stick_cached = 0
         pk = load_plant()
         step = plant.cycles_per_step
         run = self._fast_compliant if compliant else self._fast
@@ -515,6 +521,7 @@ class ModelBackend(GatewareSide):
         pre_free, fast_step = pk.pre_free, self._kern.fast_step
         aba, nle, crba = pin.aba, pin.nonLinearEffects, pin.crba
         no_a, no_M = self._no_a, self._no_M     # (zeros: read, never written)
+        X = self._X
         j = i
         r = 0
         n_stick = n_solve = 0
@@ -534,9 +541,11 @@ class ModelBackend(GatewareSide):
                 code = pre_free(S, C, tau, hh, friction)
             if code == 1:
                 r = fast_step(IB, F, S, aba(model, data, qm, vm, force), no_M, rec, j, cycle, 1,
-                              C, more)
+                              C, more, X)
             elif code == 0:
                 r = 1
+            elif code == 2:             # stuck, on the (q, v) of the cache's pinocchio calls
+                r = 5
             else:
                 raise InputError("tau_cmd", f"must be finite, not {tau.tolist()!r}")
             if r == 1:                  # the stick-slip solve (crba also where stuck needs
@@ -544,11 +553,19 @@ class ModelBackend(GatewareSide):
                 M = crba(model, data, qm)           # calling it only where stuck fails costs
                 n_stick += 1                        # a second fast_step call there: measured,
                 # no gain on mrm3, 1-2 % slower on mrm6, where stuck fails on most of them)
-                r = fast_step(IB, F, S, bias, M, rec, j, cycle, 2, C, more)
+                r = fast_step(IB, F, S, bias, M, rec, j, cycle, 2, C, more, X)
                 if r == 4:
                     n_solve += 1
                     solve(M)
-                    r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0, C, more)
+                    r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0, C, more, X)
+            elif r == 5:                # the same, on the cache's bias and matrix (the same
+                n_stick += 1            # values pinocchio would return: no call)
+                self.stick_cached += 1
+                r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 3, C, more, X)
+                if r == 4:
+                    n_solve += 1
+                    solve(self._X_M.copy())             # (solve writes its lower triangle)
+                    r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0, C, more, X)
             j += 1
             if event_step:
                 if r == 0:

@@ -1063,7 +1063,7 @@ def blob_views(IB):
     return N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR
 
 
-def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
+def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X):
     """One whole plant step with no event anywhere in it (:meth:`ModelBackend.fast_path
     <cosim.model.ModelBackend.fast_path>`), after :func:`models.plant_kernel_src.pre_free` and
     pinocchio: the rest of the plant step, the trace row ``i`` (``rec[0, i]`` the angles,
@@ -1076,7 +1076,10 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     :func:`~models.plant_kernel_src.free_end`; ``mode`` 2, ``a`` = ``pin.nonLinearEffects``'
     bias and ``M`` = ``pin.crba``'s matrix: :func:`~models.plant_kernel_src.stuck`, else
     :func:`~models.plant_kernel_src.likely_pattern`; ``mode`` 0: the end velocities are
-    already in ``S[NEW]``; then :func:`~models.plant_kernel_src.finish`.
+    already in ``S[NEW]``; mode 3: as mode 2 on the bias and matrix the stick-slip cache ``X``
+    holds (:func:`stick_cached`: pinocchio's last ``nonLinearEffects`` and ``crba``, which ran on
+    the very ``S[QM]`` and ``S[VM]`` of this step); then :func:`~models.plant_kernel_src.finish`.
+    Mode 2 fills the cache (:func:`stick_cache`).
 
     With ``pre_next`` (the caller will run the next step on this path too), the step done, the
     next step's :func:`~models.plant_kernel_src.pre_free` on the torques the nodes output
@@ -1084,10 +1087,12 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     own next ``pre_free`` call, on the same arrays.
 
     Returns 0; 1 if the free step does not hold (nothing else done: the caller calls again in
-    mode 2) or 4 if the likely pattern does not (the caller runs the general solve and calls
-    again in mode 0); 2 if a joint moved more than one count in a cycle (the plant has
-    stepped, the nodes have not); 3 as :func:`plain_step`'s True. With ``pre_next`` and the
-    step done, ``8 · (code + 2)``: ``code`` the next step's ``pre_free`` result (−1, 0, 1).
+    mode 2; 5 where the cache holds this step's bias and matrix: mode 3) or 4 if the likely
+    pattern does not (the caller runs the general solve and calls again in mode 0); 2 if a
+    joint moved more than one count in a cycle (the plant has stepped, the nodes have not); 3
+    as :func:`plain_step`'s True. With ``pre_next`` and the step done, ``8 · (code + 2)``:
+    ``code`` the next step's ``pre_free`` result (−1, 0, 1), or 2 where it is 0 and the cache
+    holds the next step's bias and matrix (mode 3 for it).
     ``pre_next`` −1: the plant's part only (the trace row and the count changes, returns 0
     or 2): the caller runs the nodes (:meth:`ModelBackend._fast
     <cosim.model.ModelBackend._fast>`'s last step with a node event)."""
@@ -1095,9 +1100,15 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     hh = F[F_HH]
     if mode == 1:
         if not plant_src.free_end(S, a, h, F[F_FRICTION] != 0.0):
-            return 1
+            return 5 if stick_cached(S, X) else 1
     elif mode == 2:
-        if not plant_src.stuck(S, a) and plant_src.likely_pattern(S, M, h) != 1:
+        stick_cache(S, a, M, X)
+        if not _stick_from(S, a, M, h):
+            return 4
+    elif mode == 3:
+        n = S.shape[1]
+        if not _stick_from(S, X[1 + 2 * n:1 + 3 * n], X[1 + 3 * n:1 + 3 * n + n * n].reshape(
+                (n, n)), h):
             return 4
     plant_src.finish(S, h, hh)
     # pre_next −1: the plant's part only, the nodes run on the general path
@@ -1108,8 +1119,53 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     if pre_next:
         n = IB[H_N]
         tau = F[F_SIZE + n:F_SIZE + 2 * n]
-        return 8 * (plant_src.pre_free(S, C, tau, hh, F[F_FRICTION]) + 2)
+        code = plant_src.pre_free(S, C, tau, hh, F[F_FRICTION])
+        if code == 0 and stick_cached(S, X):
+            code = 2
+        return 8 * (code + 2)
     return 0
+
+
+def _stick_from(S, a, M, h):
+    """Mode 2's and 3's test: True where ``stuck`` or the likely pattern holds."""
+    return plant_src.stuck(S, a) or plant_src.likely_pattern(S, M, h) == 1
+
+
+def stick_cache(S, a, M, X):
+    """The stick-slip cache ``X`` (float64, ``1 + 3n + n²``: ``X[0]`` 1.0 once filled, then
+    the ``S[QM]`` and ``S[VM]`` pinocchio ran on, the bias ``a`` from ``nonLinearEffects``, the
+    matrix ``M`` from ``crba``, row by row) filled with this step's. Both are functions of
+    ``(q, v)`` and the model alone, so a later step on the same ``(q, v)`` bit for bit — every
+    stuck joint at rest and every joint stuck — may take them from here (:func:`stick_cached`)
+    instead of two pinocchio calls."""
+    n = S.shape[1]
+    for j in range(n):
+        X[1 + j] = S[plant_src.QM, j]
+        X[1 + n + j] = S[plant_src.VM, j]
+        X[1 + 2 * n + j] = a[j]
+    o = 1 + 3 * n
+    for r in range(n):
+        for c in range(n):
+            X[o + r * n + c] = M[r, c]
+    X[0] = 1.0
+
+
+def _same_bits(x, y):
+    """``x`` and ``y`` the same float (zeros of one sign; a NaN never)."""
+    return x == y and math.copysign(1.0, x) == math.copysign(1.0, y)
+
+
+def stick_cached(S, X):
+    """Whether the stick-slip cache ``X`` (:func:`stick_cache`) ran on this step's ``S[QM]``
+    and ``S[VM]``, bit for bit."""
+    if X[0] == 0.0:
+        return False
+    n = S.shape[1]
+    for j in range(n):
+        if not (_same_bits(S[plant_src.QM, j], X[1 + j]) and
+                _same_bits(S[plant_src.VM, j], X[1 + n + j])):
+            return False
+    return True
 
 
 def _step_nodes(IB, F, S, rec, i, start, start_row, velocity_row, acc_row, end_row, q_row,
