@@ -522,6 +522,11 @@ class ModelBackend(GatewareSide):
         aba, nle, crba = pin.aba, pin.nonLinearEffects, pin.crba
         no_a, no_M = self._no_a, self._no_M     # (zeros: read, never written)
         X = self._X
+        # the run's bounds, for the steps fast_step runs on from the cache (its _run_on)
+        IB[ksrc.H_STOP] = stop
+        IB[ksrc.H_MORE_LIM] = more_lim
+        IB[ksrc.H_SOON] = soon
+        IB[ksrc.H_PLAIN_LIM] = plain_lim
         j = i
         r = 0
         n_stick = n_solve = 0
@@ -566,6 +571,13 @@ class ModelBackend(GatewareSide):
                     n_solve += 1
                     solve(self._X_M.copy())             # (solve writes its lower triangle)
                     r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0, C, more, X)
+            if r >= 64:                 # k more steps, stuck on the cache, run in the kernel
+                k = r >> 6
+                r &= 63
+                j += k
+                cycle += k * s
+                n_stick += k
+                self.stick_cached += k
             j += 1
             if event_step:
                 if r == 0:

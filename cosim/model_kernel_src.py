@@ -1027,10 +1027,12 @@ PEND_CAP, VIS_CAP, PIPE_CAP, DUE_CAP = 2048, 2048, 64, 4096
 #: Count changes of one joint in one plant step (at most one per cycle: 500 at 10 µs).
 CHANGE_CAP = 1024
 #: The int64 blob (:class:`cosim.model_kernel.KernelArrays`): a header (``H_N`` nodes,
-#: ``H_CYCLES`` cycles per plant step), then the arrays of :func:`blob_views`, one after the
-#: other. The float64 blob: ``F_H``, ``F_HH`` (the plant step and its half), ``F_FRICTION`` (1.0
-#: with friction), then the counts per rad (n) and the torque outputs (n).
-H_N, H_CYCLES, H_SIZE = 0, 1, 8
+#: ``H_CYCLES`` cycles per plant step; ``H_STOP``, ``H_MORE_LIM``, ``H_SOON``, ``H_PLAIN_LIM``:
+#: the fast run's bounds, :func:`fast_step`'s cached steps), then the arrays of
+#: :func:`blob_views`, one after the other. The float64 blob: ``F_H``, ``F_HH`` (the plant
+#: step and its half), ``F_FRICTION`` (1.0 with friction), then the counts per rad (n) and
+#: the torque outputs (n).
+H_N, H_CYCLES, H_STOP, H_MORE_LIM, H_SOON, H_PLAIN_LIM, H_SIZE = 0, 1, 2, 3, 4, 5, 8
 F_H, F_HH, F_FRICTION, F_SIZE = 0, 1, 2, 4
 
 
@@ -1095,9 +1097,47 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X):
     holds the next step's bias and matrix (mode 3 for it).
     ``pre_next`` −1: the plant's part only (the trace row and the count changes, returns 0
     or 2): the caller runs the nodes (:meth:`ModelBackend._fast
-    <cosim.model.ModelBackend._fast>`'s last step with a node event)."""
+    <cosim.model.ModelBackend._fast>`'s last step with a node event).
+
+    Cached steps run on: where the next step's code is 2 and the caller would run it as a
+    plain step next (``IB[H_PLAIN_LIM]``, the run's bounds: :func:`_run_on`) and its stuck
+    test holds on the cache's bias and matrix (else the caller runs it: mode 3, the solve),
+    that step is run here too, from its ``finish``, with the caller's ``pre_next`` for it;
+    and so on. ``k`` such steps add ``64 · k`` to the last step's return value (rows
+    ``i + 1 … i + k``, each ``IB[H_CYCLES]`` cycles after the one before): exactly the
+    caller's own calls for them (:meth:`ModelBackend._fast <cosim.model.ModelBackend._fast>`),
+    without a return to Python each."""
+    r = _fast_step_one(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X)
+    k = 0
+    s = IB[H_CYCLES]
+    n = S.shape[1]
+    while r == 32:
+        j = i + k + 1
+        c = start + (k + 1) * s
+        more = _run_on(IB, j, c, s)
+        if more < 0 or not _stick_from(S, X[1 + 2 * n:1 + 3 * n],
+                                        X[1 + 3 * n:1 + 3 * n + n * n].reshape((n, n)), F[F_H]):
+            break
+        k += 1
+        r = _finish_step(IB, F, S, rec, j, c, C, more, X)
+    return r + 64 * k
+
+
+def _run_on(IB, j, c, s):
+    """The step at row ``j`` from cycle ``c`` in the caller's fast run (:meth:`ModelBackend.
+    _fast <cosim.model.ModelBackend._fast>`, after a step with ``pre_next`` 1): −1 if it is
+    not a plain step there (the step with node events: the caller's), else its ``pre_next``,
+    as the caller computes them."""
+    if c + s > IB[H_PLAIN_LIM]:
+        return -1
+    if j + 1 < IB[H_STOP] and c + 2 * s <= IB[H_MORE_LIM] and c + s <= IB[H_SOON]:
+        return 1
+    return 0
+
+
+def _fast_step_one(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X):
+    """:func:`fast_step` for one step."""
     h = F[F_H]
-    hh = F[F_HH]
     if mode == 1:
         if not plant_src.free_end(S, a, h, F[F_FRICTION] != 0.0):
             return 5 if stick_cached(S, X) else 1
@@ -1110,6 +1150,13 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X):
         if not _stick_from(S, X[1 + 2 * n:1 + 3 * n], X[1 + 3 * n:1 + 3 * n + n * n].reshape(
                 (n, n)), h):
             return 4
+    return _finish_step(IB, F, S, rec, i, start, C, pre_next, X)
+
+
+def _finish_step(IB, F, S, rec, i, start, C, pre_next, X):
+    """:func:`fast_step` from the plant's ``finish``."""
+    h = F[F_H]
+    hh = F[F_HH]
     plant_src.finish(S, h, hh)
     # pre_next −1: the plant's part only, the nodes run on the general path
     r = _step_nodes(IB, F, S, rec, i, start, plant_src.Q_START, plant_src.V_START,
