@@ -387,6 +387,10 @@ class ModelBackend(GatewareSide):
         pk = load_plant()
         step = plant.cycles_per_step
         run = self._fast_compliant if compliant else self._fast
+        # the rigid plant's parts, once: its arrays, pinocchio's model and data and the bound
+        # methods stay those of use_kernel (a compliant plant's reset rebinds its state and
+        # noise stream: asked each run)
+        self._parts = None if compliant else plant.kernel_parts()
 
         def fast(i: int, stop: int, cycle: int, end_limit: int) -> int:
             return run(plant, pk, rec, step, i, stop, cycle, end_limit)
@@ -514,7 +518,7 @@ class ModelBackend(GatewareSide):
             return 0
         more_lim = lim if events_ok else plain_lim
         self._fast_begin(cycle, plain_lim)
-        S, C, model, data, qm, vm, force, solve, stepped = plant.kernel_parts()
+        S, C, model, data, qm, vm, force, solve, stepped = self._parts     # (fast_path's)
         IB, F, tau = self._arrays.IB, self._F, self._torque
         hh = float(F[ksrc.F_HH])
         friction = float(F[ksrc.F_FRICTION])
