@@ -348,7 +348,11 @@ class ModelBackend(GatewareSide):
         torques, then the next step's :func:`models.plant_kernel_src.pre_free`: only a run's
         first step calls that from Python); the stick-slip solve, where a step needs it, in
         Python between them (:meth:`Plant.kernel_parts
-        <models.plant.Plant.kernel_parts>`). A step is plain when it ends at or before every
+        <models.plant.Plant.kernel_parts>`, taken once here). A step stuck on the ``(q, v)``
+        of the last ``nonLinearEffects`` and ``crba`` calls takes their results from the
+        kernel's stick-slip cache (:func:`cosim.model_kernel_src.stick_cache`), and the kernel
+        runs such steps on by itself while they stay plain steps of the run (:attr:`_X`;
+        :attr:`stick_cached` counts them). A step is plain when it ends at or before every
         node's next special cycle (:meth:`FastNode.next_special
         <cosim.model_node.FastNode.next_special>`) + 1, every packet or time-code reaching a
         node (:meth:`_horizon`). A step in which observation-port strobes or replies reach the
