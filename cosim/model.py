@@ -380,7 +380,11 @@ class ModelBackend(GatewareSide):
         torques, then the next step's :func:`models.plant_kernel_src.pre_free`: only a run's
         first step calls that from Python); the stick-slip solve, where a step needs it, in
         Python between them (:meth:`Plant.kernel_parts
-        <models.plant.Plant.kernel_parts>`). A step is plain when it ends at or before every
+        <models.plant.Plant.kernel_parts>`, taken once here). A step stuck on the ``(q, v)``
+        of the last ``nonLinearEffects`` and ``crba`` calls takes their results from the
+        kernel's stick-slip cache (:func:`cosim.model_kernel_src.stick_cache`), and the kernel
+        runs such steps on by itself while they stay plain steps of the run (:attr:`_X`;
+        :attr:`stick_cached` counts them). A step is plain when it ends at or before every
         node's next special cycle (:meth:`FastNode.next_special
         <cosim.model_node.FastNode.next_special>`) + 1, every packet or time-code reaching a
         node (:meth:`_horizon`). A step in which observation-port strobes or replies reach the
@@ -410,9 +414,19 @@ class ModelBackend(GatewareSide):
         F[ksrc.F_FRICTION] = 1.0 if plant.friction_on else 0.0
         F[ksrc.F_SIZE:ksrc.F_SIZE + self.n] = plant.counts_per_rad
         self._arrays.IB[ksrc.H_CYCLES] = plant.cycles_per_step
+        # the stick-slip cache (model_kernel_src.stick_cache): empty for a new plant
+        n = self.n
+        self._X = X = np.zeros(1 + 3 * n + n * n)
+        self._X_M = X[1 + 3 * n:].reshape((n, n))
+        #: stick-slip steps that took pinocchio's bias and matrix from the cache
+        self.stick_cached = 0
         pk = load_plant()
         step = plant.cycles_per_step
         run = self._fast_compliant if compliant else self._fast
+        # the rigid plant's parts, once: its arrays, pinocchio's model and data and the bound
+        # methods stay those of use_kernel (a compliant plant's reset rebinds its state and
+        # noise stream: asked each run)
+        self._parts = None if compliant else plant.kernel_parts()
 
         def fast(i: int, stop: int, cycle: int, end_limit: int) -> int:
             return run(plant, pk, rec, step, i, stop, cycle, end_limit)
@@ -540,13 +554,19 @@ class ModelBackend(GatewareSide):
             return 0
         more_lim = lim if events_ok else plain_lim
         self._fast_begin(cycle, plain_lim)
-        S, C, model, data, qm, vm, force, solve, stepped = plant.kernel_parts()
+        S, C, model, data, qm, vm, force, solve, stepped = self._parts     # (fast_path's)
         IB, F, tau = self._arrays.IB, self._F, self._torque
         hh = float(F[ksrc.F_HH])
         friction = float(F[ksrc.F_FRICTION])
         pre_free, fast_step = pk.pre_free, self._kern.fast_step
         aba, nle, crba = pin.aba, pin.nonLinearEffects, pin.crba
         no_a, no_M = self._no_a, self._no_M     # (zeros: read, never written)
+        X = self._X
+        # the run's bounds, for the steps fast_step runs on from the cache (its _run_on)
+        IB[ksrc.H_STOP] = stop
+        IB[ksrc.H_MORE_LIM] = more_lim
+        IB[ksrc.H_SOON] = soon
+        IB[ksrc.H_PLAIN_LIM] = plain_lim
         j = i
         r = 0
         n_stick = n_solve = 0
@@ -566,9 +586,11 @@ class ModelBackend(GatewareSide):
                 code = pre_free(S, C, tau, hh, friction)
             if code == 1:
                 r = fast_step(IB, F, S, aba(model, data, qm, vm, force), no_M, rec, j, cycle, 1,
-                              C, more)
+                              C, more, X)
             elif code == 0:
                 r = 1
+            elif code == 2:             # stuck, on the (q, v) of the cache's pinocchio calls
+                r = 5
             else:
                 raise InputError("tau_cmd", f"must be finite, not {tau.tolist()!r}")
             if r == 1:                  # the stick-slip solve (crba also where stuck needs
@@ -576,11 +598,26 @@ class ModelBackend(GatewareSide):
                 M = crba(model, data, qm)           # calling it only where stuck fails costs
                 n_stick += 1                        # a second fast_step call there: measured,
                 # no gain on mrm3, 1-2 % slower on mrm6, where stuck fails on most of them)
-                r = fast_step(IB, F, S, bias, M, rec, j, cycle, 2, C, more)
+                r = fast_step(IB, F, S, bias, M, rec, j, cycle, 2, C, more, X)
                 if r == 4:
                     n_solve += 1
                     solve(M)
-                    r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0, C, more)
+                    r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0, C, more, X)
+            elif r == 5:                # the same, on the cache's bias and matrix (the same
+                n_stick += 1            # values pinocchio would return: no call)
+                self.stick_cached += 1
+                r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 3, C, more, X)
+                if r == 4:
+                    n_solve += 1
+                    solve(self._X_M.copy())             # (solve writes its lower triangle)
+                    r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0, C, more, X)
+            if r >= 64:                 # k more steps, stuck on the cache, run in the kernel
+                k = r >> 6
+                r &= 63
+                j += k
+                cycle += k * s
+                n_stick += k
+                self.stick_cached += k
             j += 1
             if event_step:
                 if r == 0:

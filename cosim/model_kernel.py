@@ -152,7 +152,7 @@ def _warm_up(k) -> None:
     F = np.zeros(src.F_SIZE + 2)
     F[src.F_H], F[src.F_HH] = 1e-5, 5e-6
     k.fast_step(b.IB, F, np.zeros((plant_src.S_ROWS, 1)), np.zeros(1), np.ones((1, 1)),
-                np.zeros((2, 1, 1)), 0, 0, 1, np.ones((plant_src.C_ROWS, 1)), 1)
+                np.zeros((2, 1, 1)), 0, 0, 1, np.ones((plant_src.C_ROWS, 1)), 1, np.zeros(5))
     b = _throw_away()
     k.fast_step_compliant(b.IB, F, np.zeros((compliant_src.S_ROWS, 1)), np.zeros(1),
                           np.zeros((2, 1, 1)), 0, 0, np.ones((compliant_src.C_ROWS, 1)),

@@ -1027,10 +1027,12 @@ PEND_CAP, VIS_CAP, PIPE_CAP, DUE_CAP = 2048, 2048, 64, 4096
 #: Count changes of one joint in one plant step (at most one per cycle: 500 at 10 µs).
 CHANGE_CAP = 1024
 #: The int64 blob (:class:`cosim.model_kernel.KernelArrays`): a header (``H_N`` nodes,
-#: ``H_CYCLES`` cycles per plant step), then the arrays of :func:`blob_views`, one after the
-#: other. The float64 blob: ``F_H``, ``F_HH`` (the plant step and its half), ``F_FRICTION`` (1.0
-#: with friction), then the counts per rad (n) and the torque outputs (n).
-H_N, H_CYCLES, H_SIZE = 0, 1, 8
+#: ``H_CYCLES`` cycles per plant step; ``H_STOP``, ``H_MORE_LIM``, ``H_SOON``, ``H_PLAIN_LIM``:
+#: the fast run's bounds, :func:`fast_step`'s cached steps), then the arrays of
+#: :func:`blob_views`, one after the other. The float64 blob: ``F_H``, ``F_HH`` (the plant
+#: step and its half), ``F_FRICTION`` (1.0 with friction), then the counts per rad (n) and
+#: the torque outputs (n).
+H_N, H_CYCLES, H_STOP, H_MORE_LIM, H_SOON, H_PLAIN_LIM, H_SIZE = 0, 1, 2, 3, 4, 5, 8
 F_H, F_HH, F_FRICTION, F_SIZE = 0, 1, 2, 4
 
 
@@ -1063,7 +1065,7 @@ def blob_views(IB):
     return N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR
 
 
-def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
+def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X):
     """One whole plant step with no event anywhere in it (:meth:`ModelBackend.fast_path
     <cosim.model.ModelBackend.fast_path>`), after :func:`models.plant_kernel_src.pre_free` and
     pinocchio: the rest of the plant step, the trace row ``i`` (``rec[0, i]`` the angles,
@@ -1076,7 +1078,10 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     :func:`~models.plant_kernel_src.free_end`; ``mode`` 2, ``a`` = ``pin.nonLinearEffects``'
     bias and ``M`` = ``pin.crba``'s matrix: :func:`~models.plant_kernel_src.stuck`, else
     :func:`~models.plant_kernel_src.likely_pattern`; ``mode`` 0: the end velocities are
-    already in ``S[NEW]``; then :func:`~models.plant_kernel_src.finish`.
+    already in ``S[NEW]``; mode 3: as mode 2 on the bias and matrix the stick-slip cache ``X``
+    holds (:func:`stick_cached`: pinocchio's last ``nonLinearEffects`` and ``crba``, which ran on
+    the very ``S[QM]`` and ``S[VM]`` of this step); then :func:`~models.plant_kernel_src.finish`.
+    Mode 2 fills the cache (:func:`stick_cache`).
 
     With ``pre_next`` (the caller will run the next step on this path too), the step done, the
     next step's :func:`~models.plant_kernel_src.pre_free` on the torques the nodes output
@@ -1084,21 +1089,74 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     own next ``pre_free`` call, on the same arrays.
 
     Returns 0; 1 if the free step does not hold (nothing else done: the caller calls again in
-    mode 2) or 4 if the likely pattern does not (the caller runs the general solve and calls
-    again in mode 0); 2 if a joint moved more than one count in a cycle (the plant has
-    stepped, the nodes have not); 3 as :func:`plain_step`'s True. With ``pre_next`` and the
-    step done, ``8 · (code + 2)``: ``code`` the next step's ``pre_free`` result (−1, 0, 1).
+    mode 2; 5 where the cache holds this step's bias and matrix: mode 3) or 4 if the likely
+    pattern does not (the caller runs the general solve and calls again in mode 0); 2 if a
+    joint moved more than one count in a cycle (the plant has stepped, the nodes have not); 3
+    as :func:`plain_step`'s True. With ``pre_next`` and the step done, ``8 · (code + 2)``:
+    ``code`` the next step's ``pre_free`` result (−1, 0, 1), or 2 where it is 0 and the cache
+    holds the next step's bias and matrix (mode 3 for it).
     ``pre_next`` −1: the plant's part only (the trace row and the count changes, returns 0
     or 2): the caller runs the nodes (:meth:`ModelBackend._fast
-    <cosim.model.ModelBackend._fast>`'s last step with a node event)."""
+    <cosim.model.ModelBackend._fast>`'s last step with a node event).
+
+    Cached steps run on: where the next step's code is 2 and the caller would run it as a
+    plain step next (``IB[H_PLAIN_LIM]``, the run's bounds: :func:`_run_on`) and its stuck
+    test holds on the cache's bias and matrix (else the caller runs it: mode 3, the solve),
+    that step is run here too, from its ``finish``, with the caller's ``pre_next`` for it;
+    and so on. ``k`` such steps add ``64 · k`` to the last step's return value (rows
+    ``i + 1 … i + k``, each ``IB[H_CYCLES]`` cycles after the one before): exactly the
+    caller's own calls for them (:meth:`ModelBackend._fast <cosim.model.ModelBackend._fast>`),
+    without a return to Python each."""
+    r = _fast_step_one(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X)
+    k = 0
+    s = IB[H_CYCLES]
+    n = S.shape[1]
+    while r == 32:
+        j = i + k + 1
+        c = start + (k + 1) * s
+        more = _run_on(IB, j, c, s)
+        if more < 0 or not _stick_from(S, X[1 + 2 * n:1 + 3 * n],
+                                        X[1 + 3 * n:1 + 3 * n + n * n].reshape((n, n)), F[F_H]):
+            break
+        k += 1
+        r = _finish_step(IB, F, S, rec, j, c, C, more, X)
+    return r + 64 * k
+
+
+def _run_on(IB, j, c, s):
+    """The step at row ``j`` from cycle ``c`` in the caller's fast run (:meth:`ModelBackend.
+    _fast <cosim.model.ModelBackend._fast>`, after a step with ``pre_next`` 1): −1 if it is
+    not a plain step there (the step with node events: the caller's), else its ``pre_next``,
+    as the caller computes them."""
+    if c + s > IB[H_PLAIN_LIM]:
+        return -1
+    if j + 1 < IB[H_STOP] and c + 2 * s <= IB[H_MORE_LIM] and c + s <= IB[H_SOON]:
+        return 1
+    return 0
+
+
+def _fast_step_one(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X):
+    """:func:`fast_step` for one step."""
     h = F[F_H]
-    hh = F[F_HH]
     if mode == 1:
         if not plant_src.free_end(S, a, h, F[F_FRICTION] != 0.0):
-            return 1
+            return 5 if stick_cached(S, X) else 1
     elif mode == 2:
-        if not plant_src.stuck(S, a) and plant_src.likely_pattern(S, M, h) != 1:
+        stick_cache(S, a, M, X)
+        if not _stick_from(S, a, M, h):
             return 4
+    elif mode == 3:
+        n = S.shape[1]
+        if not _stick_from(S, X[1 + 2 * n:1 + 3 * n], X[1 + 3 * n:1 + 3 * n + n * n].reshape(
+                (n, n)), h):
+            return 4
+    return _finish_step(IB, F, S, rec, i, start, C, pre_next, X)
+
+
+def _finish_step(IB, F, S, rec, i, start, C, pre_next, X):
+    """:func:`fast_step` from the plant's ``finish``."""
+    h = F[F_H]
+    hh = F[F_HH]
     plant_src.finish(S, h, hh)
     # pre_next −1: the plant's part only, the nodes run on the general path
     r = _step_nodes(IB, F, S, rec, i, start, plant_src.Q_START, plant_src.V_START,
@@ -1108,8 +1166,53 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next):
     if pre_next:
         n = IB[H_N]
         tau = F[F_SIZE + n:F_SIZE + 2 * n]
-        return 8 * (plant_src.pre_free(S, C, tau, hh, F[F_FRICTION]) + 2)
+        code = plant_src.pre_free(S, C, tau, hh, F[F_FRICTION])
+        if code == 0 and stick_cached(S, X):
+            code = 2
+        return 8 * (code + 2)
     return 0
+
+
+def _stick_from(S, a, M, h):
+    """Mode 2's and 3's test: True where ``stuck`` or the likely pattern holds."""
+    return plant_src.stuck(S, a) or plant_src.likely_pattern(S, M, h) == 1
+
+
+def stick_cache(S, a, M, X):
+    """The stick-slip cache ``X`` (float64, ``1 + 3n + n²``: ``X[0]`` 1.0 once filled, then
+    the ``S[QM]`` and ``S[VM]`` pinocchio ran on, the bias ``a`` from ``nonLinearEffects``, the
+    matrix ``M`` from ``crba``, row by row) filled with this step's. Both are functions of
+    ``(q, v)`` and the model alone, so a later step on the same ``(q, v)`` bit for bit — every
+    stuck joint at rest and every joint stuck — may take them from here (:func:`stick_cached`)
+    instead of two pinocchio calls."""
+    n = S.shape[1]
+    for j in range(n):
+        X[1 + j] = S[plant_src.QM, j]
+        X[1 + n + j] = S[plant_src.VM, j]
+        X[1 + 2 * n + j] = a[j]
+    o = 1 + 3 * n
+    for r in range(n):
+        for c in range(n):
+            X[o + r * n + c] = M[r, c]
+    X[0] = 1.0
+
+
+def _same_bits(x, y):
+    """``x`` and ``y`` the same float (zeros of one sign; a NaN never)."""
+    return x == y and math.copysign(1.0, x) == math.copysign(1.0, y)
+
+
+def stick_cached(S, X):
+    """Whether the stick-slip cache ``X`` (:func:`stick_cache`) ran on this step's ``S[QM]``
+    and ``S[VM]``, bit for bit."""
+    if X[0] == 0.0:
+        return False
+    n = S.shape[1]
+    for j in range(n):
+        if not (_same_bits(S[plant_src.QM, j], X[1 + j]) and
+                _same_bits(S[plant_src.VM, j], X[1 + n + j])):
+            return False
+    return True
 
 
 def _step_nodes(IB, F, S, rec, i, start, start_row, velocity_row, acc_row, end_row, q_row,

@@ -229,6 +229,34 @@ def test_compiled_sin_cos_equals_the_reference(bam, count, cpr):
 
 @needs_numba
 @pytest.mark.parametrize("robot", ["mrm3", "mrm6"])
+def test_stick_slip_cache_gives_the_same_trace(robot):
+    """``mrm bench``'s window, where joints rest stuck between moves: the fast path takes the
+    bias and matrix of pinocchio's last ``nonLinearEffects`` and ``crba`` from its cache on
+    steps with the same ``(q, v)`` bit for bit (``model_kernel_src.stick_cached``), and the
+    trace and the master's replies are the pure-Python path's."""
+    from mrm_cosim.cosim.bench import bench_master_and_plant
+    from mrm_cosim.cosim.closed_loop import ClosedLoop
+    from mrm_cosim.cosim.model import ModelBackend
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_shifts
+    from mrm_cosim.models.robot import load_robot
+
+    out = {}
+    for kernel in ("numba", "python"):
+        robot_ = load_robot(robot)
+        master, plant = bench_master_and_plant(robot_)
+        backend = ModelBackend(kernel=kernel, pid_shift=pid_shifts(robot_))
+        loop = ClosedLoop(robot_, backend, master, plant, 50_000,
+                          node_uploads(robot_, "vdc", Gains()))
+        result = loop.run(600_000)
+        out[kernel] = (result.trace_sha256, result.violations,
+                       [(r.index, r.events, r.arrivals, r.node_events) for r in master.records])
+        if kernel == "numba":
+            assert backend.stick_cached > 50, backend.stick_cached
+    assert out["numba"] == out["python"]
+
+
+@needs_numba
+@pytest.mark.parametrize("robot", ["mrm3", "mrm6"])
 @pytest.mark.parametrize("controller", ["vdc", "pid-fpga", "pid-1khz"])
 def test_compiled_and_python_paths_give_the_same_trace(robot, controller):
     """8 ms of closed loop with every joint swinging: the compiled inner loop and the
