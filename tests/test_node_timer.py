@@ -203,10 +203,12 @@ def test_the_model_backend_refuses_the_loop_and_takes_zero():
                for w in (Discipline(target=12).word, 0))
     node = FastNode()
     node.packet(10, PacketType.CONFIG, off)
+    node.packet(20, PacketType.CONFIG, on)
     with pytest.raises(InputError, match="config.tc_discipline"):
-        node.packet(20, PacketType.CONFIG, on)
+        node.run(22)                # the record acts in cycle 21, a cycle after its last byte
     ref = NodeModel()
     ref.packet(10, PacketType.CONFIG, on)
+    ref.run(12)
     assert ref.config[Config.TC_DISCIPLINE] == Discipline(target=12).word
 
 

@@ -191,7 +191,13 @@ class NodeCore(wiring.Component):
 
         # --- packets in: decoded into words, CONFIG records and packet ends -------------------
         wiring.connect(m, rx=wiring.flipped(self.rx), decoder=dec.rx)
-        wiring.connect(m, decoder=dec.config, config=cfg.config)
+        # CONFIG records reach the registers a cycle after their last byte (a register between
+        # the decoder and NodeConfig): the period timer's next thresholds and window flags are
+        # then formed from registers, not from the depacketizer (docs/node.md "Clock").
+        cfg_valid = Signal()
+        cfg_rec = Signal.like(dec.config.p)
+        m.d.sync += [cfg_valid.eq(dec.config.valid), cfg_rec.eq(dec.config.p)]
+        m.d.comb += [cfg.config.valid.eq(cfg_valid), cfg.config.p.eq(cfg_rec)]
         for sink in (refs.ends, vseq.ends, reply.requests):
             m.d.comb += [sink.valid.eq(dec.ends.valid), sink.p.eq(dec.ends.p)]
         # A pending word goes to the engine of its bank (the generator takes one any cycle;
