@@ -142,32 +142,60 @@ class PeriodTimer(wiring.Component):
         thrw  = Signal(signed(27), init=p0 - w0)
         thrt  = Signal(signed(27), init=p0 - t0 + 1)
         base_next = Signal(signed(27))
-        m.d.comb += base_next.eq(self.period_next + adj_next)
+        thr1_next = Signal(signed(27))
+        thrw_next = Signal(signed(27))
+        thrt_next = Signal(signed(27))
+        m.d.comb += [
+            base_next.eq(self.period_next + adj_next),
+            thr1_next.eq(base_next - 1),
+            thrw_next.eq(base_next - self.window_next),
+            thrt_next.eq(base_next - self.tick_next + 1),
+        ]
         m.d.sync += [
             base.eq(base_next),
-            thr1.eq(base_next - 1),
-            thrw.eq(base_next - self.window_next),
-            thrt.eq(base_next - self.tick_next + 1),
+            thr1.eq(thr1_next),
+            thrw.eq(thrw_next),
+            thrt.eq(thrt_next),
+        ]
+        # The phase's comparisons, kept in registers formed a cycle ahead: the phase's next
+        # value against the next window and thresholds (each flag equals its compare in every
+        # cycle). CONFIG's records reach ``*_next`` from a register (the core delays them a
+        # cycle), so no path from the link's depacketizer runs through these compares.
+        phase_next = Signal.like(phase)
+        f_zero = Signal(init=1)                             # phase == 0
+        f_late = Signal(init=int(0 >= w0))                  # phase ≥ SYNC_WINDOW
+        f_thrw = Signal(init=int(0 >= p0 - w0))             # phase ≥ thrw
+        f_end  = Signal(init=int(0 >= p0 - 1))              # phase ≥ thr1 (rem ≤ 1)
+        f_pre  = Signal(init=int(0 == p0 - 1))              # phase == thr1
+        f_tail = Signal(init=int(0 >= p0 - t0 + 1))         # phase ≥ thrt
+        m.d.sync += [
+            phase.eq(phase_next),
+            f_zero.eq(phase_next == 0),
+            f_late.eq(phase_next >= self.window_next),
+            f_thrw.eq(phase_next >= thrw_next),
+            f_end.eq(phase_next >= thr1_next),
+            f_pre.eq(phase_next == thr1_next),
+            f_tail.eq(phase_next >= thrt_next),
         ]
         m.d.comb += [
             rem.eq(base - phase),
-            late.eq(phase >= self.window),
-            early.eq(self.discipline.enable & late & (phase >= thrw)),
+            late.eq(f_late),
+            early.eq(self.discipline.enable & late & f_thrw),
             self.resync.eq(self.time_code & late & ~early),
-            self.boundary.eq((phase == 0) | self.resync),
-            self.pre_boundary.eq(phase == thr1),
+            self.boundary.eq(f_zero | self.resync),
+            self.pre_boundary.eq(f_pre),
             self.elapsed.eq(Mux(self.boundary, 0, phase)),
-            self.tail.eq(self.discipline.enable & (phase >= thrt)),
+            self.tail.eq(self.discipline.enable & f_tail),
         ]
         self._loop(m, adj, adj_next, rem, early)
         with m.If(self.resync & self.discipline.enable):
-            m.d.sync += phase.eq(self.discipline.target + 1)     # acquisition at the target
+            m.d.comb += phase_next.eq(self.discipline.target + 1)   # acquisition at the target
         with m.Elif(self.boundary):
-            m.d.sync += phase.eq(1)
-        with m.Elif(phase >= thr1):                             # rem ≤ 1
-            m.d.sync += phase.eq(0)
+            m.d.comb += phase_next.eq(1)
+        with m.Elif(f_end):                                     # rem ≤ 1
+            m.d.comb += phase_next.eq(0)
         with m.Else():
-            m.d.sync += phase.eq(phase + 1)
+            m.d.comb += phase_next.eq(phase + 1)
         counted = self.resync & self.armed & (count != 0xFFFF)
         with m.If(counted):
             m.d.sync += count.eq(count + 1)
