@@ -39,7 +39,10 @@ def run_both(cycles, timecodes, writes, window):
     async def tb(ctx):
         for name, value in (("period", PERIOD), ("window", window), ("tick", TICK)):
             ctx.set(getattr(dut, name), value)
-            ctx.set(getattr(dut, f"{name}_next"), value)
+        ctx.set(dut.window_next, window)
+        ctx.set(dut.pm1_next, PERIOD - 1)
+        ctx.set(dut.pmw_next, PERIOD - window)
+        ctx.set(dut.pmt_next, PERIOD - TICK + 1)
         ctx.set(dut.armed, 1)
         for c in range(cycles):
             tc = c in tcs

@@ -191,13 +191,8 @@ class NodeCore(wiring.Component):
 
         # --- packets in: decoded into words, CONFIG records and packet ends -------------------
         wiring.connect(m, rx=wiring.flipped(self.rx), decoder=dec.rx)
-        # CONFIG records reach the registers a cycle after their last byte (a register between
-        # the decoder and NodeConfig): the period timer's next thresholds and window flags are
-        # then formed from registers, not from the depacketizer (docs/node.md "Clock").
-        cfg_valid = Signal()
-        cfg_rec = Signal.like(dec.config.p)
-        m.d.sync += [cfg_valid.eq(dec.config.valid), cfg_rec.eq(dec.config.p)]
-        m.d.comb += [cfg.config.valid.eq(cfg_valid), cfg.config.p.eq(cfg_rec)]
+        # (NodeConfig holds the record a cycle: CONFIG acts the cycle after its last byte)
+        wiring.connect(m, decoder=dec.config, config=cfg.config)
         for sink in (refs.ends, vseq.ends, reply.requests):
             m.d.comb += [sink.valid.eq(dec.ends.valid), sink.p.eq(dec.ends.p)]
         # A pending word goes to the engine of its bank (the generator takes one any cycle;
@@ -337,9 +332,10 @@ class NodeCore(wiring.Component):
             timer.discipline.eq(cfg.discipline),
             timer.restart.eq(cfg.discipline_set),
             timer.tick.eq(cfg.tick),
-            timer.period_next.eq(cfg.period_next),
             timer.window_next.eq(cfg.window_next),
-            timer.tick_next.eq(cfg.tick_next),
+            timer.pm1_next.eq(cfg.pm1_next),
+            timer.pmw_next.eq(cfg.pmw_next),
+            timer.pmt_next.eq(cfg.pmt_next),
             ticks.tail.eq(timer.tail),
         ]
 

@@ -94,13 +94,16 @@ class PeriodTimer(wiring.Component):
         CONFIG TC_DISCIPLINE; ``restart`` (In(1)) its write strobe, which clears the loop.
     tick : In(16)
         CONFIG TICK.
-    period_next, window_next, tick_next : In(24), In(24), In(16)
-        The values ``period``, ``window`` and ``tick`` take in the next cycle
-        (:class:`~hdl.node.config.NodeConfig`'s): the comparisons with the cycles to the
-        boundary, ``rem = PERIOD + adj − phase``, are ``phase`` against thresholds kept in
-        registers (``PERIOD + adj − 1``, ``− SYNC_WINDOW``, ``− TICK + 1``), computed a cycle
-        ahead from these and the loop's next ``adj``. The adder in front of each compare had
-        made ``phase`` → ``rem`` → window → resync → boundary the node's slowest path.
+    window_next : In(24)
+        The value ``window`` takes in the next cycle (:class:`~hdl.node.config.NodeConfig`'s).
+    pm1_next, pmw_next, pmt_next : In(signed(26))
+        ``PERIOD − 1``, ``PERIOD − SYNC_WINDOW`` and ``PERIOD − TICK + 1`` as they stand in
+        the next cycle (NodeConfig keeps them in registers, formed as a CONFIG record comes
+        in): the comparisons with the cycles to the boundary, ``rem = PERIOD + adj − phase``,
+        are ``phase`` against thresholds kept in registers (these plus ``adj``), computed a
+        cycle ahead with the loop's next ``adj``; and the compares themselves are flags formed
+        a cycle ahead from the phase's next value. The adder in front of each compare had made
+        ``phase`` → ``rem`` → window → resync → boundary the node's slowest path.
     tail : Out(1)
         The loop on and fewer than TICK cycles to the boundary: no control tick.
     """
@@ -120,9 +123,12 @@ class PeriodTimer(wiring.Component):
     discipline:   In(DisciplineWord)
     restart:      In(1)
     tick:         In(16)
-    period_next:  In(24, init=CONFIG_DEFAULTS[Config.PERIOD])
     window_next:  In(24, init=CONFIG_DEFAULTS[Config.SYNC_WINDOW])
-    tick_next:    In(16, init=CONFIG_DEFAULTS[Config.TICK])
+    pm1_next:     In(signed(26), init=CONFIG_DEFAULTS[Config.PERIOD] - 1)
+    pmw_next:     In(signed(26), init=CONFIG_DEFAULTS[Config.PERIOD]
+                     - CONFIG_DEFAULTS[Config.SYNC_WINDOW])
+    pmt_next:     In(signed(26), init=CONFIG_DEFAULTS[Config.PERIOD]
+                     - CONFIG_DEFAULTS[Config.TICK] + 1)
     tail:         Out(1)
 
     def elaborate(self, platform):
@@ -136,23 +142,20 @@ class PeriodTimer(wiring.Component):
         adj_next = Signal.like(adj)
         p0, w0, t0 = (CONFIG_DEFAULTS[r] for r in (Config.PERIOD, Config.SYNC_WINDOW,
                                                    Config.TICK))
-        # PERIOD + adj, and the thresholds rem ≤ 1, rem ≤ window, rem < tick become on phase
-        base  = Signal(signed(27), init=p0)
+        # the thresholds rem ≤ 1, rem ≤ window, rem < tick become on phase (PERIOD + adj − 1,
+        # − SYNC_WINDOW, − TICK + 1)
         thr1  = Signal(signed(27), init=p0 - 1)
         thrw  = Signal(signed(27), init=p0 - w0)
         thrt  = Signal(signed(27), init=p0 - t0 + 1)
-        base_next = Signal(signed(27))
         thr1_next = Signal(signed(27))
         thrw_next = Signal(signed(27))
         thrt_next = Signal(signed(27))
         m.d.comb += [
-            base_next.eq(self.period_next + adj_next),
-            thr1_next.eq(base_next - 1),
-            thrw_next.eq(base_next - self.window_next),
-            thrt_next.eq(base_next - self.tick_next + 1),
+            thr1_next.eq(self.pm1_next + adj_next),
+            thrw_next.eq(self.pmw_next + adj_next),
+            thrt_next.eq(self.pmt_next + adj_next),
         ]
         m.d.sync += [
-            base.eq(base_next),
             thr1.eq(thr1_next),
             thrw.eq(thrw_next),
             thrt.eq(thrt_next),
@@ -178,7 +181,7 @@ class PeriodTimer(wiring.Component):
             f_tail.eq(phase_next >= thrt_next),
         ]
         m.d.comb += [
-            rem.eq(base - phase),
+            rem.eq(thr1 + 1 - phase),
             late.eq(f_late),
             early.eq(self.discipline.enable & late & f_thrw),
             self.resync.eq(self.time_code & late & ~early),
