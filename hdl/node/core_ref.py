@@ -14,7 +14,8 @@ Internal events follow the node's period timer (free-running from reset, phase 0
   period is ``PERIOD + adj`` cycles, ``adj`` set by the last in-window time-code,
   :mod:`~mrm_cosim.protocol.discipline`): snapshot of everything the
   Comm A reply carries (count, velocity, torque, status, encoder errors, counters), CORDIC of
-  the count; an ARM received before the previous cycle takes effect here (PID integral cleared);
+  the count; an ARM whose record acted before the previous cycle (its last byte three or more
+  cycles before) takes effect here (PID integral cleared);
 * control ticks every ``TICK`` cycles from each boundary (with the discipline on, none within
   ``TICK`` cycles before the next boundary); a tick's command lands
   ``cycles(mode)`` cycles later (:meth:`~mrm_cosim.protocol.isa.Microcode.cycles`), then the
