@@ -546,7 +546,7 @@ class KernelNode(FastNode):
         kernel (:meth:`arm_commit`)."""
         lb = self._lb
         if self._commit_seen == lb or self.arm_pending or self.dmp_running or \
-                self.dmp_waiting or self.dmp_select:
+                self.dmp_waiting or self.dmp_select or self._cfg_pending:
             return None
         cfg = self.config
         c = lb + cfg[_COMMIT]

@@ -168,7 +168,8 @@ class FastNode(NodeModel):
         it to the reference event loop, and the compiled kernel (:mod:`cosim.model_kernel`)
         runs only pieces that end before it. A step of the primitive generator is one, and so
         is the safe stop (:meth:`safe_stop_near`): the margin before a predicted trip, or −1
-        while it may act (no plain piece at all)."""
+        while it may act (no plain piece at all), and a pending CONFIG record's cycle (a
+        CONFIG acts the cycle after its last byte, :class:`~hdl.node.core_ref.NodeModel`)."""
         # (the model backend asks every node before every plain piece: one call, locals)
         cfg = self.config
         nb = self._nb
@@ -185,6 +186,8 @@ class FastNode(NodeModel):
             special = self._dmp_due                     # a step of the generator
         if self._tc_pending is not None and self._tc_pending[0] < special:
             special = self._tc_pending[0]               # the discipline's step applies
+        if self._cfg_pending and self._cfg_pending[0][0] < special:
+            special = self._cfg_pending[0][0]           # a CONFIG record acting
         if cfg[_STOP] or cfg[_BRAKE]:
             if self.tripped:
                 return -1

@@ -122,9 +122,12 @@ def test_the_fast_node_takes_the_loop_and_the_kernel_refuses_it():
     for cls in (FastNode, NodeModel):
         node = cls()
         node.packet(10, PacketType.CONFIG, on)
+        node.run(12)                # (a record acts the cycle after its last byte)
         assert node.config[Config.TC_DISCIPLINE] == Discipline(target=12).word
+    node = KernelNode()
+    node.packet(10, PacketType.CONFIG, on)
     with pytest.raises(InputError, match="config.tc_discipline"):
-        KernelNode().packet(10, PacketType.CONFIG, on)
+        node.run(12)
 
 
 def test_table2_runs_on_the_model_with_clocks_of_their_own(tmp_path):

@@ -39,7 +39,10 @@ def run_both(cycles, timecodes, writes, window):
     async def tb(ctx):
         for name, value in (("period", PERIOD), ("window", window), ("tick", TICK)):
             ctx.set(getattr(dut, name), value)
-            ctx.set(getattr(dut, f"{name}_next"), value)
+        ctx.set(dut.window_next, window)
+        ctx.set(dut.pm1_next, PERIOD - 1)
+        ctx.set(dut.pmw_next, PERIOD - window)
+        ctx.set(dut.pmt_next, PERIOD - TICK + 1)
         ctx.set(dut.armed, 1)
         for c in range(cycles):
             tc = c in tcs
@@ -202,4 +205,16 @@ def test_rtl_equals_reference_with_time_codes_at_the_early_windows_edge(window):
         c = k * PERIOD - (window - 1 + k % 3)
         tcs.append(c)
     rtl, exp, _ = run_both(26 * PERIOD, tcs, {3: word}, window)
+    assert_same(rtl, exp)
+
+
+@pytest.mark.parametrize("window", range(118, 136, 2))
+def test_rtl_equals_reference_with_a_time_code_where_the_new_adj_moves_the_threshold(window):
+    """A loop step's new ``adj`` moves the early window's threshold (``PERIOD + adj −
+    SYNC_WINDOW``) in the cycle a second time-code arrives, at a phase on that threshold for
+    one of these windows: the registered window flags are formed from the next threshold,
+    not the one in force (an off-by-a-cycle there passes the drifting cases, fails here)."""
+    word = Discipline(target=118, kp=0, ki=7).word
+    tcs = [PERIOD + 120, PERIOD + 120 + LATENCY, 2 * PERIOD + 125, 2 * PERIOD + 125 + LATENCY]
+    rtl, exp, _ = run_both(4 * PERIOD, tcs, {3: word}, window)
     assert_same(rtl, exp)

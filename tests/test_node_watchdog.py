@@ -229,6 +229,7 @@ def test_the_safe_stop_timers_are_24_bits_and_config_ignores_larger_values():
             ctx.set(dut.config.p.value, value)
             await ctx.tick()
             ctx.set(dut.config.valid, 0)
+            await ctx.tick()            # NodeConfig holds the record: it acts a cycle later
             seen.append((ctx.get(dut.stop_cycles), ctx.get(dut.brake_cycles)))
 
     sim = Simulator(dut)

@@ -1,7 +1,9 @@
 """CONFIG registers of the node core, and when ARM takes effect.
 
 A CONFIG record (:class:`~protocol.regs.Config` id, int32 value; docs/node.md "Packets")
-writes one register at its last byte; a value out of a register's range is ignored (MODE
+acts in the cycle after its last byte (the block holds the decoder's record in a register, so
+that nothing from the link's depacketizer reaches the period timer's compares; docs/node.md
+"Clock"): it writes one register then; a value out of a register's range is ignored (MODE
 ≥ 3, TICK 0 or ≥ 2^16, PERIOD and DMP_STEP < 2 or ≥ 2^24, SYNC_WINDOW, COMMIT, STANDSTILL,
 STOP_CYCLES and BRAKE_CYCLES ≥ 2^24, STANDSTILL_TICKS and STOP_TRAIL ≥ 2^16, TC_DISCIPLINE
 ≥ 2^21, DMP not a :class:`~protocol.regs.DmpControl` value).
@@ -72,9 +74,13 @@ class NodeConfig(wiring.Component):
     discipline, discipline_set : Out(DisciplineWord), Out(1)
         CONFIG TC_DISCIPLINE (:mod:`~protocol.discipline`) and its write strobe (the period
         timer clears its loop).
-    tick_next, period_next, window_next : Out(16), Out(24), Out(24)
-        The values ``tick``, ``period`` and ``window`` take in the next cycle (this cycle's
-        write, or the register): the period timer computes its thresholds from them.
+    window_next : Out(24)
+        The value ``window`` takes in the next cycle (this cycle's write, or the register).
+    pm1_next, pmw_next, pmt_next : Out(signed(26))
+        ``PERIOD − 1``, ``PERIOD − SYNC_WINDOW``, ``PERIOD − TICK + 1`` as they stand in the
+        next cycle: the period timer's thresholds are these plus its ``adj``. Kept in
+        registers; a record's new differences are formed from the decoder's record in the
+        cycle before it acts (and registered with it), so a write only selects them.
     """
 
     config:       In(stream.Signature(ConfigRecord, always_ready=True))
@@ -108,32 +114,73 @@ class NodeConfig(wiring.Component):
     stop_trail:   Out(16, init=CONFIG_DEFAULTS[Config.STOP_TRAIL])
     discipline:   Out(DisciplineWord)        # reset 0: off (CONFIG_DEFAULTS)
     discipline_set: Out(1)
-    tick_next:    Out(16)
-    period_next:  Out(24)
     window_next:  Out(24)
+    pm1_next:     Out(signed(26))
+    pmw_next:     Out(signed(26))
+    pmt_next:     Out(signed(26))
 
     def elaborate(self, platform):
         m = Module()
         arm_pending = Signal()          # CONFIG ARM=1 received
         arming      = Signal()          # armed at the coming boundary (integral cleared)
-        value = self.config.p.value
-        # the values tick, period and window take at the next cycle (the period timer keeps
-        # its comparisons' thresholds in registers, computed from them)
-        m.d.comb += [
-            self.tick_next.eq(self.tick),
-            self.period_next.eq(self.period),
-            self.window_next.eq(self.window),
+        # The decoder's record, acting a cycle later from this register.
+        valid = Signal()
+        rec   = Signal.like(self.config.p)
+        m.d.sync += [valid.eq(self.config.valid), rec.eq(self.config.p)]
+        value = rec.value
+        # The writes the period timer's thresholds follow, decoded from the decoder's record
+        # and registered with it, and the differences they set (a record's registers are
+        # settled when it comes: records are five bytes, so five cycles, apart).
+        v_in, id_in = self.config.p.value, self.config.p.id
+        we_tick, we_period, we_window, we_disc = (Signal(name=n) for n in
+                                                  ("we_tick", "we_period", "we_window",
+                                                   "we_disc"))
+        ok_tick   = (id_in == Config.TICK) & (v_in != 0) & (v_in < (1 << 16))
+        ok_period = (id_in == Config.PERIOD) & (v_in >= 2) & (v_in < (1 << 24))
+        ok_window = (id_in == Config.SYNC_WINDOW) & (v_in < (1 << 24))
+        m.d.sync += [
+            we_tick.eq(self.config.valid & ok_tick),
+            we_period.eq(self.config.valid & ok_period),
+            we_window.eq(self.config.valid & ok_window),
+            we_disc.eq(self.config.valid & (id_in == Config.TC_DISCIPLINE) &
+                       (v_in < (1 << DISCIPLINE_BITS))),
         ]
+        p0, w0, t0 = (CONFIG_DEFAULTS[r] for r in (Config.PERIOD, Config.SYNC_WINDOW,
+                                                   Config.TICK))
+        pm1 = Signal(signed(26), init=p0 - 1)
+        pmw = Signal(signed(26), init=p0 - w0)
+        pmt = Signal(signed(26), init=p0 - t0 + 1)
+        new1, neww, newt = (Signal(signed(26), name=n) for n in ("new1", "neww", "newt"))
+        v24 = v_in[:24]
+        per = Mux(ok_period, v24, self.period)
+        m.d.sync += [
+            new1.eq(per - 1),
+            neww.eq(per - Mux(ok_window, v24, self.window)),
+            newt.eq(per - Mux(ok_tick, v_in[:16], self.tick) + 1),
+        ]
+        touched = we_tick | we_period | we_window
+        m.d.comb += [
+            self.window_next.eq(Mux(we_window, value[:24], self.window)),
+            self.pm1_next.eq(Mux(touched, new1, pm1)),
+            self.pmw_next.eq(Mux(touched, neww, pmw)),
+            self.pmt_next.eq(Mux(touched, newt, pmt)),
+        ]
+        m.d.sync += [pm1.eq(self.pm1_next), pmw.eq(self.pmw_next), pmt.eq(self.pmt_next)]
+        with m.If(we_tick):
+            m.d.sync += self.tick.eq(value)
+        with m.If(we_period):
+            m.d.sync += self.period.eq(value)
+        with m.If(we_window):
+            m.d.sync += self.window.eq(value)
+        with m.If(we_disc):
+            m.d.sync += self.discipline.eq(value)
+        m.d.comb += self.discipline_set.eq(we_disc)
 
-        with m.If(self.config.valid):
-            with m.Switch(self.config.p.id):
+        with m.If(valid):
+            with m.Switch(rec.id):
                 with m.Case(Config.MODE):
                     with m.If(value < len(MODES)):
                         m.d.sync += self.mode.eq(value)
-                with m.Case(Config.TICK):
-                    with m.If((value != 0) & (value < (1 << 16))):
-                        m.d.sync += self.tick.eq(value)
-                        m.d.comb += self.tick_next.eq(value)
                 with m.Case(Config.TIMEOUT):
                     m.d.sync += self.timeout.eq(value)
                 with m.Case(Config.RAMP):
@@ -142,14 +189,6 @@ class NodeConfig(wiring.Component):
                     m.d.sync += self.tau_min.eq(value)
                 with m.Case(Config.TAU_MAX):
                     m.d.sync += self.tau_max.eq(value)
-                with m.Case(Config.PERIOD):
-                    with m.If((value >= 2) & (value < (1 << 24))):
-                        m.d.sync += self.period.eq(value)
-                        m.d.comb += self.period_next.eq(value)
-                with m.Case(Config.SYNC_WINDOW):
-                    with m.If(value < (1 << 24)):
-                        m.d.sync += self.window.eq(value)
-                        m.d.comb += self.window_next.eq(value)
                 with m.Case(Config.COMMIT):
                     with m.If(value < (1 << 24)):
                         m.d.sync += self.commit.eq(value)
@@ -189,10 +228,6 @@ class NodeConfig(wiring.Component):
                 with m.Case(Config.STOP_TRAIL):
                     with m.If(value < (1 << 16)):
                         m.d.sync += self.stop_trail.eq(value)
-                with m.Case(Config.TC_DISCIPLINE):
-                    with m.If(value < (1 << DISCIPLINE_BITS)):
-                        m.d.sync += self.discipline.eq(value)
-                        m.d.comb += self.discipline_set.eq(1)
 
         # ARM at the next boundary, the integral cleared in its cycle and the one before;
         # disarming wins over both.

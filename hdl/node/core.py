@@ -191,6 +191,7 @@ class NodeCore(wiring.Component):
 
         # --- packets in: decoded into words, CONFIG records and packet ends -------------------
         wiring.connect(m, rx=wiring.flipped(self.rx), decoder=dec.rx)
+        # (NodeConfig holds the record a cycle: CONFIG acts the cycle after its last byte)
         wiring.connect(m, decoder=dec.config, config=cfg.config)
         for sink in (refs.ends, vseq.ends, reply.requests):
             m.d.comb += [sink.valid.eq(dec.ends.valid), sink.p.eq(dec.ends.p)]
@@ -331,9 +332,10 @@ class NodeCore(wiring.Component):
             timer.discipline.eq(cfg.discipline),
             timer.restart.eq(cfg.discipline_set),
             timer.tick.eq(cfg.tick),
-            timer.period_next.eq(cfg.period_next),
             timer.window_next.eq(cfg.window_next),
-            timer.tick_next.eq(cfg.tick_next),
+            timer.pm1_next.eq(cfg.pm1_next),
+            timer.pmw_next.eq(cfg.pmw_next),
+            timer.pmt_next.eq(cfg.pmt_next),
             ticks.tail.eq(timer.tail),
         ]
 

@@ -14,7 +14,8 @@ Internal events follow the node's period timer (free-running from reset, phase 0
   period is ``PERIOD + adj`` cycles, ``adj`` set by the last in-window time-code,
   :mod:`~mrm_cosim.protocol.discipline`): snapshot of everything the
   Comm A reply carries (count, velocity, torque, status, encoder errors, counters), CORDIC of
-  the count; an ARM received before the previous cycle takes effect here (PID integral cleared);
+  the count; an ARM whose record acted before the previous cycle (its last byte three or more
+  cycles before) takes effect here (PID integral cleared);
 * control ticks every ``TICK`` cycles from each boundary (with the discipline on, none within
   ``TICK`` cycles before the next boundary); a tick's command lands
   ``cycles(mode)`` cycles later (:meth:`~mrm_cosim.protocol.isa.Microcode.cycles`), then the
@@ -39,7 +40,11 @@ Internal events follow the node's period timer (free-running from reset, phase 0
 
 External events: :meth:`timecode` at the strobe's cycle, :meth:`packet` at the cycle its last
 byte is taken. Within one cycle, internal events come first (they see the registers as they were
-before the cycle, as the packet does).
+before the cycle, as the packet does). A CONFIG packet's records act one cycle after its last
+byte (the gateware holds the decoder's record in a register before the CONFIG block, so that
+the period timer's thresholds are formed from registers; docs/node.md "Clock"): the model
+keeps them pending and applies them in that cycle, after its internal events and after a
+time-code in it.
 
 Observation port. With :attr:`NodeModel.events` a list, the model appends ``(cycle, NodeEvent)``
 for every strobe of the gateware's ``events`` port
@@ -230,6 +235,8 @@ class NodeModel:
     _sample: object = None
     tc_loop: tuple = (0, 0, 0)            # the discipline's rate f, fraction a, adjustment adj
     _tc_pending: tuple | None = None      # a loop step under way: (first cycle, new tc_loop)
+    _cfg_pending: list = field(default_factory=list)    # [(cycle, [(reg, value), …])]: CONFIG
+    #                                                     records not yet applied, in order
 
     # --- internal events ----------------------------------------------------------------------
     def phase(self, now: int) -> int:
@@ -240,13 +247,24 @@ class NodeModel:
         return self._nb
 
     def run(self, until: int, sample=None) -> None:
-        """Process the internal events (boundaries, ticks, commit points) of cycles < ``until``.
+        """Process the internal events (boundaries, ticks, commit points) of cycles < ``until``,
+        and the CONFIG records that act before it (each after its cycle's internal events).
 
         ``sample(cycle) -> (count, velocity, errors)``: the encoder interface's outputs.
         """
         if sample is not None:
             self._sample = sample
         sample = self._sample or (lambda c: (0, 0, 0))
+        pending = self._cfg_pending
+        while pending and pending[0][0] < until:
+            c, recs = pending.pop(0)
+            self._run_events(c + 1, sample)
+            for reg, value in recs:
+                self._config(c, reg, value)
+        self._run_events(until, sample)
+
+    def _run_events(self, until: int, sample) -> None:
+        """:meth:`run`'s internal events of cycles < ``until``."""
         cfg = self.config
         while True:
             nb = self._nb
@@ -296,6 +314,10 @@ class NodeModel:
             if c == ds:
                 self._dmp_step(c)
         self._done = max(self._done, until)
+
+    def config_due(self) -> int:
+        """The cycle in which the next pending CONFIG record acts (a large number: none)."""
+        return self._cfg_pending[0][0] if self._cfg_pending else _NEVER
 
     def _take_d(self, words, base: int) -> None:
         """Comm D's words ``words`` (for boundary ``base``) take effect: all four, or only
@@ -519,11 +541,15 @@ class NodeModel:
                                     self.config[Config.PERIOD] + self.tc_loop[2])
         if resync:
             self._boundary(now, sample, resync=True)
+        pending = self._cfg_pending         # records acting in this cycle: after the time-code
+        held = pending.pop(0)[1] if pending and pending[0][0] == now else ()
         self.run(now + 1)
         if not resync and word and self._disciplined and not busy:
             f, a, _ = self.tc_loop
             self._tc_pending = (now + LATENCY, loop_step(word, phase, f, a))
         self.tc_value = value & 0xFF
+        for reg, v in held:
+            self._config(now, reg, v)
         return resync
 
     def period_start(self, now: int, count: int, qd: int) -> None:
@@ -544,7 +570,7 @@ class NodeModel:
         if ptype == PacketType.CONFIG and any(
                 payload[k] == Config.DMP and int.from_bytes(payload[k + 1:k + 5], "little")
                 in tuple(DmpControl) for k in range(0, len(payload) - 4, 5)):
-            self._dmp_hold = now                # its strobe suppresses a step in its cycle
+            self._dmp_hold = now + 1            # its strobe suppresses a step in its cycle
         self.run(now + 1, sample)
         if period is not None:
             self.tc_value = period & 0xFF
@@ -600,8 +626,10 @@ class NodeModel:
             if self.events is not None:
                 self.events += [(now, Ev.RX_C), (self.reply_cycle(now, ptype), Ev.TX_C)]
         elif ptype == PacketType.CONFIG:
-            for k in range(0, len(payload) - 4, 5):
-                self._config(now, payload[k], int.from_bytes(payload[k + 1:k + 5], "little"))
+            recs = [(payload[k], int.from_bytes(payload[k + 1:k + 5], "little"))
+                    for k in range(0, len(payload) - 4, 5)]
+            if recs:                        # they act in the next cycle (module docstring)
+                self._cfg_pending.append((now + 1, recs))
         elif ptype == PacketType.PARAM and len(payload) >= 3:
             bank, addr = payload[0] & 3, int.from_bytes(payload[1:3], "little")
             for j, w in enumerate(unpack_words(payload, min(12, (len(payload) - 3) // 3), 3)):
@@ -727,6 +755,8 @@ class NodeModel:
         elif reg == Config.ARM:
             if value:
                 self.arm_pending = True
+                if now == self._nb - 1:     # the period's last cycle: too late for this boundary
+                    self._pre_seen = self._nb
             else:
                 self.armed = self.arm_pending = self.arming = False
                 self.torque = 0

@@ -94,13 +94,16 @@ class PeriodTimer(wiring.Component):
         CONFIG TC_DISCIPLINE; ``restart`` (In(1)) its write strobe, which clears the loop.
     tick : In(16)
         CONFIG TICK.
-    period_next, window_next, tick_next : In(24), In(24), In(16)
-        The values ``period``, ``window`` and ``tick`` take in the next cycle
-        (:class:`~hdl.node.config.NodeConfig`'s): the comparisons with the cycles to the
-        boundary, ``rem = PERIOD + adj − phase``, are ``phase`` against thresholds kept in
-        registers (``PERIOD + adj − 1``, ``− SYNC_WINDOW``, ``− TICK + 1``), computed a cycle
-        ahead from these and the loop's next ``adj``. The adder in front of each compare had
-        made ``phase`` → ``rem`` → window → resync → boundary the node's slowest path.
+    window_next : In(24)
+        The value ``window`` takes in the next cycle (:class:`~hdl.node.config.NodeConfig`'s).
+    pm1_next, pmw_next, pmt_next : In(signed(26))
+        ``PERIOD − 1``, ``PERIOD − SYNC_WINDOW`` and ``PERIOD − TICK + 1`` as they stand in
+        the next cycle (NodeConfig keeps them in registers, formed as a CONFIG record comes
+        in): the comparisons with the cycles to the boundary, ``rem = PERIOD + adj − phase``,
+        are ``phase`` against thresholds kept in registers (these plus ``adj``), computed a
+        cycle ahead with the loop's next ``adj``; and the compares themselves are flags formed
+        a cycle ahead from the phase's next value. The adder in front of each compare had made
+        ``phase`` → ``rem`` → window → resync → boundary the node's slowest path.
     tail : Out(1)
         The loop on and fewer than TICK cycles to the boundary: no control tick.
     """
@@ -120,9 +123,12 @@ class PeriodTimer(wiring.Component):
     discipline:   In(DisciplineWord)
     restart:      In(1)
     tick:         In(16)
-    period_next:  In(24, init=CONFIG_DEFAULTS[Config.PERIOD])
     window_next:  In(24, init=CONFIG_DEFAULTS[Config.SYNC_WINDOW])
-    tick_next:    In(16, init=CONFIG_DEFAULTS[Config.TICK])
+    pm1_next:     In(signed(26), init=CONFIG_DEFAULTS[Config.PERIOD] - 1)
+    pmw_next:     In(signed(26), init=CONFIG_DEFAULTS[Config.PERIOD]
+                     - CONFIG_DEFAULTS[Config.SYNC_WINDOW])
+    pmt_next:     In(signed(26), init=CONFIG_DEFAULTS[Config.PERIOD]
+                     - CONFIG_DEFAULTS[Config.TICK] + 1)
     tail:         Out(1)
 
     def elaborate(self, platform):
@@ -136,38 +142,63 @@ class PeriodTimer(wiring.Component):
         adj_next = Signal.like(adj)
         p0, w0, t0 = (CONFIG_DEFAULTS[r] for r in (Config.PERIOD, Config.SYNC_WINDOW,
                                                    Config.TICK))
-        # PERIOD + adj, and the thresholds rem ≤ 1, rem ≤ window, rem < tick become on phase
-        base  = Signal(signed(27), init=p0)
+        # the thresholds rem ≤ 1, rem ≤ window, rem < tick become on phase (PERIOD + adj − 1,
+        # − SYNC_WINDOW, − TICK + 1)
         thr1  = Signal(signed(27), init=p0 - 1)
         thrw  = Signal(signed(27), init=p0 - w0)
         thrt  = Signal(signed(27), init=p0 - t0 + 1)
-        base_next = Signal(signed(27))
-        m.d.comb += base_next.eq(self.period_next + adj_next)
+        thr1_next = Signal(signed(27))
+        thrw_next = Signal(signed(27))
+        thrt_next = Signal(signed(27))
+        m.d.comb += [
+            thr1_next.eq(self.pm1_next + adj_next),
+            thrw_next.eq(self.pmw_next + adj_next),
+            thrt_next.eq(self.pmt_next + adj_next),
+        ]
         m.d.sync += [
-            base.eq(base_next),
-            thr1.eq(base_next - 1),
-            thrw.eq(base_next - self.window_next),
-            thrt.eq(base_next - self.tick_next + 1),
+            thr1.eq(thr1_next),
+            thrw.eq(thrw_next),
+            thrt.eq(thrt_next),
+        ]
+        # The phase's comparisons, kept in registers formed a cycle ahead: the phase's next
+        # value against the next window and thresholds (each flag equals its compare in every
+        # cycle). CONFIG's records reach ``*_next`` from a register (the core delays them a
+        # cycle), so no path from the link's depacketizer runs through these compares.
+        phase_next = Signal.like(phase)
+        f_zero = Signal(init=1)                             # phase == 0
+        f_late = Signal(init=int(0 >= w0))                  # phase ≥ SYNC_WINDOW
+        f_thrw = Signal(init=int(0 >= p0 - w0))             # phase ≥ thrw
+        f_end  = Signal(init=int(0 >= p0 - 1))              # phase ≥ thr1 (rem ≤ 1)
+        f_pre  = Signal(init=int(0 == p0 - 1))              # phase == thr1
+        f_tail = Signal(init=int(0 >= p0 - t0 + 1))         # phase ≥ thrt
+        m.d.sync += [
+            phase.eq(phase_next),
+            f_zero.eq(phase_next == 0),
+            f_late.eq(phase_next >= self.window_next),
+            f_thrw.eq(phase_next >= thrw_next),
+            f_end.eq(phase_next >= thr1_next),
+            f_pre.eq(phase_next == thr1_next),
+            f_tail.eq(phase_next >= thrt_next),
         ]
         m.d.comb += [
-            rem.eq(base - phase),
-            late.eq(phase >= self.window),
-            early.eq(self.discipline.enable & late & (phase >= thrw)),
+            rem.eq(thr1 + 1 - phase),
+            late.eq(f_late),
+            early.eq(self.discipline.enable & late & f_thrw),
             self.resync.eq(self.time_code & late & ~early),
-            self.boundary.eq((phase == 0) | self.resync),
-            self.pre_boundary.eq(phase == thr1),
+            self.boundary.eq(f_zero | self.resync),
+            self.pre_boundary.eq(f_pre),
             self.elapsed.eq(Mux(self.boundary, 0, phase)),
-            self.tail.eq(self.discipline.enable & (phase >= thrt)),
+            self.tail.eq(self.discipline.enable & f_tail),
         ]
         self._loop(m, adj, adj_next, rem, early)
         with m.If(self.resync & self.discipline.enable):
-            m.d.sync += phase.eq(self.discipline.target + 1)     # acquisition at the target
+            m.d.comb += phase_next.eq(self.discipline.target + 1)   # acquisition at the target
         with m.Elif(self.boundary):
-            m.d.sync += phase.eq(1)
-        with m.Elif(phase >= thr1):                             # rem ≤ 1
-            m.d.sync += phase.eq(0)
+            m.d.comb += phase_next.eq(1)
+        with m.Elif(f_end):                                     # rem ≤ 1
+            m.d.comb += phase_next.eq(0)
         with m.Else():
-            m.d.sync += phase.eq(phase + 1)
+            m.d.comb += phase_next.eq(phase + 1)
         counted = self.resync & self.armed & (count != 0xFFFF)
         with m.If(counted):
             m.d.sync += count.eq(count + 1)
