@@ -847,41 +847,14 @@ class ModelBackend(GatewareSide):
         Returns the observation-port strobes before ``end`` ``(cycle, node, name)``.
         ``which``: only these nodes (the others' events are still collected)."""
         out = []
-        start = self._start
         stay = {"stay": True} if self._kern is not None else {}   # (KernelNode: no row copies)
         for k, node in enumerate(self.nodes):
             if which is not None and k not in which:
                 self._collect(k, node, end, out)
                 continue
             sample = self._samplers[k]
-            box = self._link.inbox[k]
-            if box:
-                if len(box) > 1:
-                    box.sort(key=_arrival)
-                i = 0
-                while i < len(box) and box[i][0] < end:
-                    c, _, kind, data = box[i]
-                    i += 1
-                    if kind == "timecode":
-                        node.run(c, sample, **stay)
-                        ph_before = node.phase(c) if c < node.next_boundary() else 0
-                        window = node.config[Config.SYNC_WINDOW]
-                        if start is not None and c >= start:
-                            self.phases["timecode"] = max(self.phases["timecode"], ph_before)
-                        if node.timecode(c, data, sample, **stay):
-                            self._violate(f"node {k + 1}: time-code at phase {ph_before} "
-                                          f"(cycle {c}) resynchronised the timer")
-                        elif window - ph_before < min(_MARGIN, window // 2):
-                            self._violate(f"node {k + 1}: time-code at phase {ph_before}, "
-                                          f"near the sync window {window}")
-                        continue
-                    ptype, payload, seq = data
-                    node.run(c + 1, sample, **stay)     # (what run(c), then run(c + 1) do)
-                    self._check_packet(k, node, c, ptype)
-                    reply = node.packet(c, ptype, payload, sample=sample, **stay)
-                    if reply is not None:
-                        self._link.reply(k, node.reply_cycle(c, ptype), ptype, reply, seq)
-                del box[:i]
+            if self._link.inbox[k]:
+                self._inbox(k, node, end, sample, stay)
             if self._kern is not None:             # (FORCE.decode: w · 2^lsb, exact)
                 self._torque[k] = node.run_torque(end - 1, sample) * _FORCE_LSB
             else:
@@ -889,6 +862,45 @@ class ModelBackend(GatewareSide):
                 self._torque[k] = FORCE.decode(node.torque_at(end - 1))
             self._collect(k, node, end, out)
         return out
+
+    def _inbox(self, k: int, node, end: int, sample, stay: dict, tm=None) -> None:
+        """Node ``k``'s inbox before master cycle ``end`` into the node: each time-code (its
+        phase against the sync window checked, a resync reported) and each packet (the
+        timing conditions checked, its reply queued on the link). ``tm``: the node's
+        :class:`~cosim.clocks.NodeTime` (clocks of their own: a delivery in master cycle ``c``
+        reaches the node in ``tm.node_cycle(c)``, a reply leaves in the master cycle of its
+        node cycle), None on one clock."""
+        box = self._link.inbox[k]
+        if len(box) > 1:
+            box.sort(key=_arrival)
+        start = self._start
+        i = 0
+        while i < len(box) and box[i][0] < end:
+            cm, _, kind, data = box[i]
+            c = cm if tm is None else tm.node_cycle(cm)
+            i += 1
+            if kind == "timecode":
+                node.run(c, sample, **stay)
+                ph_before = node.phase(c) if c < node.next_boundary() else 0
+                window = node.config[Config.SYNC_WINDOW]
+                if start is not None and cm >= start:
+                    self.phases["timecode"] = max(self.phases["timecode"], ph_before)
+                if node.timecode(c, data, sample, **stay):
+                    self._violate(f"node {k + 1}: time-code at phase {ph_before} "
+                                  f"(cycle {cm}) resynchronised the timer")
+                elif _near_window(node, c, ph_before, window):
+                    self._violate(f"node {k + 1}: time-code at phase {ph_before}, "
+                                  f"near the sync window {window}")
+                continue
+            ptype, payload, seq = data
+            node.run(c + 1, sample, **stay)     # (what run(c), then run(c + 1) do)
+            self._check_packet(k, node, cm, ptype, c)
+            reply = node.packet(c, ptype, payload, sample=sample, **stay)
+            if reply is not None:
+                ready = node.reply_cycle(c, ptype)
+                self._link.reply(k, ready if tm is None else tm.master_cycle(ready), ptype,
+                                 reply, seq)
+        del box[:i]
 
     def _run_clocked(self, start: int, n: int, lines: PlantLines, offset: int) -> list:
         """:meth:`advance`'s nodes with a clock each (:class:`cosim.clocks.NodeTime`): master
@@ -909,7 +921,6 @@ class ModelBackend(GatewareSide):
         elif not self.lazy and not at_rest:
             counts = lines.cycles().counts
         out = []
-        strt = self._start
         for k, (node, enc, tm) in enumerate(zip(self.nodes, self.encoders, self._times,
                                                 strict=True)):
             n0, n1 = tm.node_cycle(start), tm.node_cycle(end)
@@ -937,36 +948,8 @@ class ModelBackend(GatewareSide):
                 enc.feed(n0, np.full(n1 - n0, lines.counts[k]) if at_rest
                          else counts[offset + g, k])
             sample = self._samplers[k]
-            box = self._link.inbox[k]
-            if box:
-                if len(box) > 1:
-                    box.sort(key=_arrival)
-                i = 0
-                while i < len(box) and box[i][0] < end:
-                    cm, _, kind, data = box[i]
-                    c = node_cycle(cm)
-                    i += 1
-                    if kind == "timecode":
-                        node.run(c, sample)
-                        ph_before = node.phase(c) if c < node.next_boundary() else 0
-                        window = node.config[Config.SYNC_WINDOW]
-                        if strt is not None and cm >= strt:
-                            self.phases["timecode"] = max(self.phases["timecode"], ph_before)
-                        if node.timecode(c, data, sample):
-                            self._violate(f"node {k + 1}: time-code at phase {ph_before} "
-                                          f"(cycle {cm}) resynchronised the timer")
-                        elif _near_window(node, c, ph_before, window):
-                            self._violate(f"node {k + 1}: time-code at phase {ph_before}, "
-                                          f"near the sync window {window}")
-                        continue
-                    ptype, payload, seq = data
-                    node.run(c + 1, sample)
-                    self._check_packet(k, node, cm, ptype, c)
-                    reply = node.packet(c, ptype, payload, sample=sample)
-                    if reply is not None:
-                        self._link.reply(k, master_cycle(node.reply_cycle(c, ptype)), ptype,
-                                         reply, seq)
-                del box[:i]
+            if self._link.inbox[k]:
+                self._inbox(k, node, end, sample, {}, tm)
             node.run(n1 - 1, sample)
             self._torque[k] = FORCE.decode(node.torque_at(n1 - 1))
             if node.events:
