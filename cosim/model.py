@@ -120,6 +120,10 @@ class ModelBackend(GatewareSide):
         (:mod:`cosim.model_kernel`, the default; the pure-Python path with a warning where
         numba cannot run) or the references in Python. Default ``$MRM_MODEL_KERNEL``, else
         numba. Same results bit for bit.
+    clocks : cosim.clocks.ClockPlan, optional
+        A clock per node (docs/clocks.md "The model backend"): each node's reference runs in
+        cycles of its own clock (:meth:`_run_clocked`), on the pure-Python path; None: one
+        clock.
 
     Attributes
     ----------

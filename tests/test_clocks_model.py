@@ -172,3 +172,21 @@ def test_run_track_on_clocks_of_their_own_draws_the_skew(tmp_path, capsys):
     assert cli.main(["run", "track", "--controller", "vdc", "--config", str(config),
                      "--out", str(common), "--quiet"]) == 0
     assert not (common / "skew.png").exists()
+
+
+def test_the_eager_path_on_clocks_of_their_own_is_the_lazy_ones(monkeypatch):
+    """``ModelBackend(lazy=False)`` with a clock per node: every tick computed, the encoder
+    lines fed cycle by cycle through the same mapping — the same trace and boundaries as the
+    lazy path's count changes."""
+    clocks = ClockConfig(mode="list", ppm=(5000.0, -3000.0, 1000.0), phase=(0.2, 0.5, 0.7),
+                         master_ppm=-4000.0, master_phase=0.9)
+    lazy, sl = run_track("mrm3", "pid-fpga", "model", duration=0.04, clocks=clocks, seed=4)
+    init = model_mod.ModelBackend.__init__
+
+    def eager(self, *a, **kw):
+        init(self, *a, **{**kw, "lazy": False})
+
+    monkeypatch.setattr(model_mod.ModelBackend, "__init__", eager)
+    slow, se = run_track("mrm3", "pid-fpga", "model", duration=0.04, clocks=clocks, seed=4)
+    assert sl["trace_sha256"] == se["trace_sha256"]
+    assert lazy.master.boundary_strobes == slow.master.boundary_strobes
