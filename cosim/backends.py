@@ -507,9 +507,6 @@ class PysimBackend(LineSide):
     def __init__(self, system, vcd: VcdWindow | None = None, faults=(),
                  line_slots: int = DEFAULT_SLOTS, record: bool = False, clocks=None):
         super().__init__(faults, line_slots, record)
-        if clocks is not None and vcd is not None:
-            raise InputError("vcd", "no pysim waveforms with clocks of their own; the compiled "
-                             "backend writes them (docs/clocks.md)")
         self.system = system
         self.clocks = clocks
         self._engine = None
@@ -530,8 +527,8 @@ class PysimBackend(LineSide):
             for d in range(plan.n_domains):
                 sim.add_clock(_fs(plan.periods[d]), phase=_fs(plan.phases[d] + plan.periods[d]),
                               domain="sync" if d == 0 else f"n{d}")
-            return sim
-        sim.add_clock(1 / CLOCK_HZ)
+        else:
+            sim.add_clock(1 / CLOCK_HZ)
         if self.vcd is not None:
             # Amaranth 0.5 names signals per fragment only inside the simulator it built
             # (Simulator.write_vcd cannot start late or select signals): take them from there.
@@ -604,6 +601,7 @@ class PysimBackend(LineSide):
                 eng.hist[i][0] = get(src)
         ins = [(getattr(dut, k), np.broadcast_to(np.asarray(v), (n,))) for k, v in inputs.items()]
         rec = np.zeros((n, len(outputs)), dtype=np.int64)
+        vcd = self.vcd
 
         async def until(t):
             if t > self._now:
@@ -629,6 +627,8 @@ class PysimBackend(LineSide):
             for d in group:
                 eng.cycle[d] += 1
                 eng.record(d, get)
+            if vcd is not None and vcd.start <= self._cycle < vcd.stop:
+                self._sample(ctx, t)           # after the edges of this instant, stamped t fs
 
         for g in range(n):
             for sig, values in ins:
@@ -647,19 +647,27 @@ class PysimBackend(LineSide):
                 rec[g, j] = self._acc[name] if name in self._acc else self._latest[name]
             for name in self._acc:
                 self._acc[name] = 0
+            self._cycle += 1
+            if vcd is not None and self._cycle == vcd.stop:
+                self.finish()
+                vcd = None
         return {k: rec[:, j] for j, k in enumerate(outputs)}
 
     @property
     def merged_strobes(self) -> int:
         return 0 if self._engine is None else self._engine.merged
 
-    def _sample(self, ctx) -> None:
+    def _sample(self, ctx, fs: int | None = None) -> None:
+        """Sample the window's signals: at the current cycle, or (clocks of their own) at
+        ``fs``, the time in femtoseconds of the edges just taken (as the compiled backend's
+        per-node-clock waveform: one sample per instant with a rising edge)."""
         if self._trace is None:
             # FST: the VCD goes to a hidden file beside the target first (finish converts it)
             target = (self.vcd.path if self.vcd.format == "vcd"
                       else _atomic_target(self.vcd.path))
-            self._trace = _VcdOut(target, self._names)
-        self._trace.sample(self._cycle, [ctx.get(sig) for sig in self._trace.signals])
+            self._trace = _VcdOut(target, self._names, fs=self.clocks is not None)
+        self._trace.sample(self._cycle if fs is None else fs,
+                           [ctx.get(sig) for sig in self._trace.signals])
 
     def finish(self) -> list[str] | None:
         """Close the window now (also at its end, or if the run ends inside it) and write the
@@ -719,10 +727,12 @@ def _pysim_names(design, vcd: VcdWindow) -> list[tuple[tuple[str, ...], str, obj
 
 
 class _VcdOut:
-    """Value changes of chosen signals, one sample per cycle, written like ``filter_vcd``."""
+    """Value changes of chosen signals, one sample per cycle, written like ``filter_vcd``;
+    ``fs``: samples stamped in femtoseconds (clocks of their own), timescale 1 fs."""
 
-    def __init__(self, path: Path, names):
+    def __init__(self, path: Path, names, fs: bool = False):
         self.path = path
+        self._scale = 1 if fs else _PERIOD_PS
         self.tmp = _atomic_target(path)
         self._file = open(self.tmp, "w")
         self.signals = []
@@ -742,15 +752,17 @@ class _VcdOut:
             rng = f" [{w - 1}:0]" if w > 1 else ""
             return f"$var wire {w} {self._ids[k]} {name}{rng} $end"
 
-        lines = vcd_header("system", [(scope, var(name, k)) for scope, name, k in self._vars])
+        lines = vcd_header("system", [(scope, var(name, k)) for scope, name, k in self._vars],
+                           "1fs" if fs else "1ps")
         self._file.write("\n".join(lines) + "\n")
 
-    def sample(self, cycle: int, values) -> None:
+    def sample(self, stamp: int, values) -> None:
+        """Values at ``stamp``: a cycle number, or femtoseconds for a ``fs`` writer."""
         raw = [int(v) & ((1 << w) - 1) for v, w in zip(values, self._widths, strict=True)]
         changed = [k for k, v in enumerate(raw) if self._last is None or self._last[k] != v]
         if not changed:
             return
-        out = [f"#{cycle * _PERIOD_PS}"]
+        out = [f"#{stamp * self._scale}"]
         if self._last is None:
             out.append("$dumpvars")
         for k in changed:
