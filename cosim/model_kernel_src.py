@@ -43,6 +43,16 @@ from mrm_cosim.protocol.fixed import FORCE as _FORCE
 from mrm_cosim.protocol.fixed import WORD_MAX as _WORD_MAX
 from mrm_cosim.protocol.fixed import WORD_MIN as _WORD_MIN
 
+def borrow(a):
+    """``a`` itself. Compiled (:func:`cosim.model_kernel.borrowed`), the same array without its
+    reference count: numba increments and decrements an array's count (an atomic instruction
+    each) at every call that takes it and every view made of it, and the tick loop's calls
+    take six arrays each; the views and calls below an entry point that borrows its arrays
+    skip those. Only the entry points called from Python borrow (their caller holds the
+    arrays for the whole call), and none returns an array."""
+    return a
+
+
 # --- node state row (FastNode / NodeModel fields the plain ticks read or write) -------------
 N_NT, N_TORQUE, N_TORQUE_NONE = 0, 1, 2
 N_LAND_C, N_LAND_V, N_LAND = 3, 4, 5            # N_LAND: 0 none, 1 a word, 2 a dead tick's None
@@ -636,6 +646,12 @@ def node_plain(N, P, E, vis, pipe, due, lim):
     with the generator's references not selected). Only such a commit is armed (a fast run's,
     :meth:`cosim.model.ModelBackend._fast_begin`), and the object's side follows the run
     (:meth:`~cosim.model_kernel.KernelNode.end_commit`)."""
+    N = borrow(N)
+    P = borrow(P)
+    E = borrow(E)
+    vis = borrow(vis)
+    pipe = borrow(pipe)
+    due = borrow(due)
     c = N[N_COMMIT_C]
     if c < lim:
         node_ticks(N, P, E, vis, pipe, due, c)
@@ -729,6 +745,7 @@ def step_changes(M, K, dt, cycles, CHC, CHN, NCH):
     (bisection where a joint has few changes, every cycle where it has many). Returns 0, or
     ``j + 1`` if joint ``j`` moved more than one count in a cycle (the caller then lets the
     reference raise its :class:`~models.encoder.EncoderOverspeed`)."""
+    M, K, CHC, CHN, NCH = borrow(M), borrow(K), borrow(CHC), borrow(CHN), borrow(NCH)
     n = M.shape[1]
     step = dt / cycles
     cap = CHC.shape[1]
@@ -807,6 +824,19 @@ def plain_step(NS, PS, ES, VIS, PIPE, DUE, PEND, plain, start, n, offset, CHC, C
     1`` and the torque output in that cycle into ``tau_out`` (N·m: the FORCE word times 2^−13,
     as ``FORCE.decode``). Returns True if a plain node's torque there is a dead tick's, which
     nothing may observe (a bug: the caller raises)."""
+    NS = borrow(NS)
+    PS = borrow(PS)
+    ES = borrow(ES)
+    VIS = borrow(VIS)
+    PIPE = borrow(PIPE)
+    DUE = borrow(DUE)
+    PEND = borrow(PEND)
+    plain = borrow(plain)
+    CHC = borrow(CHC)
+    CHN = borrow(CHN)
+    NCH = borrow(NCH)
+    CUR = borrow(CUR)
+    tau_out = borrow(tau_out)
     end = start + n
     bad = False
     for k in range(NS.shape[0]):
@@ -978,6 +1008,7 @@ def vdc_step(X, out):
     previous {C} velocity and ``q̇_r``, primed, then the run's inputs): the forces of Link a and
     Link b into ``out[VO_F:]`` (12), the adapted estimates of both into ``out[VO_TH:]`` (26).
     The caller keeps ``prev_C``, ``prev_qd_r`` and ``primed`` as the reference sets them."""
+    X, out = borrow(X), borrow(out)
     c = X[VX_COS]
     s = X[VX_SIN]
     qd = X[VX_QD]
@@ -1107,6 +1138,14 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X):
     ``i + 1 … i + k``, each ``IB[H_CYCLES]`` cycles after the one before): exactly the
     caller's own calls for them (:meth:`ModelBackend._fast <cosim.model.ModelBackend._fast>`),
     without a return to Python each."""
+    IB = borrow(IB)
+    F = borrow(F)
+    S = borrow(S)
+    a = borrow(a)
+    M = borrow(M)
+    rec = borrow(rec)
+    C = borrow(C)
+    X = borrow(X)
     r = _fast_step_one(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X)
     k = 0
     s = IB[H_CYCLES]
@@ -1281,6 +1320,13 @@ def fast_step_compliant(IB, F, S, acc, rec, i, start, C, noise, pre_next):
     nodes have not); 3 as :func:`plain_step`'s True; with ``pre_next``, ``8 · (code + 2)`` with
     ``code`` 1 (``pre`` done) or −1 (a torque was not finite, nothing done). ``pre_next`` −1:
     the plant's part only, as :func:`fast_step`'s."""
+    IB = borrow(IB)
+    F = borrow(F)
+    S = borrow(S)
+    acc = borrow(acc)
+    rec = borrow(rec)
+    C = borrow(C)
+    noise = borrow(noise)
     h = F[F_H]
     hh = F[F_HH]
     compliant_src.finish(S, acc, h, hh)
