@@ -196,7 +196,7 @@ def _warm_up(k) -> None:
     k.step_changes(np.array([[0.0], [1.0], [-5e4], [1e-5]]), np.array([1.27e5]), 1e-5, 500,
                    a.CHC, a.CHN, a.NCH)
     a.CUR[:] = 0
-    k.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, np.ones(1, dtype=np.bool_), 0,
+    k.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, np.ones(1, dtype=np.int64), 0,
                  500, 0, a.CHC, a.CHN, a.NCH, a.CUR, tau)
     e = a.rows(0)
     k.enc_tick_sample(e[0], e[2], e[3], e[4], 600)
@@ -261,7 +261,7 @@ class KernelArrays:
     def __init__(self, n: int):
         shapes = ((n, src.N_SIZE), (n, src.P_SIZE), (n, src.E_SIZE), (n, 2, PEND_CAP, 2),
                   (n, VIS_CAP, 2), (n, PIPE_CAP, 4), (n, DUE_CAP), (n, CHANGE_CAP),
-                  (n, CHANGE_CAP), (n,), (n,))
+                  (n, CHANGE_CAP), (n,), (n,), (src.SCRATCH,))
         sizes = [int(np.prod(sh)) for sh in shapes]
         #: every array below is a view of this one (:func:`cosim.model_kernel_src.blob_views`),
         #: so the fast path passes one argument for all of them
@@ -273,7 +273,8 @@ class KernelArrays:
             o += size
         (self.N, self.P, self.E, self.PEND, self.VIS, self.PIPE, self.DUE,
          # the count changes of the current plant step (step_changes) and the next one to feed
-         self.CHC, self.CHN, self.NCH, self.CUR) = views
+         self.CHC, self.CHN, self.NCH, self.CUR,
+         self.SCR) = views             # (SCR: the fast path's scratch, _step_changes)
         self.N[:, src.N_COMMIT_C] = src.NEVER   # no commit armed
 
     def rows(self, k: int) -> tuple:
