@@ -86,7 +86,9 @@ def borrowed():
     ``NRT_decref``: a locked instruction each, where the pointer is not null) does nothing.
     The data, shape and strides are the array's; the caller keeps the array alive (an entry
     point's argument, held by Python for the call). 24 % of the ``model`` backend's CPU time
-    on ``mrm3`` went to those two instructions before (perf, 26 Nov 2026)."""
+    on ``mrm3`` went to those two instructions before (perf, 26 Nov 2026). (numba's cache of
+    the functions that call it is keyed on cosim/model_kernel_src.py only: a change here
+    needs that file touched, or the cache cleared.)"""
     from numba.core import cgutils, types
     from numba.extending import intrinsic
 
