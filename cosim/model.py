@@ -194,7 +194,7 @@ class ModelBackend(GatewareSide):
             for k, node in enumerate(self.nodes):
                 node.bind(arrays, k, kern)
                 KernelVdc.adopt(node.vdc)
-            self._plain = np.zeros(self.n, dtype=np.bool_)
+            self._plain = np.zeros(self.n, dtype=np.int64)     # (plain_step: 1 where plain)
             self._chg_lines = None
             self._fed = 0
             # the fast path's floats: the plant's constants, then the torque outputs

@@ -72,9 +72,39 @@ def jit_module(module, njit) -> None:
 
     names = set(getattr(module, "CALLS", ()))
     for name, obj in list(vars(module).items()):
-        if isinstance(obj, types.FunctionType) and (obj.__module__ == module.__name__
-                                                    or name in names):
+        if name == "borrow" and obj is getattr(src, "borrow", None):
+            setattr(module, name, borrowed())
+        elif isinstance(obj, types.FunctionType) and (obj.__module__ == module.__name__
+                                                      or name in names):
             setattr(module, name, njit(obj))
+
+
+@cache
+def borrowed():
+    """:func:`cosim.model_kernel_src.borrow` compiled: a numba intrinsic giving the array with
+    a null meminfo, so that numba's reference counting of it and of its views (``NRT_incref``,
+    ``NRT_decref``: a locked instruction each, where the pointer is not null) does nothing.
+    The data, shape and strides are the array's; the caller keeps the array alive (an entry
+    point's argument, held by Python for the call). 24 % of the ``model`` backend's CPU time
+    on ``mrm3`` went to those two instructions before (perf, 26 Nov 2026). (numba's cache of
+    the functions that call it is keyed on cosim/model_kernel_src.py only: a change here
+    needs that file touched, or the cache cleared.)"""
+    from numba.core import cgutils, types
+    from numba.extending import intrinsic
+
+    @intrinsic
+    def borrow(typingctx, a):
+        if not isinstance(a, types.Array):
+            return None
+
+        def codegen(context, builder, sig, args):
+            ary = context.make_array(sig.args[0])(context, builder, value=args[0])
+            ary.meminfo = cgutils.get_null_value(ary.meminfo.type)
+            return ary._getvalue()
+
+        return a(a), codegen
+
+    return borrow
 
 
 def load():
@@ -168,7 +198,7 @@ def _warm_up(k) -> None:
     k.step_changes(np.array([[0.0], [1.0], [-5e4], [1e-5]]), np.array([1.27e5]), 1e-5, 500,
                    a.CHC, a.CHN, a.NCH)
     a.CUR[:] = 0
-    k.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, np.ones(1, dtype=np.bool_), 0,
+    k.plain_step(a.N, a.P, a.E, a.VIS, a.PIPE, a.DUE, a.PEND, np.ones(1, dtype=np.int64), 0,
                  500, 0, a.CHC, a.CHN, a.NCH, a.CUR, tau)
     e = a.rows(0)
     k.enc_tick_sample(e[0], e[2], e[3], e[4], 600)
@@ -233,7 +263,7 @@ class KernelArrays:
     def __init__(self, n: int):
         shapes = ((n, src.N_SIZE), (n, src.P_SIZE), (n, src.E_SIZE), (n, 2, PEND_CAP, 2),
                   (n, VIS_CAP, 2), (n, PIPE_CAP, 4), (n, DUE_CAP), (n, CHANGE_CAP),
-                  (n, CHANGE_CAP), (n,), (n,))
+                  (n, CHANGE_CAP), (n,), (n,), (src.SCRATCH,))
         sizes = [int(np.prod(sh)) for sh in shapes]
         #: every array below is a view of this one (:func:`cosim.model_kernel_src.blob_views`),
         #: so the fast path passes one argument for all of them
@@ -245,7 +275,8 @@ class KernelArrays:
             o += size
         (self.N, self.P, self.E, self.PEND, self.VIS, self.PIPE, self.DUE,
          # the count changes of the current plant step (step_changes) and the next one to feed
-         self.CHC, self.CHN, self.NCH, self.CUR) = views
+         self.CHC, self.CHN, self.NCH, self.CUR,
+         self.SCR) = views             # (SCR: the fast path's scratch, _step_changes)
         self.N[:, src.N_COMMIT_C] = src.NEVER   # no commit armed
 
     def rows(self, k: int) -> tuple:

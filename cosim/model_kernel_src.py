@@ -43,6 +43,16 @@ from mrm_cosim.protocol.fixed import FORCE as _FORCE
 from mrm_cosim.protocol.fixed import WORD_MAX as _WORD_MAX
 from mrm_cosim.protocol.fixed import WORD_MIN as _WORD_MIN
 
+def borrow(a):
+    """``a`` itself. Compiled (:func:`cosim.model_kernel.borrowed`), the same array without its
+    reference count: numba increments and decrements an array's count (an atomic instruction
+    each) at every call that takes it and every view made of it, and the tick loop's calls
+    take six arrays each; the views and calls below an entry point that borrows its arrays
+    skip those. Only the entry points called from Python borrow (their caller holds the
+    arrays for the whole call), and none returns an array."""
+    return a
+
+
 # --- node state row (FastNode / NodeModel fields the plain ticks read or write) -------------
 N_NT, N_TORQUE, N_TORQUE_NONE = 0, 1, 2
 N_LAND_C, N_LAND_V, N_LAND = 3, 4, 5            # N_LAND: 0 none, 1 a word, 2 a dead tick's None
@@ -172,6 +182,11 @@ def _phase(a, b):
 def enc_feed_changes(E, pend, vis, start, n, cyc, cnt):
     """:meth:`EncoderEvents.feed_changes` (``start`` already checked by the caller); the
     changes as two arrays, cycles in the step and new counts."""
+    _enc_feed(E, pend, vis, start, n, cyc, cnt, 0)
+
+
+def _enc_feed(E, pend, vis, start, n, cyc, cnt, offset):
+    """:func:`enc_feed_changes` with the changes' cycles ``cyc − offset`` (no new array)."""
     m = cyc.shape[0]
     if m:
         o = E[E_RAW]
@@ -182,7 +197,7 @@ def enc_feed_changes(E, pend, vis, start, n, cyc, cnt):
             k = E[E_NPEND0 + line]
             if k >= pend.shape[1]:
                 raise RuntimeError("encoder kernel: pending-change buffer full")
-            pend[line, k, 0] = start + cyc[j]
+            pend[line, k, 0] = start + (cyc[j] - offset)
             pend[line, k, 1] = (((n_ & 3) >> 1) ^ (n_ & 1)) if line == 0 else (n_ & 3) >> 1
             E[E_NPEND0 + line] = k + 1
             o = n_
@@ -636,6 +651,12 @@ def node_plain(N, P, E, vis, pipe, due, lim):
     with the generator's references not selected). Only such a commit is armed (a fast run's,
     :meth:`cosim.model.ModelBackend._fast_begin`), and the object's side follows the run
     (:meth:`~cosim.model_kernel.KernelNode.end_commit`)."""
+    N = borrow(N)
+    P = borrow(P)
+    E = borrow(E)
+    vis = borrow(vis)
+    pipe = borrow(pipe)
+    due = borrow(due)
     c = N[N_COMMIT_C]
     if c < lim:
         node_ticks(N, P, E, vis, pipe, due, c)
@@ -729,14 +750,27 @@ def step_changes(M, K, dt, cycles, CHC, CHN, NCH):
     (bisection where a joint has few changes, every cycle where it has many). Returns 0, or
     ``j + 1`` if joint ``j`` moved more than one count in a cycle (the caller then lets the
     reference raise its :class:`~models.encoder.EncoderOverspeed`)."""
-    n = M.shape[1]
+    M, K, CHC, CHN, NCH = borrow(M), borrow(K), borrow(CHC), borrow(CHN), borrow(NCH)
+    scratch = np.empty(SCRATCH, dtype=np.int64)
+    return _step_changes(M, 0, 1, 2, 3, K, dt, cycles, CHC, CHN, NCH, scratch)
+
+
+#: :func:`_step_changes`' scratch words: the bisection's stack (64 × 4), the explicit samples (5)
+SCRATCH = 64 * 4 + 5
+
+
+def _step_changes(A, r0, r1, r2, r3, K, dt, cycles, CHC, CHN, NCH, scratch):
+    """:func:`step_changes` on rows ``r0 … r3`` of ``A`` (the start angles, start velocities,
+    accelerations, end angles), its stack and sample list in ``scratch`` (``SCRATCH`` words:
+    the fast path's are in the blob, :func:`blob_views`, so a step allocates nothing)."""
+    n = A.shape[1]
     step = dt / cycles
     cap = CHC.shape[1]
-    stack = np.empty((64, 4), dtype=np.int64)
-    explicit = np.empty(5, dtype=np.int64)
+    stack = scratch[:256].reshape((64, 4))
+    explicit = scratch[256:261]
     for j in range(n):
         NCH[j] = 0
-        q0, v0, acc, q1, k = M[0, j], M[1, j], M[2, j], M[3, j], K[j]
+        q0, v0, acc, q1, k = A[r0, j], A[r1, j], A[r2, j], A[r3, j], K[j]
         c0 = math.floor(q0 * k)
         c1 = math.floor(q1 * k)
         turning = acc != 0.0 and 0.0 < -v0 / acc < dt
@@ -807,6 +841,26 @@ def plain_step(NS, PS, ES, VIS, PIPE, DUE, PEND, plain, start, n, offset, CHC, C
     1`` and the torque output in that cycle into ``tau_out`` (N·m: the FORCE word times 2^−13,
     as ``FORCE.decode``). Returns True if a plain node's torque there is a dead tick's, which
     nothing may observe (a bug: the caller raises)."""
+    NS = borrow(NS)
+    PS = borrow(PS)
+    ES = borrow(ES)
+    VIS = borrow(VIS)
+    PIPE = borrow(PIPE)
+    DUE = borrow(DUE)
+    PEND = borrow(PEND)
+    plain = borrow(plain)
+    CHC = borrow(CHC)
+    CHN = borrow(CHN)
+    NCH = borrow(NCH)
+    CUR = borrow(CUR)
+    tau_out = borrow(tau_out)
+    return _plain_step(NS, PS, ES, VIS, PIPE, DUE, PEND, plain, False, start, n, offset, CHC,
+                       CHN, NCH, CUR, tau_out)
+
+
+def _plain_step(NS, PS, ES, VIS, PIPE, DUE, PEND, plain, every, start, n, offset, CHC, CHN,
+                NCH, CUR, tau_out):
+    """:func:`plain_step`; ``every``: every node is plain (``plain`` is not read)."""
     end = start + n
     bad = False
     for k in range(NS.shape[0]):
@@ -818,9 +872,8 @@ def plain_step(NS, PS, ES, VIS, PIPE, DUE, PEND, plain, start, n, offset, CHC, C
         while j < m and CHC[k, j] < offset + n:
             j += 1
         CUR[k] = j
-        enc_feed_changes(ES[k], PEND[k], VIS[k], start, n, CHC[k, j0:j] - offset,
-                         CHN[k, j0:j])
-        if plain[k]:
+        _enc_feed(ES[k], PEND[k], VIS[k], start, n, CHC[k, j0:j], CHN[k, j0:j], offset)
+        if every or plain[k]:
             node_plain(NS[k], PS[k], ES[k], VIS[k], PIPE[k], DUE[k], end - 1)
             tau_out[k] = float(torque_at(NS[k], end - 1)) * FORCE_LSB
             if NS[k, N_TORQUE_NONE]:
@@ -978,6 +1031,7 @@ def vdc_step(X, out):
     previous {C} velocity and ``q̇_r``, primed, then the run's inputs): the forces of Link a and
     Link b into ``out[VO_F:]`` (12), the adapted estimates of both into ``out[VO_TH:]`` (26).
     The caller keeps ``prev_C``, ``prev_qd_r`` and ``primed`` as the reference sets them."""
+    X, out = borrow(X), borrow(out)
     c = X[VX_COS]
     s = X[VX_SIN]
     qd = X[VX_QD]
@@ -1038,7 +1092,7 @@ F_H, F_HH, F_FRICTION, F_SIZE = 0, 1, 2, 4
 
 def blob_views(IB):
     """The kernel's arrays as views of the int64 blob ``IB``: ``N, P, E, PEND, VIS, PIPE, DUE,
-    CHC, CHN, NCH, CUR`` (shapes as :class:`cosim.model_kernel.KernelArrays`)."""
+    CHC, CHN, NCH, CUR, SCR`` (shapes as :class:`cosim.model_kernel.KernelArrays`)."""
     n = IB[H_N]
     o = H_SIZE
     N = IB[o:o + n * N_SIZE].reshape((n, N_SIZE))
@@ -1062,7 +1116,9 @@ def blob_views(IB):
     NCH = IB[o:o + n]
     o += n
     CUR = IB[o:o + n]
-    return N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR
+    o += n
+    SCR = IB[o:o + SCRATCH]
+    return N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR, SCR
 
 
 def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X):
@@ -1107,6 +1163,14 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X):
     ``i + 1 … i + k``, each ``IB[H_CYCLES]`` cycles after the one before): exactly the
     caller's own calls for them (:meth:`ModelBackend._fast <cosim.model.ModelBackend._fast>`),
     without a return to Python each."""
+    IB = borrow(IB)
+    F = borrow(F)
+    S = borrow(S)
+    a = borrow(a)
+    M = borrow(M)
+    rec = borrow(rec)
+    C = borrow(C)
+    X = borrow(X)
     r = _fast_step_one(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X)
     k = 0
     s = IB[H_CYCLES]
@@ -1224,39 +1288,23 @@ def _step_nodes(IB, F, S, rec, i, start, start_row, velocity_row, acc_row, end_r
     ticks to the step's last cycle with the torques they output there (:func:`plain_step`;
     not with ``plant_only``: the nodes run on the general path). Returns 0; 2 if a joint moved
     more than one count in a cycle; 3 as :func:`plain_step`'s True."""
-    if _step_plant_end(IB, F, S, rec, i, start_row, velocity_row, acc_row, end_row, q_row):
-        return 2
-    if plant_only:
-        return 0
     n = IB[H_N]
-    N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR = blob_views(IB)
+    N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR, SCR = blob_views(IB)
     tau = F[F_SIZE + n:F_SIZE + 2 * n]
-    plain = np.ones(n, dtype=np.bool_)
-    if plain_step(N, P, E, VIS, PIPE, DUE, PEND, plain, start, IB[H_CYCLES], 0, CHC, CHN, NCH,
-                  CUR, tau):
-        return 3
-    return 0
-
-
-def _step_plant_end(IB, F, S, rec, i, start_row, velocity_row, acc_row, end_row, q_row):
-    """:func:`_step_nodes`' first part: the trace row ``i`` and the step's count changes
-    (``CUR`` at the first). Returns 0; 2 if a joint moved more than one count in a cycle."""
-    n = IB[H_N]
-    N, P, E, PEND, VIS, PIPE, DUE, CHC, CHN, NCH, CUR = blob_views(IB)
-    K = F[F_SIZE:F_SIZE + n]
-    tau = F[F_SIZE + n:F_SIZE + 2 * n]
-    M = np.empty((4, n))
+    # the trace row and the step's count changes (CUR at the first)
     for j in range(n):
-        M[0, j] = S[start_row, j]
-        M[1, j] = S[velocity_row, j]
-        M[2, j] = S[acc_row, j]
-        M[3, j] = S[end_row, j]
         rec[0, i, j] = S[q_row, j]
         rec[1, i, j] = tau[j]
-    if step_changes(M, K, F[F_H], IB[H_CYCLES], CHC, CHN, NCH):
+    if _step_changes(S, start_row, velocity_row, acc_row, end_row, F[F_SIZE:F_SIZE + n],
+                     F[F_H], IB[H_CYCLES], CHC, CHN, NCH, SCR):
         return 2
     for k in range(n):
         CUR[k] = 0
+    if plant_only:
+        return 0
+    if _plain_step(N, P, E, VIS, PIPE, DUE, PEND, NCH, True, start, IB[H_CYCLES], 0, CHC, CHN,
+                   NCH, CUR, tau):
+        return 3
     return 0
 
 
@@ -1281,6 +1329,13 @@ def fast_step_compliant(IB, F, S, acc, rec, i, start, C, noise, pre_next):
     nodes have not); 3 as :func:`plain_step`'s True; with ``pre_next``, ``8 · (code + 2)`` with
     ``code`` 1 (``pre`` done) or −1 (a torque was not finite, nothing done). ``pre_next`` −1:
     the plant's part only, as :func:`fast_step`'s."""
+    IB = borrow(IB)
+    F = borrow(F)
+    S = borrow(S)
+    acc = borrow(acc)
+    rec = borrow(rec)
+    C = borrow(C)
+    noise = borrow(noise)
     h = F[F_H]
     hh = F[F_HH]
     compliant_src.finish(S, acc, h, hh)

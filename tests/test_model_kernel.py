@@ -559,3 +559,45 @@ def test_any_trip_is_every_node_s_brake_test(rows, c):
         N[k, src.N_LAST_PACKET], N[k, src.N_TIMEOUT] = last, timeout
     want = any(t or (a and c >= last + 2 + to) for t, a, last, to in rows)
     assert kern.any_trip(N, c) is want
+
+
+@needs_numba
+def test_borrowed_arrays_are_the_arrays_without_a_reference_count():
+    """``borrow`` (cosim.model_kernel.borrowed): inside compiled code the same data, shape and
+    strides, writes land in the caller's array, views of it work, and its meminfo is null (so
+    numba's reference counting of it and of its views is a no-op, no atomic instruction); the
+    Python object's own reference count is untouched. The entry points the backend calls
+    from Python borrow their arrays."""
+    import numba
+    from numba.core import types
+    from numba.extending import intrinsic
+
+    assert kern.borrow is mk.borrowed()        # (the module jitted in place: src is kern)
+
+    @intrinsic
+    def meminfo_address(typingctx, a):
+        def codegen(context, builder, sig, args):
+            ary = context.make_array(sig.args[0])(context, builder, value=args[0])
+            return builder.ptrtoint(ary.meminfo, context.get_value_type(types.intp))
+        return types.intp(a), codegen
+
+    borrow = mk.borrowed()
+
+    @numba.njit
+    def use(a):
+        b = borrow(a)
+        row = b[1]
+        row[2] = 7
+        return meminfo_address(a), meminfo_address(b), meminfo_address(row), b[1:, 1:].sum()
+
+    a = np.arange(12, dtype=np.int64).reshape((3, 4))
+    refs = sys.getrefcount(a)
+    for _ in range(3):
+        own, borrowed, view, total = use(a)
+    assert own != 0 and borrowed == 0 and view == 0
+    assert a[1, 2] == 7 and total == 5 + 7 + 7 + 9 + 10 + 11
+    assert sys.getrefcount(a) == refs
+    import inspect
+    for name in ("fast_step", "fast_step_compliant", "plain_step", "node_plain", "vdc_step",
+                 "step_changes"):
+        assert "borrow(" in inspect.getsource(getattr(kern, name).py_func), name
