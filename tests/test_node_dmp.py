@@ -6,13 +6,16 @@ import math
 import numpy as np
 import pytest
 from amaranth.hdl import Fragment
+from amaranth.hdl._ast import Assign, Switch  # the elaborated statements (a structural check)
 from amaranth.sim import Simulator
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mrm_cosim.errors import InputError
-from mrm_cosim.hdl.node.dmp import DmpGenerator
-from mrm_cosim.hdl.node.dmp_ref import DmpGeneratorModel, exp2neg, step_cycles
+from mrm_cosim.hdl.node.dmp import QBITS, DmpGenerator
+from mrm_cosim.hdl.node.dmp_ref import (CYCLES_FIXED, CYCLES_PER_BASIS, DmpGeneratorModel,
+                                        exp2neg, step_cycles)
+from mrm_cosim.hdl.node.dmp_ucode import DIV_CYCLES, OP_CYCLES, Br, program
 from mrm_cosim.hdl.tops import build_top
 from mrm_cosim.master.dmp import learn_dmp
 from mrm_cosim.protocol.dmp import (MAX_BASIS, STEP_CYCLES, DmpParams, Reg, centre_addr,
@@ -151,7 +154,69 @@ def test_cycle_count_is_the_references():
         ops.append((c, "write", (15, 0)))
     seen = check_equal(ops)
     assert [s[5] for s in seen[-2:]] == [0, 1]
-    assert step_cycles(n) == 230 + 72 * n
+
+
+def microprogram_cycles(n: int, max_basis: int = MAX_BASIS) -> int:
+    """A step's cycles walked through the microprogram's branches with ``n`` Gaussians: every
+    micro-operation OP_CYCLES, the divider's DIV_CYCLES (its 34 quotient bits and rounding)."""
+    prog = program(max_basis, 0)
+    labels, ops = {}, []
+    for op in prog:
+        if isinstance(op, str):
+            labels[op] = len(ops)
+        else:
+            ops.append(op)
+    pc = i = cycles = 0
+    while True:
+        op = ops[pc]
+        cycles += DIV_CYCLES if op.get("div") else OP_CYCLES
+        br, pc = op.get("br", Br.NONE), pc + 1
+        if br == Br.END:
+            return cycles
+        if br == Br.LOOP:
+            i, pc = (0, pc) if i == n - 1 else (i + 1, labels[op["tgt"]])
+        elif br == Br.NZERO and n == 0:
+            pc = labels[op["tgt"]]
+
+
+def test_cycle_count_is_the_microprograms():
+    """The reference's CYCLES_FIXED and CYCLES_PER_BASIS are the microprogram's: five cycles a
+    micro-operation (the operands registered before the multipliers, docs/node.md Clock), the
+    divider's 2 + 34 + 2. ``test_cycle_count_is_the_references`` holds the gateware to it: with
+    the operand phase removed ``ready`` rises 18 n + 48 cycles early and it fails."""
+    assert OP_CYCLES == 5 and DIV_CYCLES == 2 + QBITS + 2
+    for n in (0, 1, 2, 20, MAX_BASIS):
+        assert microprogram_cycles(n) == step_cycles(n), n
+    assert (CYCLES_FIXED, CYCLES_PER_BASIS) == (278, 90)
+
+
+def _assigns(stmts):
+    for stmt in stmts:
+        if isinstance(stmt, Assign):
+            yield stmt
+        elif isinstance(stmt, Switch):
+            for case in stmt.cases:
+                yield from _assigns(case[1])
+
+
+def test_multiplier_operands_are_registers():
+    """The four partial products read only the operand registers ``mul_a``, ``mul_b``, and
+    those are flip-flops: no block RAM output (register file, parameter memory) reaches a
+    MULT18X18 in the cycle it is read (docs/node.md, Clock). With the operand register
+    removed (the products taken from the RAMs' outputs in phase 1 again) it fails, though the
+    outputs and cycle counts would not show it."""
+    frag = Fragment.get(DmpGenerator(), None)
+    drivers, reads = {}, {}
+    for domain, stmts in frag.statements.items():
+        for stmt in _assigns(stmts):
+            for sig in stmt._lhs_signals():
+                drivers.setdefault(sig.name, set()).add(domain)
+                if sig.name.startswith("pp_"):
+                    reads.setdefault(sig.name, set()).update(
+                        s.name for s in stmt.rhs._rhs_signals())
+    assert sorted(reads) == ["pp_hh", "pp_hl", "pp_lh", "pp_ll"]
+    assert all(r == {"mul_a", "mul_b"} for r in reads.values()), reads
+    assert drivers["mul_a"] == drivers["mul_b"] == {"sync"}
 
 
 def test_small_build_and_no_basis():

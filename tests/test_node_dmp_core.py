@@ -27,7 +27,13 @@ from mrm_cosim.protocol.regs import (Config, DmpControl, NodeEvent, Status, conf
 from mrm_cosim.testbench import run_simulation
 
 TICK = 50
-PERIOD, COMMIT, WINDOW, STEP = 2000, 1000, 300, 1000   # STEP > step_cycles(5) = 590
+PERIOD, COMMIT, WINDOW, STEP = 2000, 1000, 300, 1000   # STEP > step_cycles(5) = 728
+# CONFIG DMP at this phase: a START's step 0 (step_cycles(5) after the record acts, a few
+# cycles after the packet) is ready by the boundary (phase 1300 was, with 590 cycles, until
+# the generator's operand phase of 26 Nov)
+CONTROL_PHASE = 1200
+# A DMP_STEP that does not divide PERIOD and exceeds step_cycles(5) (it was 600 with 590)
+NOT_DIVIDING = 800
 K_RAD = float(counts_per_rad(800_000))
 ENC = EncoderParams(min_window=256, stop_cycles=1 << 20)
 Q0 = 0.2
@@ -123,17 +129,17 @@ def test_generator_steps_on_the_nominal_grid_of_a_disciplined_period(step, targe
 
 
 @pytest.mark.parametrize("step, arrive", [
-    # DMP_STEP does not divide PERIOD: the boundary's strobe comes 200 cycles after a step
-    # (not ready), and the grid step DMP_STEP after the last step taken still comes
-    (600, 20),
+    # DMP_STEP does not divide PERIOD: every other boundary's strobe comes 400 cycles after a
+    # step (not ready), and the grid step DMP_STEP after the last step taken still comes
+    (NOT_DIVIDING, 20),
     # the same with a resync 700 cycles into a period (the loop off): off the grid
-    (600, 700),
+    (NOT_DIVIDING, 700),
     # DMP_STEP divides PERIOD; a resync at 1500 moves the boundaries off the old grid
     (STEP, 1500),
 ], ids=["step-not-dividing", "resync-off-grid", "resync-on-step"])
 def test_a_strobe_that_finds_the_generator_busy_leaves_its_grid_step_due(step, arrive):
-    """A step strobe whose references are not ready (a boundary's, 200 or 100 cycles after a
-    step that takes ~590) changes nothing but the overrun count: the generator's time runs on
+    """A step strobe whose references are not ready (a boundary's, a few hundred cycles after a
+    step that takes 728) changes nothing but the overrun count: the generator's time runs on
     from the last step taken, so the grid step DMP_STEP after it still comes. The reference
     had dropped that step and waited for the next boundary. Gateware == reference every cycle
     (inside ``_run``); time-codes at phase ``arrive`` with TC_DISCIPLINE 0 (a resync when
@@ -142,8 +148,8 @@ def test_a_strobe_that_finds_the_generator_busy_leaves_its_grid_step_due(step, a
                                                  control={0: DmpControl.START})
     steps = sorted(c for c, f in strobes if f == NodeEvent.DMP_STEP)
     gaps = {b - a for a, b in zip(steps, steps[1:], strict=False)}
-    if step == 600:
-        # every boundary strobe misses, and is counted; the grid keeps its 600-cycle beat
+    if step == NOT_DIVIDING:
+        # boundary strobes off the grid miss, and are counted; the grid keeps its beat
         assert max(parse_comm_a(r[1])["dmp_overruns"] for r in replies) > 0
         taken = [c for c in steps if c not in set(model.boundaries)]
         assert {b - a for a, b in zip(taken, taken[1:], strict=False)} <= {step, 2 * step}
@@ -238,7 +244,7 @@ def _run(mode, discipline=None, arrive=None, step=STEP, control=None):
                                                            0.3, 0.0))
             ctl = control.get(n)
             if ctl is not None:
-                await wait_until(ctx, start + 1300)
+                await wait_until(ctx, start + CONTROL_PHASE)
                 marks[ctl] = ctx.get(dut_cycle)
                 await send(ctx, PacketType.CONFIG, config_payloads({Config.DMP: ctl})[0])
 

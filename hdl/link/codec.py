@@ -210,8 +210,13 @@ class Codec(wiring.Component):
         fct_overflow = rx.got_fct & (tx_credit > MAX_CREDIT - FCT_CREDIT)
         rx_take      = rx.got_nchar & running & (rx_credit != 0)
         err_credit   = running & (fct_overflow | (rx.got_nchar & (rx_credit == 0)))
+        # ``fifo.level + rx_credit`` kept as a register of its own, updated with both, so that
+        # ``fct_room`` is two compares of registers with constants: the sum's adder was the
+        # head of the node's slowest path (fifo.level → fct_room → send_fct → the
+        # transmitter, docs/node.md "Clock"). It equals the sum in every cycle.
+        occupied     = Signal(range(self.rx_fifo_depth + MAX_CREDIT + 1))
         fct_room     = ((rx_credit <= MAX_CREDIT - FCT_CREDIT) &
-                        (fifo.level + rx_credit <= self.rx_fifo_depth - FCT_CREDIT - 1))
+                        (occupied <= self.rx_fifo_depth - FCT_CREDIT - 1))
 
         eep_pending  = Signal()     # a packet was cut: put an EEP into the FIFO
         rx_in_packet = Signal()     # the last N-char put into the FIFO was a data character
@@ -302,14 +307,17 @@ class Codec(wiring.Component):
         with m.Elif(tx.time_sent):
             m.d.sync += tc_pending.eq(0)
 
+        fifo_moved = (fifo.w_en & fifo.w_rdy) - (fifo.r_en & fifo.r_rdy)   # level's change
         with m.If(connecting | running):
             m.d.sync += [
                 tx_credit.eq(tx_credit + Mux(rx.got_fct & ~fct_overflow, FCT_CREDIT, 0)
                              - tx_sent),
                 rx_credit.eq(rx_credit + Mux(tx.fct_sent, FCT_CREDIT, 0) - rx_take),
+                occupied.eq(occupied + Mux(tx.fct_sent, FCT_CREDIT, 0) - rx_take + fifo_moved),
             ]
         with m.Else():
-            m.d.sync += [tx_credit.eq(0), rx_credit.eq(0)]
+            m.d.sync += [tx_credit.eq(0), rx_credit.eq(0),
+                         occupied.eq(fifo.level + fifo_moved)]
 
         # Time-codes out.
         m.d.comb += [

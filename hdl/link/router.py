@@ -228,8 +228,18 @@ class Router(wiring.Component):
                     with m.If(source.valid & source.ready & (source.p.kind != CharKind.DATA)):
                         m.next = "Idle"
 
-        events = drop_down + drop_up + stray[0] + stray[1]
-        total  = self.dropped + events
-        m.d.sync += self.dropped.eq(Mux(total > COUNTER_MAX, COUNTER_MAX, total))
+        # dropped = min(dropped + events, COUNTER_MAX) each cycle, split at a register: the
+        # cycle's events are registered (``pending``) and added the next cycle, and the
+        # output is ``counted`` plus them. The same value in every cycle (by induction:
+        # counted' = dropped, pending' = events, so dropped' = min(dropped + events, MAX)), but
+        # the drop decisions (from the codecs' FIFO outputs) no longer run into the 16-bit
+        # adder and saturation in one cycle: that was the node's slowest path (docs/node.md,
+        # Clock).
+        events  = drop_down + drop_up + stray[0] + stray[1]
+        pending = Signal(range(5))
+        counted = Signal(16)
+        total   = counted + pending
+        m.d.comb += self.dropped.eq(Mux(total > COUNTER_MAX, COUNTER_MAX, total))
+        m.d.sync += [counted.eq(self.dropped), pending.eq(events)]
 
         return m

@@ -6,8 +6,8 @@
 
 A microprogrammed datapath, like the node's MacEngine: every intermediate value (x, v, φ, k,
 s, t, u, ψ, Σψw, Σψ, v̇, …) and the constants it needs live in a 64 × 72-bit register file in
-block RAM, and a microprogram in block RAM (:mod:`.dmp_ucode`) issues per four-cycle
-micro-operation (read a, read b, product, shift, saturation, write). One signed 35×35
+block RAM, and a microprogram in block RAM (:mod:`.dmp_ucode`) issues per five-cycle
+micro-operation (read a, read b, operands, product, sum, shift, saturation, write). One signed 35×35
 multiplier (four MULT18X18) adds the rounding constant of its one use; one adder/subtractor,
 a right shift by 0, 8, 20 or 32 (other rounding points are reached by prescaling a narrow
 operand by a power of two: ``rs(a·b, n) = rs(a·2^k·b, n + k)``), and one saturation unit
@@ -38,8 +38,8 @@ from mrm_cosim.protocol.dmp import (EXP_BITS, EXP_TABLE, FLAG_GOAL_SCALING, MAX_
                                     addr_width, check_max_basis)
 from mrm_cosim.protocol.fixed import WORD
 
-from .dmp_ucode import (RCS, RF_INIT, RF_WIDTH, SHIFTS, ASel, BSel, Br, Cond, Dst, EOff, Sat, YSel,
-                        assemble, instr_layout, program)
+from .dmp_ucode import (OP_CYCLES, RCS, RF_INIT, RF_WIDTH, SHIFTS, ASel, BSel, Br, Cond, Dst,
+                        EOff, Sat, YSel, assemble, instr_layout, program)
 
 __all__ = ["DmpGenerator"]
 
@@ -134,12 +134,13 @@ class DmpGenerator(wiring.Component):
         d.ins = Signal(layout)
         m.d.comb += d.ins.eq(d.rom.data)
         # The micro-operation's word again as a register, from phase 1 on: the ROM's output is
-        # stable from phase 0 to 3 but comes late in a cycle (a block RAM's clock-to-output),
+        # stable from phase 0 to 4 but comes late in a cycle (a block RAM's clock-to-output),
         # so only phase 0's addresses and the sequencer take it from the ROM.
         d.ins_r = Signal(layout, name="ins_r")
         for name, shape in (("n", range(mb + 1)), ("gs", 1), ("init", 1), ("flag", 1),
-                            ("run", 1), ("rdy", 1), ("pc", 7), ("pc_nxt", 7), ("ph", 2),
-                            ("i", range(mb)), ("ein", unsigned(PHI_WIDTH)),
+                            ("run", 1), ("rdy", 1), ("pc", 7), ("pc_nxt", 7),
+                            ("ph", range(OP_CYCLES)), ("i", range(mb)),
+                            ("ein", unsigned(PHI_WIDTH)),
                             ("rc", unsigned(32)), ("p", signed(2 * MUL_WIDTH)),
                             ("f", signed(QBITS)), ("stall", 1),
                             ("pqd", signed(WORD)), ("pvd", signed(WORD)),
@@ -170,13 +171,14 @@ class DmpGenerator(wiring.Component):
                     m.d.sync += d.gs.eq((data & FLAG_GOAL_SCALING) != 0)
 
     def _sequencer(self, m, d):
-        """Program counter, the four phases of a micro-operation, branches."""
+        """Program counter, the five phases of a micro-operation (OP_CYCLES), branches."""
         ins = d.ins
+        last = OP_CYCLES - 1
         m.d.comb += [d.rom.addr.eq(d.pc_nxt), d.pc_nxt.eq(d.pc)]
         m.d.sync += d.pc.eq(d.pc_nxt)
-        with m.If(d.run & ~((d.ph == 3) & d.stall)):
-            m.d.sync += d.ph.eq(d.ph + 1)
-        with m.If(d.run & (d.ph == 3) & ~d.stall):
+        with m.If(d.run & ~((d.ph == last) & d.stall)):
+            m.d.sync += d.ph.eq(Mux(d.ph == last, 0, d.ph + 1))
+        with m.If(d.run & (d.ph == last) & ~d.stall):
             m.d.comb += d.pc_nxt.eq(d.pc + 1)
             with m.Switch(ins.br):
                 with m.Case(Br.LOOP):
@@ -222,17 +224,26 @@ class DmpGenerator(wiring.Component):
                     m.d.sync += a_alt.eq(d.f)
                 with m.Case(ASel.ONE):
                     m.d.sync += a_alt.eq(1)
-        a = Mux(a_rf, d.rfa.data[:MUL_WIDTH].as_signed(), a_alt)
-        b = Mux(d.ins_r.bsel == BSel.EXT, d.ext.data, d.rfb.data[:MUL_WIDTH].as_signed())
+        # The operands are registers at the end of phase 1 and the multipliers take them in
+        # phase 2: a block RAM's output (5.8 ns clock to output on an ECP5) and a MULT18X18
+        # are no longer one path (docs/node.md, Clock). Both block RAMs' outputs are stable
+        # from phase 1 to 4 (their addresses are the ROM's word, stable from phase 0 to 4).
+        a = Signal(signed(MUL_WIDTH), name="mul_a")
+        b = Signal(signed(MUL_WIDTH), name="mul_b")
+        with m.If(d.ph == 1):
+            m.d.sync += [
+                a.eq(Mux(a_rf, d.rfa.data[:MUL_WIDTH].as_signed(), a_alt)),
+                b.eq(Mux(d.ins_r.bsel == BSel.EXT, d.ext.data,
+                         d.rfb.data[:MUL_WIDTH].as_signed())),
+            ]
         # a·b as four 18×18 signed products (one MULT18X18 each: 17-bit unsigned low halves,
-        # 18-bit signed high halves), registered where the operands used to be, and summed
-        # with the rounding constant in the next cycle: ``p`` is a·b + rc of the last
-        # operands in every cycle, as it was with the operands registered and multiplied
-        # in one cycle, but the multipliers and the sum are no longer one path.
+        # 18-bit signed high halves), registered in phase 2, and summed with the rounding
+        # constant in phase 3: ``p`` is a·b + rc of the last operands from phase 3 on, and
+        # the multipliers and the sum are not one path.
         h = MUL_WIDTH - 18
         parts = {(i, j): Signal(signed(36), name=f"pp_{i}{j}") for i in "lh" for j in "lh"}
         half = {"l": lambda v: v[:h], "h": lambda v: v[h:].as_signed()}
-        with m.If((d.ph == 1) & d.ins_r.mul):
+        with m.If((d.ph == 2) & d.ins_r.mul):
             m.d.sync += d.rc.eq(Array(C(v, 32) for v in RCS)[d.ins_r.rc])
             for (i, j), pp in parts.items():
                 m.d.sync += pp.eq(half[i](a) * half[j](b))
@@ -242,12 +253,12 @@ class DmpGenerator(wiring.Component):
 
     def _alu(self, m, d):
         """``z = sat((X ± Y) >> sh)`` and its write, in a micro-operation's last phase."""
-        # Phase 2 forms the sum, phase 3 shifts, saturates and writes it. The sum's inputs
+        # Phase 3 forms the sum, phase 4 shifts, saturates and writes it. The sum's inputs
         # are registers: the register file's operands taken in phase 1 (the block RAMs'
-        # outputs are stable from phase 1 to 3) and the four partial products (``p``, their
-        # sum with the rounding constant, is ready in phase 2); phase 3 works from the sum and
+        # outputs are stable from phase 1 to 4) and the four partial products (``p``, their
+        # sum with the rounding constant, is ready in phase 3); phase 4 works from the sum and
         # the micro-operation's fields, both registered (the microcode ROM's output is stable
-        # from phase 0 to 3). Every value equals, at phase 3, what a one-cycle ALU computed
+        # from phase 0 to 4). Every value equals, at phase 4, what a one-cycle ALU computed
         # there from the same operands: this only cuts the path (docs/node.md, Clock).
         x = Signal(signed(RF_WIDTH), name="alu_x")
         y_rf = Signal(signed(RF_WIDTH), name="alu_y_rf")
@@ -290,7 +301,7 @@ class DmpGenerator(wiring.Component):
                 m.d.comb += ok.eq(~d.gs)
         last = Signal()
         m.d.comb += [
-            last.eq(d.run & (d.ph == 3) & ok),
+            last.eq(d.run & (d.ph == OP_CYCLES - 1) & ok),
             d.rfw.addr.eq(ins.wa),
             d.rfw.data.eq(w),
             d.rfw.en.eq(last & (ins.dst == Dst.RF)),

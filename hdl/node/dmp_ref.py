@@ -36,7 +36,7 @@ relative), ``E = ((y >> (n + 1)) + 1) >> 1`` = ``rs(y, n + 2)``, zero for ``n �
 forms it as ``rs(y · 2^(30 − n), 32)`` on the multiplier: the same value).
 
 Start: ``x = X0 << 12``, ``v = V0 << 6``, ``φ = 0``, then the computation of step 0.
-A computation takes :func:`step_cycles` clock cycles (``230 + 72 n``) from the cycle after
+A computation takes :func:`step_cycles` clock cycles (``278 + 90 n``) from the cycle after
 its strobe: a strobe in cycle ``c`` has ``ready`` high from cycle ``c + 1 + cycles`` on.
 """
 
@@ -50,9 +50,14 @@ from mrm_cosim.protocol.fixed import saturate, wrap
 
 __all__ = ["DmpGeneratorModel", "exp2neg", "step_cycles", "CYCLES_FIXED", "CYCLES_PER_BASIS"]
 
-#: Cycles of a step's computation: CYCLES_FIXED + CYCLES_PER_BASIS · n_basis.
-CYCLES_FIXED = 230
-CYCLES_PER_BASIS = 72
+#: Cycles of a step's computation: CYCLES_FIXED + CYCLES_PER_BASIS · n_basis. The gateware's
+#: microprogram has 49 micro-operations outside the basis loops and 18 in them; each takes five
+#: cycles (read, operands, product, sum, write; four before the operand register of
+#: 26 Nov, docs/node.md Clock), but the divider's takes 38 (read, operands, 34 quotient bits,
+#: the rounding, write): 48·5 + 38 = 278 and 18·5 = 90 (it was 48·4 + 38 = 230, 18·4 = 72).
+#: tests/test_node_dmp.py derives both from the microprogram and checks ``ready`` against them.
+CYCLES_FIXED = 278
+CYCLES_PER_BASIS = 90
 
 
 def step_cycles(n_basis: int) -> int:

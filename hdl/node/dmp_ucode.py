@@ -1,6 +1,7 @@
 """Microprogram of the DMP generator (:mod:`.dmp`): one step's computation as micro-operations.
 
-Every micro-operation takes the same four cycles (read, operands, product, write) and does::
+Every micro-operation takes the same five cycles (read, operands, product, sum, write) and
+does::
 
     A, B  = (RF[ra] | r | f | 1),  (RF[rb] | EXT[ebase + (0 | i | j | n)])    if mul
     p     = A · B + rc                                                         (else p is kept)
@@ -15,8 +16,9 @@ Every rounding point of :mod:`.dmp_ref` is one micro-operation: ``rs(a·b, n)`` 
 with ``rc = 2^(n−1)`` and ``sh = n`` for n = 20 or 32, or ``rs(a·2^k·b, n + k)`` with the
 narrow operand prescaled in the register file (``2^k·b`` exact, so the same value), so the
 shifter has four settings and the outputs are the reference's bit for bit. Cycles:
-``step_cycles(n) = 230 + 72 n`` (49 + 18 n micro-operations of four cycles, 34 more for the
-divider).
+``step_cycles(n) = 278 + 90 n``: 48 + 18 n micro-operations of five cycles (OP_CYCLES) and the
+divider's, which takes 38 (DIV_CYCLES: its read and operand phases, 34 quotient bits, the
+rounding cycle, the write phase).
 """
 
 from amaranth import unsigned
@@ -25,10 +27,11 @@ from amaranth.lib import data, enum
 from mrm_cosim.protocol.dmp import N_SCALARS, Reg
 
 __all__ = ["ASel", "BSel", "YSel", "Sat", "Dst", "Cond", "EOff", "Br", "SHIFTS", "RF",
-           "RF_INIT", "RF_WIDTH", "OP_CYCLES", "instr_layout", "program", "assemble"]
+           "RF_INIT", "RF_WIDTH", "OP_CYCLES", "DIV_CYCLES", "instr_layout", "program", "assemble"]
 
 RF_WIDTH = 72           # register-file word: u = t² (67 bits) and Σψw (≤ 60) fit
-OP_CYCLES = 4           # read, operands, product, write
+OP_CYCLES = 5           # read, operands, product, sum, write
+DIV_CYCLES = 2 + 34 + 1 + 1  # the divider's: read, operands, quotient bits, rounding, write
 SHIFTS = (0, 8, 20, 32)  # every rounding shift is one of these (a narrow operand is prescaled)
 RCS = (0, 1 << 7, 1 << 19, 1 << 31)  # the product's rounding constants
 
