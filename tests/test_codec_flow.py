@@ -5,6 +5,8 @@
 #      §8.12 (time-codes), link error recovery (EEP at the receiver, spill at the sender).
 """
 
+import random
+
 import pytest
 
 from mrm_cosim.hdl.link.chars import CharKind, LinkState
@@ -169,3 +171,40 @@ def test_disconnect_detected_within_the_standard_window():
     assert 727 <= detect_ns <= 1000
     assert 843 < detect_ns <= 860, "43 cycles from the last transition's cycle"
     assert result["errors"]["disconnect"] == 1
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_occupied_register_is_fifo_level_plus_rx_credit_every_cycle(seed):
+    """``fct_room`` compares ``occupied``, a register kept equal to ``fifo.level +
+    rx_credit`` (the sum's adder was on the node's slowest path, docs/node.md "Clock"). Every
+    cycle, on both codecs, through a small FIFO filled to its bound, throttled reading, a
+    cut mid-packet (the EEP written while the link is down and the reader still reading)
+    and the reconnection: the register equals the sum."""
+    rng = random.Random(seed)
+    bench = PairBench(**SHORT, rx_fifo_depth=16)
+    seen = {"checked": 0, "eep": False, "down": 0}
+
+    async def check(ctx, n, p_ready):
+        for _ in range(n):
+            for who in ("a", "b"):
+                bench.rx_ready[who] = int(rng.random() < p_ready)
+                occupied, level, credit = bench.codecs[who]._occupancy
+                assert ctx.get(occupied) == ctx.get(level) + ctx.get(credit), (
+                    who, bench.cycles)
+                seen["down"] += not ctx.get(bench.codecs[who].running)
+            seen["checked"] += 1
+            await bench.cycle(ctx)
+
+    async def testbench(ctx):
+        await check(ctx, 400, 0.3)                       # start-up, then the link runs
+        bench.tx["a"] = data(range(120)) + [char_value(EOP)] + data(range(40))
+        bench.tx["b"] = data(range(60)) + [char_value(EOP)]
+        await check(ctx, 300, 0.2)                       # FIFO at its bound, slow reads
+        bench.faults["ab"] = ((ALL, 0, 0), (ALL, 0, 0))   # cut, longer than the timeout
+        await check(ctx, 120, 0.5)
+        bench.faults.clear()
+        await check(ctx, 900, 0.4)                       # reconnect, the rest crosses
+        seen["eep"] = char_value(EEP) in bench.received["b"]
+
+    bench.simulate(testbench, f"occupied_{seed}")
+    assert seen["eep"] and seen["down"] > 0 and seen["checked"] == 1720

@@ -215,6 +215,9 @@ class Codec(wiring.Component):
         # head of the node's slowest path (fifo.level → fct_room → send_fct → the
         # transmitter, docs/node.md "Clock"). It equals the sum in every cycle.
         occupied     = Signal(range(self.rx_fifo_depth + MAX_CREDIT + 1))
+        # for the simulation tests' invariant (tests/test_codec_flow.py): the register and the
+        # two values it stands for, in this elaboration
+        self._occupancy = (occupied, fifo.level, rx_credit)
         fct_room     = ((rx_credit <= MAX_CREDIT - FCT_CREDIT) &
                         (occupied <= self.rx_fifo_depth - FCT_CREDIT - 1))
 
