@@ -310,17 +310,25 @@ class Codec(wiring.Component):
         with m.Elif(tx.time_sent):
             m.d.sync += tc_pending.eq(0)
 
-        fifo_moved = (fifo.w_en & fifo.w_rdy) - (fifo.r_en & fifo.r_rdy)   # level's change
+        # The level's change is a write (early: from the receiver) less a read, which comes
+        # late: the user's ``ready`` (the router's decision on the FIFO's own output). Both
+        # sums are formed without the read and the read only selects one (``− 1`` or not), so
+        # it meets a 2:1 mux, not the adders (it was the head of the node's slowest path,
+        # docs/node.md "Clock").
+        fifo_write = fifo.w_en & fifo.w_rdy
+        fifo_read  = fifo.r_en & fifo.r_rdy
+        occ_run    = occupied + Mux(tx.fct_sent, FCT_CREDIT, 0) - rx_take + fifo_write
+        occ_idle   = fifo.level + fifo_write
         with m.If(connecting | running):
             m.d.sync += [
                 tx_credit.eq(tx_credit + Mux(rx.got_fct & ~fct_overflow, FCT_CREDIT, 0)
                              - tx_sent),
                 rx_credit.eq(rx_credit + Mux(tx.fct_sent, FCT_CREDIT, 0) - rx_take),
-                occupied.eq(occupied + Mux(tx.fct_sent, FCT_CREDIT, 0) - rx_take + fifo_moved),
+                occupied.eq(Mux(fifo_read, occ_run - 1, occ_run)),
             ]
         with m.Else():
             m.d.sync += [tx_credit.eq(0), rx_credit.eq(0),
-                         occupied.eq(fifo.level + fifo_moved)]
+                         occupied.eq(Mux(fifo_read, occ_idle - 1, occ_idle))]
 
         # Time-codes out.
         m.d.comb += [
