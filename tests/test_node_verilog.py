@@ -130,6 +130,7 @@ def test_a_place_and_route_that_runs_out_of_time_is_a_clear_error(tmp_path, monk
         raise subprocess.TimeoutExpired(cmd, kwargs.get("timeout"))
 
     monkeypatch.setattr(synth.subprocess, "run", run)
+    (tmp_path / "pnr.json").write_text('{"modules": {}}')
     with pytest.raises(synth.SynthError, match="did not finish placing and routing within 5 s"):
         synth._nextpnr_fmax(tmp_path / "pnr.json", tmp_path, 5.0)
     with pytest.raises(synth.SynthError, match="yosys did not finish within 5 s"):

@@ -157,6 +157,31 @@ class Codec(wiring.Component):
             "s_out":        Out(self.slots),
         })
 
+    def _credit_counters(self, m, rx, tx, fifo, occupied, rx_take, fct_overflow, tx_sent,
+                         active):
+        """The credits' and ``occupied``'s updates (reset while the link is neither connecting
+        nor running, ``active`` low; ``occupied`` then follows the FIFO alone)."""
+        tx_credit, rx_credit = self.tx_credit, self.rx_credit
+        # The level's change is a write (early: from the receiver) less a read, which comes
+        # late: the user's ``ready`` (the router's decision on the FIFO's own output). Both
+        # sums are formed without the read and the read only selects one (``− 1`` or not), so
+        # it meets a 2:1 mux, not the adders (it was the head of the node's slowest path,
+        # docs/node.md "Clock").
+        fifo_write = fifo.w_en & fifo.w_rdy
+        fifo_read  = fifo.r_en & fifo.r_rdy
+        occ_run    = occupied + Mux(tx.fct_sent, FCT_CREDIT, 0) - rx_take + fifo_write
+        occ_idle   = fifo.level + fifo_write
+        with m.If(active):
+            m.d.sync += [
+                tx_credit.eq(tx_credit + Mux(rx.got_fct & ~fct_overflow, FCT_CREDIT, 0)
+                             - tx_sent),
+                rx_credit.eq(rx_credit + Mux(tx.fct_sent, FCT_CREDIT, 0) - rx_take),
+                occupied.eq(Mux(fifo_read, occ_run - 1, occ_run)),
+            ]
+        with m.Else():
+            m.d.sync += [tx_credit.eq(0), rx_credit.eq(0),
+                         occupied.eq(Mux(fifo_read, occ_idle - 1, occ_idle))]
+
     def _credit_audit(self, m, err_audit, running, tx_sent):
         """Drive ``err_audit``: silent for the audit time, we must hold a drained peer's
         credit."""
@@ -215,9 +240,7 @@ class Codec(wiring.Component):
         # head of the node's slowest path (fifo.level → fct_room → send_fct → the
         # transmitter, docs/node.md "Clock"). It equals the sum in every cycle.
         occupied     = Signal(range(self.rx_fifo_depth + MAX_CREDIT + 1))
-        # for the simulation tests' invariant (tests/test_codec_flow.py): the register and the
-        # two values it stands for, in this elaboration
-        self._occupancy = (occupied, fifo.level, rx_credit)
+        self._occupancy = (occupied, fifo.level, rx_credit)   # (tests/test_codec_flow.py)
         fct_room     = ((rx_credit <= MAX_CREDIT - FCT_CREDIT) &
                         (occupied <= self.rx_fifo_depth - FCT_CREDIT - 1))
 
@@ -310,25 +333,8 @@ class Codec(wiring.Component):
         with m.Elif(tx.time_sent):
             m.d.sync += tc_pending.eq(0)
 
-        # The level's change is a write (early: from the receiver) less a read, which comes
-        # late: the user's ``ready`` (the router's decision on the FIFO's own output). Both
-        # sums are formed without the read and the read only selects one (``− 1`` or not), so
-        # it meets a 2:1 mux, not the adders (it was the head of the node's slowest path,
-        # docs/node.md "Clock").
-        fifo_write = fifo.w_en & fifo.w_rdy
-        fifo_read  = fifo.r_en & fifo.r_rdy
-        occ_run    = occupied + Mux(tx.fct_sent, FCT_CREDIT, 0) - rx_take + fifo_write
-        occ_idle   = fifo.level + fifo_write
-        with m.If(connecting | running):
-            m.d.sync += [
-                tx_credit.eq(tx_credit + Mux(rx.got_fct & ~fct_overflow, FCT_CREDIT, 0)
-                             - tx_sent),
-                rx_credit.eq(rx_credit + Mux(tx.fct_sent, FCT_CREDIT, 0) - rx_take),
-                occupied.eq(Mux(fifo_read, occ_run - 1, occ_run)),
-            ]
-        with m.Else():
-            m.d.sync += [tx_credit.eq(0), rx_credit.eq(0),
-                         occupied.eq(Mux(fifo_read, occ_idle - 1, occ_idle))]
+        self._credit_counters(m, rx, tx, fifo, occupied, rx_take, fct_overflow, tx_sent,
+                              connecting | running)
 
         # Time-codes out.
         m.d.comb += [
