@@ -15,7 +15,8 @@ from mrm_cosim.errors import InputError
 from mrm_cosim.hdl.node.dmp import QBITS, DmpGenerator
 from mrm_cosim.hdl.node.dmp_ref import (CYCLES_FIXED, CYCLES_PER_BASIS, DmpGeneratorModel,
                                         exp2neg, step_cycles)
-from mrm_cosim.hdl.node.dmp_ucode import DIV_CYCLES, OP_CYCLES, Br, program
+from mrm_cosim.hdl.node.dmp_ucode import (DIV_CYCLES, OP_CYCLES, Br, program,
+                                          split_labels)
 from mrm_cosim.hdl.tops import build_top
 from mrm_cosim.master.dmp import learn_dmp
 from mrm_cosim.protocol.dmp import (MAX_BASIS, STEP_CYCLES, DmpParams, Reg, centre_addr,
@@ -159,13 +160,7 @@ def test_cycle_count_is_the_references():
 def microprogram_cycles(n: int, max_basis: int = MAX_BASIS) -> int:
     """A step's cycles walked through the microprogram's branches with ``n`` Gaussians: every
     micro-operation OP_CYCLES, the divider's DIV_CYCLES (its 34 quotient bits and rounding)."""
-    prog = program(max_basis, 0)
-    labels, ops = {}, []
-    for op in prog:
-        if isinstance(op, str):
-            labels[op] = len(ops)
-        else:
-            ops.append(op)
+    labels, ops = split_labels(program(max_basis, 0))
     pc = i = cycles = 0
     while True:
         op = ops[pc]

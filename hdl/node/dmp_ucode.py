@@ -27,7 +27,8 @@ from amaranth.lib import data, enum
 from mrm_cosim.protocol.dmp import N_SCALARS, Reg
 
 __all__ = ["ASel", "BSel", "YSel", "Sat", "Dst", "Cond", "EOff", "Br", "SHIFTS", "RF",
-           "RF_INIT", "RF_WIDTH", "OP_CYCLES", "DIV_CYCLES", "instr_layout", "program", "assemble"]
+           "RF_INIT", "RF_WIDTH", "OP_CYCLES", "DIV_CYCLES", "instr_layout", "program",
+           "split_labels", "assemble"]
 
 RF_WIDTH = 72           # register-file word: u = t² (67 bits) and Σψw (≤ 60) fit
 OP_CYCLES = 5           # read, operands, product, sum, write
@@ -234,14 +235,21 @@ def program(max_basis: int, ext0: int) -> list:
     ]
 
 
-def assemble(prog: list, layout: data.StructLayout) -> list[int]:
-    """ROM words of ``prog`` (labels resolved, register names to addresses)."""
+def split_labels(prog: list) -> tuple[dict, list]:
+    """``prog``'s labels (name → index of the micro-operation after it) and its
+    micro-operations, in order."""
     labels, ops = {}, []
     for item in prog:
         if isinstance(item, str):
             labels[item] = len(ops)
         else:
             ops.append(item)
+    return labels, ops
+
+
+def assemble(prog: list, layout: data.StructLayout) -> list[int]:
+    """ROM words of ``prog`` (labels resolved, register names to addresses)."""
+    labels, ops = split_labels(prog)
     words = []
     for op in ops:
         fields = dict(op)
