@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+from amaranth import Module, Signal, signed
 from amaranth.hdl import Fragment
 from amaranth.hdl._ast import Assign, Switch  # the elaborated statements (a structural check)
 from amaranth.sim import Simulator
@@ -12,17 +13,18 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mrm_cosim.errors import InputError
-from mrm_cosim.hdl.node.dmp import QBITS, DmpGenerator
+from mrm_cosim.hdl.node.dmp import QBITS, DmpGenerator, saturate_shifted
 from mrm_cosim.hdl.node.dmp_ref import (CYCLES_FIXED, CYCLES_PER_BASIS, DmpGeneratorModel,
                                         exp2neg, step_cycles)
-from mrm_cosim.hdl.node.dmp_ucode import (DIV_CYCLES, OP_CYCLES, Br, program,
-                                          split_labels)
+from mrm_cosim.hdl.node.dmp_ucode import (DIV_CYCLES, OP_CYCLES, RF_WIDTH, SHIFTS, Br, Sat,
+                                          program, split_labels)
 from mrm_cosim.hdl.tops import build_top
 from mrm_cosim.master.dmp import learn_dmp
-from mrm_cosim.protocol.dmp import (MAX_BASIS, STEP_CYCLES, DmpParams, Reg, centre_addr,
+from mrm_cosim.protocol.dmp import (MAX_BASIS, PHI_MAX, PHI_WIDTH, STEP_CYCLES, DmpParams, Reg,
+                                    centre_addr,
                                     decode_outputs, dmp_param_payloads, weight_addr,
                                     width_addr)
-from mrm_cosim.protocol.fixed import round_shift
+from mrm_cosim.protocol.fixed import WORD, round_shift, saturate
 from mrm_cosim.protocol.regs import Bank, unpack_words
 from mrm_cosim.testbench import run_simulation
 
@@ -303,6 +305,52 @@ def test_rtl_equals_reference_on_random_words(weights, data):
     t = len(words)
     ops = upload_ops(words) + [(t, "start", None)] + steps_ops(t + gap, 3, gap)
     check_equal(ops, max_basis=8)
+
+
+# -- the ALU's write-back word -----------------------------------------------------------------
+
+SAT_WIDTHS = {Sat.S24: WORD, Sat.S35: 35, Sat.S40: 40}
+
+
+def clamp_shifted(s, shift, sat):
+    """The write-back word by definition: ``s >> shift`` clamped as ``sat`` says."""
+    z = s >> shift
+    if sat in SAT_WIDTHS:
+        return saturate(z, SAT_WIDTHS[sat])
+    if sat is Sat.U46:
+        return min(max(z, 0), PHI_MAX)
+    return z
+
+
+def test_saturate_shifted_is_the_clamp_of_the_shifted_word():
+    """Every (sat, shift) pair, on the words either side of each bound the pair has (where the
+    shifted word leaves 24, 35, 40 or 46 bits) and random words of every magnitude."""
+    rng = np.random.default_rng(7)
+    edges = sorted({b + sh for b in (WORD - 1, 34, 39, PHI_WIDTH) for sh in SHIFTS})
+    values = [0, -1, 1, (1 << (RF_WIDTH - 1)) - 1, -(1 << (RF_WIDTH - 1))]
+    for e in edges:
+        for v in ((1 << e) - 1, 1 << e, -(1 << e), -(1 << e) - 1):
+            values += [v, v + 1, v - 1]
+    for bits in rng.integers(1, RF_WIDTH, size=120):
+        v = int(rng.integers(0, 1 << 62)) << max(0, int(bits) - 62) >> max(0, 62 - int(bits))
+        values += [v, -v]
+    values = [v for v in values if -(1 << (RF_WIDTH - 1)) <= v < 1 << (RF_WIDTH - 1)]
+    m = Module()
+    s, sh, sat = Signal(signed(RF_WIDTH)), Signal(2), Signal(Sat)
+    w = saturate_shifted(m, s, sh, sat)
+    sim = Simulator(m)
+
+    async def bench(ctx):
+        for case in Sat:
+            for k, shift in enumerate(SHIFTS):
+                ctx.set(sat, case)
+                ctx.set(sh, k)
+                for v in values:
+                    ctx.set(s, v)
+                    assert ctx.get(w) == clamp_shifted(v, shift, case), (case, shift, v)
+
+    sim.add_testbench(bench)
+    sim.run()
 
 
 # -- the reference against the float DMP ------------------------------------------------------

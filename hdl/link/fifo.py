@@ -10,6 +10,15 @@ exactly what the combinational read shows. ``r_data``, ``r_rdy``, ``w_rdy`` and 
 therefore the same as ``SyncFIFO``'s in every cycle (tests/test_codec_fifo.py checks it cycle by
 cycle against ``SyncFIFO`` under random traffic); only the memory moved. The memory starts
 zeroed, as ``SyncFIFO``'s, so even the stale ``r_data`` of an empty FIFO agrees.
+
+``r_data`` itself is a fabric register, ``head``, not the block RAM's output: a block RAM's
+clock-to-output (about 5.8 ns on an ECP5, where a flip-flop's is under 1 ns) was the start of
+the node's slowest path, the router's routing decision on the packet's first character
+(docs/node.md, Clock). The RAM reads one entry further ahead, the entry after the next cycle's
+read pointer, and ``head`` takes it when a read advances the pointer; a write into the entry
+``head`` is about to hold (into an empty FIFO, or behind the last entry while it is read) goes
+to ``head`` directly. ``head`` is the entry at the read pointer in every cycle, as memory holds
+it: the same ``r_data`` as before, one register later in the fabric.
 """
 
 from amaranth import *
@@ -71,15 +80,25 @@ class BlockRamFIFO(wiring.Component):
                 return (ptr + 1)[:len(ptr)]
             return Mux(ptr == depth - 1, 0, ptr + 1)
 
+        # head = memory[consume] in every cycle (the module's docstring); the RAM shows
+        # memory[consume + 1] (its address: the entry after consume_next).
+        head = Signal(self.width)
+        after = incr(consume)
         m.d.comb += [
             w_port.addr.eq(produce),
             w_port.data.eq(self.w_data),
             w_port.en.eq(do_write),
-            consume_next.eq(Mux(do_read, incr(consume), consume)),
-            r_port.addr.eq(consume_next),
-            self.r_data.eq(r_port.data),
+            consume_next.eq(Mux(do_read, after, consume)),
+            r_port.addr.eq(Mux(do_read, incr(after), after)),
+            self.r_data.eq(head),
         ]
         m.d.sync += consume.eq(consume_next)
+        # The entry written this cycle is the one head holds next: the FIFO is empty and not
+        # read (produce = consume), or holds one entry that is read (produce = consume + 1).
+        with m.If(do_write & Mux(do_read, self.level == 1, self.level == 0)):
+            m.d.sync += head.eq(self.w_data)
+        with m.Elif(do_read):
+            m.d.sync += head.eq(r_port.data)
         with m.If(do_write):
             m.d.sync += produce.eq(incr(produce))
         with m.If(do_write & ~do_read):

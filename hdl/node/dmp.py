@@ -46,15 +46,51 @@ __all__ = ["DmpGenerator"]
 QBITS = 34      # quotient bits of the divider: |f| ≤ max|w| bounds q = |num|·2^10/den < 2^34
 
 
-def _sat(v, width):
-    """``v`` clamped to ``width`` signed bits. ``v > hi`` and ``v < lo`` are found from the bits
-    above the sign of the result (not all equal to ``v``'s sign: it does not fit), not by two
-    compares: a wide compare is a second carry chain after the ALU's adder (docs/node.md,
-    Clock)."""
-    lo, hi = -(1 << (width - 1)), (1 << (width - 1)) - 1
-    top = v[width - 1:]
-    fits = (top == 0) | (top == (1 << len(top)) - 1)
-    return Mux(fits, v, Mux(v[-1], lo, hi))
+def _same_from(v, lsb):
+    """``v[lsb:]`` all zeros or all ones: ``v >> sh`` fits ``lsb − sh + 1`` signed bits."""
+    top = v[lsb:]
+    return (top == 0) | (top == (1 << len(top)) - 1)
+
+
+def saturate_shifted(m, s, sh, sat):
+    """``w = sat(s >> SHIFTS[sh])``, the ALU's write-back word (``sat`` a :class:`Sat`).
+
+    The saturation is decided from ``s`` itself, beside the shift, not after it: ``z = s >>
+    sh`` fits ``width`` signed bits when ``s``'s bits from ``width − 1 + sh`` up are all equal
+    (``z``'s bits above ``s``'s are copies of its sign), so every (sat, sh) pair's decision is a
+    tree over ``s``, one select chooses among them, and the word is a last 2:1 mux between ``z``
+    and the bound. Decided after the shift, the shift's mux, the decision's tree and the
+    saturation's muxes ran one after another: the generator's slowest path (docs/node.md,
+    Clock). tests/test_node_dmp.py checks every (sat, sh) pair against the clamp of ``z``.
+    """
+    z = Signal(signed(RF_WIDTH))
+    with m.Switch(sh):
+        for k, shift in enumerate(SHIFTS):
+            with m.Case(k):
+                m.d.comb += z.eq(s >> shift)
+    sign = s[-1]
+    fits = Signal()
+    bound = Signal(signed(RF_WIDTH))
+    with m.Switch(sat):
+        for case, width in ((Sat.S24, WORD), (Sat.S35, 35), (Sat.S40, 40)):
+            with m.Case(case):
+                with m.Switch(sh):
+                    for k, shift in enumerate(SHIFTS):
+                        with m.Case(k):
+                            m.d.comb += fits.eq(_same_from(s, width - 1 + shift))
+                m.d.comb += bound.eq(Mux(sign, -(1 << (width - 1)), (1 << (width - 1)) - 1))
+        with m.Case(Sat.U46):
+            # 0 … PHI_MAX: 0 when negative, PHI_MAX when z's bits from PHI_WIDTH are not 0
+            with m.Switch(sh):
+                for k, shift in enumerate(SHIFTS):
+                    with m.Case(k):
+                        m.d.comb += fits.eq(~sign & (s[PHI_WIDTH + shift:] == 0))
+            m.d.comb += bound.eq(Mux(sign, 0, PHI_MAX))
+        with m.Default():
+            m.d.comb += fits.eq(1)
+    w = Signal(signed(RF_WIDTH))
+    m.d.comb += w.eq(Mux(fits, z, bound))
+    return w
 
 
 class DmpGenerator(wiring.Component):
@@ -268,23 +304,7 @@ class DmpGenerator(wiring.Component):
         s = Signal(signed(RF_WIDTH), name="alu_s")
         m.d.sync += s.eq(x + Mux(d.ins_r.neg, ~y, y) + d.ins_r.neg)
         ins = d.ins_r
-        z = Signal(signed(RF_WIDTH))
-        with m.Switch(ins.sh):
-            for k, sh in enumerate(SHIFTS):
-                with m.Case(k):
-                    m.d.comb += z.eq(s >> sh)
-        w = Signal(signed(RF_WIDTH))
-        with m.Switch(ins.sat):
-            with m.Case(Sat.S24):
-                m.d.comb += w.eq(_sat(z, WORD))
-            with m.Case(Sat.S35):
-                m.d.comb += w.eq(_sat(z, 35))
-            with m.Case(Sat.S40):
-                m.d.comb += w.eq(_sat(z, 40))
-            with m.Case(Sat.U46):
-                m.d.comb += w.eq(Mux(z[-1], 0, Mux(z[PHI_WIDTH:] != 0, PHI_MAX, z)))
-            with m.Default():
-                m.d.comb += w.eq(z)
+        w = saturate_shifted(m, s, ins.sh, ins.sat)
         ok = Signal()
         with m.Switch(ins.cond):
             with m.Case(Cond.ALWAYS):
