@@ -163,20 +163,24 @@ class Codec(wiring.Component):
         nor running, ``active`` low; ``occupied`` then follows the FIFO alone)."""
         tx_credit, rx_credit = self.tx_credit, self.rx_credit
         # The level's change is a write (early: from the receiver) less a read, which comes
-        # late: the user's ``ready`` (the router's decision on the FIFO's own output). Both
-        # sums are formed without the read and the read only selects one (``− 1`` or not), so
-        # it meets a 2:1 mux, not the adders (it was the head of the node's slowest path,
-        # docs/node.md "Clock").
+        # late: the user's ``ready`` (the router's decision on the FIFO's own output). The
+        # credit's change has a late part too, an FCT sent: the transmitter's choice, after
+        # its data-strobe stage's ``ready``. Every sum is formed without the late terms, and
+        # they only select one (``− 1`` or not, ``+ FCT_CREDIT`` or not), so they meet a mux,
+        # not the adders (each was the head of the node's slowest path, docs/node.md "Clock").
         fifo_write = fifo.w_en & fifo.w_rdy
         fifo_read  = fifo.r_en & fifo.r_rdy
-        occ_run    = occupied + Mux(tx.fct_sent, FCT_CREDIT, 0) - rx_take + fifo_write
+        occ_base   = occupied - rx_take + fifo_write
+        occ_run    = Mux(tx.fct_sent, occ_base + FCT_CREDIT, occ_base)
+        occ_run_rd = Mux(tx.fct_sent, occ_base + (FCT_CREDIT - 1), occ_base - 1)
         occ_idle   = fifo.level + fifo_write
+        rx_base    = rx_credit - rx_take
         with m.If(active):
             m.d.sync += [
                 tx_credit.eq(tx_credit + Mux(rx.got_fct & ~fct_overflow, FCT_CREDIT, 0)
                              - tx_sent),
-                rx_credit.eq(rx_credit + Mux(tx.fct_sent, FCT_CREDIT, 0) - rx_take),
-                occupied.eq(Mux(fifo_read, occ_run - 1, occ_run)),
+                rx_credit.eq(Mux(tx.fct_sent, rx_base + FCT_CREDIT, rx_base)),
+                occupied.eq(Mux(fifo_read, occ_run_rd, occ_run)),
             ]
         with m.Else():
             m.d.sync += [tx_credit.eq(0), rx_credit.eq(0),
