@@ -165,7 +165,7 @@ class NodeEvent(enum.IntFlag):
     TX_A      = 1 << 10   # the reply FSM leaves Idle with a Comm A reply
     TX_C      = 1 << 11   # the reply FSM leaves Idle with a Comm C reply
     COMMIT    = 1 << 12   # Comm D's words take effect (commit phase, or arrival disarmed)
-    DMP_STEP  = 1 << 13   # the primitive generator's references take effect (a step)
+    DMP_STEP  = 1 << 13   # a step strobe to the primitive generator (an overrun included)
 
 
 def pack_words(words) -> bytes:
