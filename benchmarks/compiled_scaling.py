@@ -4,8 +4,9 @@ Run on purpose (each build takes 1-3 minutes here), not in CI::
 
     .venv/bin/python benchmarks/compiled_scaling.py [--cycles 200000] [--rounds 3]
 
-Builds the ``system`` top with 1, 2 and 3 slave nodes (the master's link port and a daisy
-chain of nodes, each with its two codecs, router, packet layer and compute core) and the
+Builds the ``system`` top with 1, 2, 3 and 6 slave nodes (3 and 6: ``mrm3``, ``mrm6``; the
+master's link port and a daisy chain of nodes, each with its two codecs, router, packet layer
+and compute core) and the
 ``node_core`` top alone, with the co-simulation's default Verilator build
 (:class:`cosim.compiled.CompiledModel`), and times ``tick(n)``: the C++ loop of the model with
 the inputs held, no Python per cycle, nothing of the plant or the master. After a warm-up the
@@ -38,6 +39,7 @@ def _designs() -> list[tuple[str, str, dict]]:
     return [("system, 1 node", "system", {"n_nodes": 1}),
             ("system, 2 nodes", "system", {"n_nodes": 2}),
             ("system, 3 nodes", "system", {"n_nodes": 3}),
+            ("system, 6 nodes", "system", {"n_nodes": 6}),
             ("node_core alone", "node_core", {}),
             ("dmp_generator alone", "dmp_generator", {})]
 
@@ -58,13 +60,16 @@ def measure(cycles: int, rounds: int, warmup: int = 20_000) -> dict:
             best[label] = min(best[label], (time.process_time() - t0) / cycles * 1e9)
     ns = {label: round(v, 1) for label, v in best.items()}
     per_node = (best["system, 3 nodes"] - best["system, 1 node"]) / 2
+    per_node_3_6 = (best["system, 6 nodes"] - best["system, 3 nodes"]) / 3
     return {
         "cycles": cycles, "rounds": rounds,
         "ns_per_cycle": ns,
         "ns_per_node": round(per_node, 1),
+        "ns_per_node_3_to_6": round(per_node_3_6, 1),
         "ns_fixed": round(best["system, 1 node"] - per_node, 1),
         "dmp_share_of_node": round(best["dmp_generator alone"] / per_node, 3),
         "rtf_3_nodes_model_alone": round(best["system, 3 nodes"] / CYCLE_NS, 1),
+        "rtf_6_nodes_model_alone": round(best["system, 6 nodes"] / CYCLE_NS, 1),
         "goal_ns_per_cycle": GOAL_RTF * CYCLE_NS,
     }
 
@@ -82,7 +87,8 @@ def main(argv=None) -> int:
     for label, v in result["ns_per_cycle"].items():
         print(f"{label:18s} {v:8.1f} ns/cycle  ({1e9 / v:10,.0f} cycles/s, "
               f"RTF {v / CYCLE_NS:6.1f})")
-    print(f"per node (link + core): {result['ns_per_node']:.1f} ns/cycle; "
+    print(f"per node (link + core): {result['ns_per_node']:.1f} ns/cycle from 1 to 3 nodes, "
+          f"{result['ns_per_node_3_to_6']:.1f} from 3 to 6; "
           f"master port and the rest: {result['ns_fixed']:.1f} ns/cycle")
     print(f"the DMP generator alone (idle): {result['ns_per_cycle']['dmp_generator alone']:.1f} "
           f"ns/cycle, {100 * result['dmp_share_of_node']:.0f} % of a node's increment")
