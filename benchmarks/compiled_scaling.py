@@ -6,8 +6,8 @@ Run on purpose (each build takes 1-3 minutes here), not in CI::
 
 Builds the ``system`` top with 1, 2, 3 and 6 slave nodes (3 and 6: ``mrm3``, ``mrm6``; the
 master's link port and a daisy chain of nodes, each with its two codecs, router, packet layer
-and compute core) and the
-``node_core`` top alone, with the co-simulation's default Verilator build
+and compute core), the ``node_core`` top alone and the idle DMP generator, with the
+co-simulation's default Verilator build
 (:class:`cosim.compiled.CompiledModel`), and times ``tick(n)``: the C++ loop of the model with
 the inputs held, no Python per cycle, nothing of the plant or the master. After a warm-up the
 links have started and send NULLs, the nodes sit unarmed, and each core's encoder pipeline runs

@@ -331,8 +331,8 @@ def test_saturate_shifted_is_the_clamp_of_the_shifted_word():
     for e in edges:
         for v in ((1 << e) - 1, 1 << e, -(1 << e), -(1 << e) - 1):
             values += [v, v + 1, v - 1]
-    for bits in rng.integers(1, RF_WIDTH, size=120):
-        v = int(rng.integers(0, 1 << 62)) << max(0, int(bits) - 62) >> max(0, 62 - int(bits))
+    for bits in rng.integers(1, RF_WIDTH, size=120):     # random words of `bits` bits
+        v = int.from_bytes(rng.bytes(RF_WIDTH // 8)) >> (RF_WIDTH - int(bits))
         values += [v, -v]
     values = [v for v in values if -(1 << (RF_WIDTH - 1)) <= v < 1 << (RF_WIDTH - 1)]
     m = Module()

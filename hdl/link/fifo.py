@@ -3,22 +3,22 @@
 ``SyncFIFO`` reads its memory combinationally (``r_data`` is the entry at the read pointer in
 the same cycle), which Virtex-II can only build from distributed RAM: 64 ten-bit entries took
 80 LUT4 sites per codec (ten ``RAM64X1D``), 160 on the node. A block RAM reads on the clock
-edge, so this FIFO addresses it one cycle early: with the pointer the read pointer will have
-after the cycle (``consume + do_read``) and the read port transparent to the write port, the
-registered data in cycle t+1 is the entry at the read pointer of t+1 as memory holds it then —
-exactly what the combinational read shows. ``r_data``, ``r_rdy``, ``w_rdy`` and ``level`` are
-therefore the same as ``SyncFIFO``'s in every cycle (tests/test_codec_fifo.py checks it cycle by
-cycle against ``SyncFIFO`` under random traffic); only the memory moved. The memory starts
+edge, so this FIFO addresses it ahead of the read pointer, with the read port transparent to
+the write port, and shows its head from a register (below): in every cycle ``r_data`` is the
+entry at the read pointer as memory holds it then — exactly what the combinational read
+shows. ``r_data``, ``r_rdy``, ``w_rdy`` and ``level`` are therefore the same as
+``SyncFIFO``'s in every cycle (tests/test_codec_fifo.py checks it cycle by cycle against
+``SyncFIFO`` under random traffic); only the memory moved. The memory starts
 zeroed, as ``SyncFIFO``'s, so even the stale ``r_data`` of an empty FIFO agrees.
 
 ``r_data`` itself is a fabric register, ``head``, not the block RAM's output: a block RAM's
 clock-to-output (about 5.8 ns on an ECP5, where a flip-flop's is under 1 ns) was the start of
 the node's slowest path, the router's routing decision on the packet's first character
-(docs/node.md, Clock). The RAM reads one entry further ahead, the entry after the next cycle's
-read pointer, and ``head`` takes it when a read advances the pointer; a write into the entry
-``head`` is about to hold (into an empty FIFO, or behind the last entry while it is read) goes
-to ``head`` directly. ``head`` is the entry at the read pointer in every cycle, as memory holds
-it: the same ``r_data`` as before, one register later in the fabric.
+(docs/node.md, Clock). The RAM is addressed with the entry after the next cycle's read
+pointer, and ``head`` takes the RAM's output when a read advances the pointer; a write into
+the entry ``head`` is about to hold (into an empty FIFO, or behind the last entry while it is
+read) goes to ``head`` directly. So ``head`` is the entry at the read pointer in every cycle,
+as memory holds it.
 """
 
 from amaranth import *
