@@ -4,7 +4,9 @@ The plain part of a plant step — every node's encoder taking the plant's count
 every node with no event in the piece (no packet or time-code reaching it, no boundary, commit
 or pre-arm cycle, :meth:`FastNode.next_special <cosim.model_node.FastNode.next_special>`) its
 control ticks and the torque word the plant samples — is one call of
-:func:`cosim.model_kernel_src.plain_step`, compiled with numba (``cache=True``). The functions
+:func:`cosim.model_kernel_src.plain_step`, compiled with numba and cached under
+``$MRM_CACHE_DIR/numba/<digest>``, the digest of every source the compiled code reads
+(:func:`kernel_sources`: numba freezes their constants into it). The functions
 there are translations of the references, line by line; the references stay the readable
 source of truth and the pure-Python path (``ModelBackend(kernel="python")``), and the tests run
 both and require the same trace hashes.
@@ -28,6 +30,7 @@ from __future__ import annotations
 import os
 import warnings
 from functools import cache
+from pathlib import Path
 
 import numpy as np
 
@@ -46,8 +49,9 @@ from mrm_cosim.protocol.joint_program import MODES, joint_microcode, pid_formats
 from mrm_cosim.protocol.packet import PacketType
 from mrm_cosim.protocol.regs import Config, NodeEvent
 
-__all__ = ["load", "load_plant", "kernel_choice", "KernelEncoder", "KernelNode", "KernelArrays",
-           "KernelVdc", "point_shifts", "param_row"]
+__all__ = ["load", "load_plant", "kernel_choice", "kernel_sources", "kernel_digest",
+           "KernelEncoder", "KernelNode", "KernelArrays", "KernelVdc", "point_shifts",
+           "param_row"]
 
 #: Buffer sizes per node (:mod:`cosim.model_kernel_src`, which lays them out in one blob).
 PEND_CAP, VIS_CAP, PIPE_CAP, DUE_CAP = src.PEND_CAP, src.VIS_CAP, src.PIPE_CAP, src.DUE_CAP
@@ -86,9 +90,8 @@ def borrowed():
     ``NRT_decref``: a locked instruction each, where the pointer is not null) does nothing.
     The data, shape and strides are the array's; the caller keeps the array alive (an entry
     point's argument, held by Python for the call). 24 % of the ``model`` backend's CPU time
-    on ``mrm3`` went to those two instructions before (perf, 26 Nov 2026). (numba's cache of
-    the functions that call it is keyed on cosim/model_kernel_src.py only: a change here
-    needs that file touched, or the cache cleared.)"""
+    on ``mrm3`` went to those two instructions before (perf, 26 Nov 2026). (This file is
+    among :func:`kernel_sources`: a change here makes numba compile its callers afresh.)"""
     from numba.core import cgutils, types
     from numba.extending import intrinsic
 
@@ -107,6 +110,58 @@ def borrowed():
     return borrow
 
 
+def kernel_sources() -> list[Path]:
+    """Every source file the compiled kernel depends on: the three kernel modules, this one
+    (:func:`borrowed`), and every ``mrm_cosim`` module they import, transitively. numba
+    freezes the globals a compiled function reads (``protocol.fixed``'s formats, the encoder's
+    tables, :mod:`models.gear`'s functions called from the compliant plant) into its machine
+    code, and its own cache is keyed on the defining file alone: a change to one of the
+    others would otherwise run the stale code, silently."""
+    import ast
+
+    root = Path(__file__).resolve().parents[1]
+    todo = [Path(m.__file__).resolve() for m in (src, plant_src, compliant_src)]
+    todo.append(Path(__file__).resolve())
+    seen: set[Path] = set()
+    while todo:
+        path = todo.pop()
+        if path in seen:
+            continue
+        seen.add(path)
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+            for name in names:
+                if name != "mrm_cosim" and not name.startswith("mrm_cosim."):
+                    continue
+                rel = Path(*name.split(".")[1:])
+                for cand in (root / rel.with_suffix(".py"), root / rel / "__init__.py"):
+                    if cand.is_file():
+                        todo.append(cand.resolve())
+    return sorted(seen)
+
+
+def kernel_digest(paths=None) -> str:
+    """A digest of ``paths`` (default :func:`kernel_sources`: their names within the package
+    and their contents) and of numba's and Python's versions: the name of the directory the
+    compiled kernel is cached in."""
+    import hashlib
+    import sys
+
+    import numba
+
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256(f"{numba.__version__} {sys.version_info[:3]}".encode())
+    for path in sorted(kernel_sources() if paths is None else paths):
+        name = path.relative_to(root) if path.is_relative_to(root) else path.name
+        h.update(f"\0{name}\0".encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
 def load():
     """The compiled kernel module (:mod:`cosim.model_kernel_src` with its functions jitted),
     or None, after one warning, if numba is missing or cannot compile it here."""
@@ -115,10 +170,19 @@ def load():
         try:
             import numba
 
+            from mrm_cosim.cosim.compiled import cache_dir
+
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")             # numba's own notices
-                for module in (src, plant_src, compliant_src):
-                    jit_module(module, numba.njit(cache=True))
+                # numba's cache in a directory named by the digest of every source the
+                # kernel reads (kernel_sources): a changed constant or callee recompiles
+                saved = numba.config.CACHE_DIR
+                numba.config.CACHE_DIR = str(cache_dir() / "numba" / kernel_digest())
+                try:
+                    for module in (src, plant_src, compliant_src):
+                        jit_module(module, numba.njit(cache=True))
+                finally:
+                    numba.config.CACHE_DIR = saved
                 _warm_up(src)
                 _warm_up_plant(plant_src)
                 _warm_up_compliant(compliant_src)

@@ -23,7 +23,7 @@ from mrm_cosim.hdl.node.encoder_ref import (
     EncoderParams,
     velocity_word,
 )
-from mrm_cosim.hdl.node.joint import joint_microcode
+from mrm_cosim.protocol.joint_program import joint_microcode
 from mrm_cosim.hdl.node.joint_ref import MODES as JOINT_MODES
 from mrm_cosim.protocol.fixed import WORD_MAX
 from mrm_cosim.protocol.regs import Config

@@ -356,6 +356,47 @@ def test_the_kernel_is_chosen_by_name_or_environment(monkeypatch):
         mk.kernel_choice("c")
 
 
+def test_the_kernel_cache_is_keyed_on_every_source_it_reads(tmp_path):
+    """numba freezes the globals a compiled function reads into its machine code and keys
+    its own cache on the defining file only. The kernel's cache directory is named by a
+    digest of every file it depends on: a change to a format, a table or a callee elsewhere
+    (here models/gear.py's friction, called from the compliant plant) names a new one."""
+    from pathlib import Path
+
+    root = Path(mk.__file__).resolve().parents[1]
+    files = mk.kernel_sources()
+    for rel in ("cosim/model_kernel_src.py", "cosim/model_kernel.py", "protocol/fixed.py",
+                "protocol/cordic.py", "protocol/encoder.py", "hdl/node/encoder_ref.py",
+                "models/plant_kernel_src.py", "models/compliant_kernel_src.py",
+                "models/gear.py", "models/encoder.py"):
+        assert root / rel in files, rel
+    assert not [f for f in files if not f.is_relative_to(root)]
+    # the gateware is no dependency of the kernel (the references never import it)
+    assert not [f for f in files if f.parent.name in ("node", "link") and
+                not f.name.endswith("_ref.py")]
+    copies = []
+    for f in files:
+        c = tmp_path / f.relative_to(root)
+        c.parent.mkdir(parents=True, exist_ok=True)
+        c.write_bytes(f.read_bytes())
+        copies.append(c)
+    before = mk.kernel_digest(copies)
+    assert mk.kernel_digest(copies) == before
+    gear = tmp_path / "models/gear.py"
+    gear.write_text(gear.read_text() + "\n# a change\n")
+    assert mk.kernel_digest(copies) != before
+
+
+@needs_numba
+def test_the_kernel_is_cached_under_its_digest():
+    from pathlib import Path
+
+    from mrm_cosim.cosim.compiled import cache_dir
+
+    where = Path(src.plain_step._cache._cache_path)
+    assert where.parent == cache_dir() / "numba" / mk.kernel_digest()
+
+
 def test_no_vdc_sum_leaves_int64():
     """The compiled VDC link's widest sums, every word at its extreme (2^23): a regressor
     entry has at most three summands, a row or column at most 13 entries; the force row's
