@@ -356,6 +356,7 @@ def test_the_kernel_is_chosen_by_name_or_environment(monkeypatch):
         mk.kernel_choice("c")
 
 
+@needs_numba
 def test_the_kernel_cache_is_keyed_on_every_source_it_reads(tmp_path):
     """numba freezes the globals a compiled function reads into its machine code and keys
     its own cache on the defining file only. The kernel's cache directory is named by a
