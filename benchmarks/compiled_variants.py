@@ -56,6 +56,12 @@ VARIANTS = {
     "tied-o3-xfast-nosi-symbolic": {"opt": "-O3",
                                     "verilator_args": [*_XFAST, "-LDFLAGS", "-Wl,-Bsymbolic"],
                                     "cflags": "-fno-semantic-interposition"},
+    # smaller code (the 3-node model's code is most of the 1 MiB L2), and Verilator's own
+    # optimisations off one at a time: lookup tables for small blocks, the data-flow graph
+    "tied-os-xfast": {"opt": "-Os", "verilator_args": _XFAST},
+    "tied-o2-xfast": {"opt": "-O2", "verilator_args": _XFAST},
+    "tied-o3-xfast-notable": {"opt": "-O3", "verilator_args": [*_XFAST, "-fno-table"]},
+    "tied-o3-xfast-nodfg": {"opt": "-O3", "verilator_args": [*_XFAST, "-fno-dfg"]},
     # a --trace build (what a VCD window needs), tracing off
     "tied-o3-xfast-trace": {"opt": "-O3", "verilator_args": _XFAST, "trace": True},
     "prof": {"reset_port": True, "opt": "-O2", "verilator_args": ["--prof-cfuncs"],
