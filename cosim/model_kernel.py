@@ -118,8 +118,8 @@ def kernel_sources() -> list[Path]:
     code, and its own cache is keyed on the defining file alone: a change to one of the
     others would otherwise run the stale code, silently."""
     import ast
+    import importlib.util
 
-    root = Path(__file__).resolve().parents[1]
     todo = [Path(m.__file__).resolve() for m in (src, plant_src, compliant_src)]
     todo.append(Path(__file__).resolve())
     seen: set[Path] = set()
@@ -137,27 +137,27 @@ def kernel_sources() -> list[Path]:
             for name in names:
                 if name != "mrm_cosim" and not name.startswith("mrm_cosim."):
                     continue
-                rel = Path(*name.split(".")[1:])
-                for cand in (root / rel.with_suffix(".py"), root / rel / "__init__.py"):
-                    if cand.is_file():
-                        todo.append(cand.resolve())
+                try:                        # a module, or a name imported from one: skip
+                    spec = importlib.util.find_spec(name)
+                except ModuleNotFoundError:
+                    spec = None
+                if spec is not None and spec.origin and spec.origin.endswith(".py"):
+                    todo.append(Path(spec.origin).resolve())
     return sorted(seen)
 
 
 def kernel_digest(paths=None) -> str:
-    """A digest of ``paths`` (default :func:`kernel_sources`: their names within the package
-    and their contents) and of numba's and Python's versions: the name of the directory the
-    compiled kernel is cached in."""
+    """A digest of ``paths`` (default :func:`kernel_sources`: their file names and contents)
+    and of numba's and Python's versions: the name of the directory the compiled kernel is
+    cached in."""
     import hashlib
     import sys
 
     import numba
 
-    root = Path(__file__).resolve().parents[1]
     h = hashlib.sha256(f"{numba.__version__} {sys.version_info[:3]}".encode())
     for path in sorted(kernel_sources() if paths is None else paths):
-        name = path.relative_to(root) if path.is_relative_to(root) else path.name
-        h.update(f"\0{name}\0".encode())
+        h.update(f"\0{path.name}\0".encode())
         h.update(path.read_bytes())
     return h.hexdigest()[:16]
 
