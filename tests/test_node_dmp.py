@@ -22,9 +22,8 @@ from mrm_cosim.hdl.node.dmp_ucode import (DIV_CYCLES, OP_CYCLES, RF_WIDTH, SHIFT
 from mrm_cosim.hdl.tops import build_top
 from mrm_cosim.master.dmp import learn_dmp
 from mrm_cosim.protocol.dmp import (MAX_BASIS, PHI_MAX, PHI_WIDTH, STEP_CYCLES, DmpParams, Reg,
-                                    centre_addr,
-                                    decode_outputs, dmp_param_payloads, weight_addr,
-                                    width_addr)
+                                    centre_addr, decode_outputs, dmp_param_payloads,
+                                    weight_addr, width_addr)
 from mrm_cosim.protocol.fixed import WORD, round_shift, saturate
 from mrm_cosim.protocol.regs import Bank, unpack_words
 from mrm_cosim.testbench import run_simulation
