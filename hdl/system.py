@@ -26,7 +26,7 @@ from .link.chars import Char, ErrorCounts, LinkState, saturating_sum
 from .master_port import MasterPort
 from .node.top import SlaveNode
 
-__all__ = ["System", "check_n_nodes", "MAX_NODES", "CLOCKS"]
+__all__ = ["System", "Segment", "check_n_nodes", "MAX_NODES", "CLOCKS"]
 
 #: slave nodes one System (and so one co-simulated robot) holds
 MAX_NODES = 16
@@ -115,32 +115,9 @@ class System(wiring.Component):
         self.nodes = [SlaveNode(codec=codec, encoder=e, pid_shift=s)
                       for e, s in zip(encoders_per_node(encoder, n_nodes),
                                       pid_shifts_per_node(pid_shift, n_nodes), strict=True)]
-        members = {
-            "tx_valid":    In(1),
-            "tx_char":     In(Char),
-            "tx_level":    Out(range(self.master.tx_depth + 1)),
-            "tx_overflow": Out(16),
-            "rx_valid":    Out(1),
-            "rx_char":     Out(Char),
-            "tick_in":     In(1),
-            "time_in":     In(8),
-            "running":     Out(1),
-            "state":       Out(LinkState),
-            "errors":      Out(ErrorCounts),
-            "link_errors": Out(16),
-            "enc_a":       In(n_nodes),
-            "enc_b":       In(n_nodes),
-        }
-        for k in range(1, n_nodes + 1):
-            members[f"torque{k}"] = Out(signed(WORD))
-            members[f"brake{k}"] = Out(1)
-            members[f"status{k}"] = Out(16)
-            members[f"count{k}"] = Out(signed(32))
-            if self.line_faults:
-                layout = line_fault_layout(self.master.codec.slots)
-                members[f"fault_down{k}"] = In(layout)
-                members[f"fault_up{k}"] = In(layout)
-            members[f"events{k}"] = Out(16)
+        members = _master_members(self.master)
+        members |= _node_members(range(1, n_nodes + 1), self.line_faults and
+                                 line_fault_layout(self.master.codec.slots))
         if clocks == "node":
             slots = self.master.codec.slots
             for k in range(1, n_nodes + 1):
@@ -156,34 +133,8 @@ class System(wiring.Component):
             return self._elaborate_node_clocks()
         m = Module()
         m.submodules.master = master = self.master
-        self._master_ports(m, master)
-        upstream = master.line
-        for k, node in enumerate(self.nodes):
-            m.submodules[f"node{k + 1}"] = node
-            m.d.comb += [
-                node.address.eq(k + 1),
-                node.enc_a.eq(self.enc_a[k]),
-                node.enc_b.eq(self.enc_b[k]),
-                getattr(self, f"torque{k + 1}").eq(node.torque),
-                getattr(self, f"brake{k + 1}").eq(node.brake),
-                getattr(self, f"status{k + 1}").eq(node.status),
-                getattr(self, f"count{k + 1}").eq(node.count),
-            ]
-            # upstream port's outputs drive the node's inputs and vice versa
-            down_d, down_s = upstream.d_out, upstream.s_out
-            up_d, up_s = node.up.d_out, node.up.s_out
-            if self.line_faults:
-                down, up = getattr(self, f"fault_down{k + 1}"), getattr(self, f"fault_up{k + 1}")
-                down_d, down_s = faulty_line(down_d, down, "d"), faulty_line(down_s, down, "s")
-                up_d, up_s = faulty_line(up_d, up, "d"), faulty_line(up_s, up, "s")
-            m.d.comb += [
-                node.up.d_in.eq(down_d),
-                node.up.s_in.eq(down_s),
-                upstream.d_in.eq(up_d),
-                upstream.s_in.eq(up_s),
-            ]
-            m.d.comb += getattr(self, f"events{k + 1}").eq(node.events)
-            upstream = node.down
+        _master_ports(m, self, master)
+        _wire_chain(m, self, master.line, self.nodes, 1, self.line_faults)
         return m
 
     def verilog_ports(self) -> dict:
@@ -200,19 +151,11 @@ class System(wiring.Component):
             ports[f"{cd.name}_clk"] = (cd.clk, PortDirection.Input)
         return ports
 
-    def _master_ports(self, m, master) -> None:
-        for name in ("tx_valid", "tx_char", "tick_in", "time_in"):
-            m.d.comb += getattr(master, name).eq(getattr(self, name))
-        for name in ("tx_level", "tx_overflow", "rx_valid", "rx_char", "running", "state",
-                     "errors"):
-            m.d.comb += getattr(self, name).eq(getattr(master, name))
-        m.d.comb += self.link_errors.eq(saturating_sum(master.errors[f] for f in ERROR_CLASSES))
-
     def _elaborate_node_clocks(self):
         """Node ``k`` in domain ``n<k>``, the hops' lines on ports (class docstring)."""
         m = Module()
         m.submodules.master = master = self.master
-        self._master_ports(m, master)
+        _master_ports(m, self, master)
         upstream = master.line
         for k, node in enumerate(self.nodes, start=1):
             domain = f"n{k}"
@@ -245,4 +188,164 @@ class System(wiring.Component):
                 upstream.s_in.eq(up_s),
             ]
             upstream = node.down
+        return m
+
+
+def _master_members(master) -> dict:
+    """:class:`System`'s ports of the master's link port (``link_errors`` its errors summed)."""
+    return {
+        "tx_valid":    In(1),
+        "tx_char":     In(Char),
+        "tx_level":    Out(range(master.tx_depth + 1)),
+        "tx_overflow": Out(16),
+        "rx_valid":    Out(1),
+        "rx_char":     Out(Char),
+        "tick_in":     In(1),
+        "time_in":     In(8),
+        "running":     Out(1),
+        "state":       Out(LinkState),
+        "errors":      Out(ErrorCounts),
+        "link_errors": Out(16),
+    }
+
+
+def _node_members(addresses, fault_layout, fault_ups=None) -> dict:
+    """The ports of nodes ``addresses``: encoder lines (bit j for the j-th of them), then each
+    node's outputs and, with ``fault_layout``, its line-fault inputs (``fault_up<k>`` only for
+    ``k`` in ``fault_ups``, default all: the up-line fault acts where the upstream receives)."""
+    addresses = list(addresses)
+    members = {"enc_a": In(len(addresses)), "enc_b": In(len(addresses))}
+    for k in addresses:
+        members[f"torque{k}"] = Out(signed(WORD))
+        members[f"brake{k}"] = Out(1)
+        members[f"status{k}"] = Out(16)
+        members[f"count{k}"] = Out(signed(32))
+        if fault_layout:
+            members[f"fault_down{k}"] = In(fault_layout)
+            if fault_ups is None or k in fault_ups:
+                members[f"fault_up{k}"] = In(fault_layout)
+        members[f"events{k}"] = Out(16)
+    return members
+
+
+def _master_ports(m, owner, master) -> None:
+    for name in ("tx_valid", "tx_char", "tick_in", "time_in"):
+        m.d.comb += getattr(master, name).eq(getattr(owner, name))
+    for name in ("tx_level", "tx_overflow", "rx_valid", "rx_char", "running", "state",
+                 "errors"):
+        m.d.comb += getattr(owner, name).eq(getattr(master, name))
+    m.d.comb += owner.link_errors.eq(saturating_sum(master.errors[f] for f in ERROR_CLASSES))
+
+
+def _wire_chain(m, owner, upstream, nodes, first: int, line_faults: bool,
+                first_up_fault: bool = True):
+    """Nodes ``first``, ``first + 1``, … (``nodes``) daisy-chained below ``upstream`` (a line:
+    ``d_out``, ``s_out``, ``d_in``, ``s_in``) in ``m``, their ports ``owner``'s; with
+    ``line_faults`` each hop's lines through ``owner``'s fault inputs, the up line of the first
+    hop only if ``first_up_fault``. Returns the last node's downstream line."""
+    for j, node in enumerate(nodes):
+        k = first + j
+        m.submodules[f"node{k}"] = node
+        m.d.comb += [
+            node.address.eq(k),
+            node.enc_a.eq(owner.enc_a[j]),
+            node.enc_b.eq(owner.enc_b[j]),
+            getattr(owner, f"torque{k}").eq(node.torque),
+            getattr(owner, f"brake{k}").eq(node.brake),
+            getattr(owner, f"status{k}").eq(node.status),
+            getattr(owner, f"count{k}").eq(node.count),
+        ]
+        # upstream port's outputs drive the node's inputs and vice versa
+        down_d, down_s = upstream.d_out, upstream.s_out
+        up_d, up_s = node.up.d_out, node.up.s_out
+        if line_faults:
+            down = getattr(owner, f"fault_down{k}")
+            down_d, down_s = faulty_line(down_d, down, "d"), faulty_line(down_s, down, "s")
+            if j or first_up_fault:
+                up = getattr(owner, f"fault_up{k}")
+                up_d, up_s = faulty_line(up_d, up, "d"), faulty_line(up_s, up, "s")
+        m.d.comb += [
+            node.up.d_in.eq(down_d),
+            node.up.s_in.eq(down_s),
+            upstream.d_in.eq(up_d),
+            upstream.s_in.eq(up_s),
+        ]
+        m.d.comb += getattr(owner, f"events{k}").eq(node.events)
+        upstream = node.down
+    return upstream
+
+
+class _Line:
+    """A line's four wires, named as a port's (``d_out`` … ``s_in``)."""
+
+    def __init__(self, d_out, s_out, d_in, s_in):
+        self.d_out, self.s_out, self.d_in, self.s_in = d_out, s_out, d_in, s_in
+
+
+class Segment(wiring.Component):
+    """Nodes ``first … first + count − 1`` of ``System(n_nodes, …)`` (the same parameters),
+    wired as :class:`System` wires them, as a design of their own: a part of the daisy chain
+    that a simulator can step apart from the rest (:class:`cosim.compiled.SplitModel`: the
+    parts on several threads, the same cycles bit for bit as the whole system's). One clock
+    (``clocks="common"``).
+
+    Ports: the system's of these nodes (``enc_a``/``enc_b`` bit j for the j-th of them) and,
+    with ``first == 1``, the master's link port and its ports; else the line of hop ``first``
+    (between node ``first − 1`` and node ``first``) at this end: ``head_d_in``, ``head_s_in``
+    (arriving from the upstream port) and ``head_d_out``, ``head_s_out`` (node ``first``'s,
+    leaving). Unless the segment ends the chain, the line of the next hop at this end:
+    ``tail_d_out``, ``tail_s_out`` (leaving) and ``tail_d_in``, ``tail_s_in`` (arriving). Every
+    line leaving a part is a transmitter's register (no path from a part's inputs to it within
+    a cycle), which is what lets the parts exchange them once a cycle. With ``line_faults`` a
+    fault acts where its line arrives: ``fault_down<k>`` in node ``k``'s part, ``fault_up<k>``
+    in the part of node ``k − 1`` (or the master's).
+    """
+
+    def __init__(self, n_nodes: int, first: int, count: int, *, codec: dict | None = None,
+                 encoder=None, pid_shift=0, line_faults: bool = False):
+        check_n_nodes(n_nodes)
+        if not (1 <= first and count >= 1 and first + count - 1 <= n_nodes):
+            raise ValueError(f"nodes {first}..{first + count - 1} are not among the system's "
+                             f"1..{n_nodes}")
+        self.n_nodes, self.first, self.count = n_nodes, first, count
+        self.has_master = first == 1
+        self.has_tail = first + count - 1 < n_nodes
+        self.line_faults = bool(line_faults)
+        params = list(zip(encoders_per_node(encoder, n_nodes),
+                          pid_shifts_per_node(pid_shift, n_nodes), strict=True))
+        self.master = MasterPort(codec=codec) if self.has_master else None
+        self.nodes = [SlaveNode(codec=codec, encoder=e, pid_shift=s)
+                      for e, s in params[first - 1:first - 1 + count]]
+        slots = self.nodes[0].up.d_out.shape().width
+        last = first + count - 1
+        members = _master_members(self.master) if self.has_master else {
+            "head_d_in": In(slots), "head_s_in": In(slots),
+            "head_d_out": Out(slots), "head_s_out": Out(slots)}
+        ups = set(range(first + 1, last + 1)) | ({first} if self.has_master else set())
+        members |= _node_members(range(first, last + 1), self.line_faults and
+                                 line_fault_layout(slots), ups)
+        if self.has_tail:
+            members |= {"tail_d_out": Out(slots), "tail_s_out": Out(slots),
+                        "tail_d_in": In(slots), "tail_s_in": In(slots)}
+            if self.line_faults:
+                members[f"fault_up{last + 1}"] = In(line_fault_layout(slots))
+        super().__init__(members)
+
+    def elaborate(self, platform):
+        m = Module()
+        if self.has_master:
+            m.submodules.master = master = self.master
+            _master_ports(m, self, master)
+            upstream = master.line
+        else:
+            upstream = _Line(self.head_d_in, self.head_s_in, self.head_d_out, self.head_s_out)
+        last = _wire_chain(m, self, upstream, self.nodes, self.first, self.line_faults,
+                           first_up_fault=self.has_master)
+        if self.has_tail:
+            d_in, s_in = self.tail_d_in, self.tail_s_in
+            if self.line_faults:
+                up = getattr(self, f"fault_up{self.first + self.count}")
+                d_in, s_in = faulty_line(d_in, up, "d"), faulty_line(s_in, up, "s")
+            m.d.comb += [self.tail_d_out.eq(last.d_out), self.tail_s_out.eq(last.s_out),
+                         last.d_in.eq(d_in), last.s_in.eq(s_in)]
         return m
