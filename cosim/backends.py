@@ -31,7 +31,7 @@ from mrm_cosim.protocol.regs import NodeEvent
 from mrm_cosim.units import CLOCK_HZ
 
 __all__ = ["LineSide", "CompiledBackend", "PysimBackend", "VcdWindow", "drive",
-           "system_verilog", "CLOCK_HZ"]
+           "system_verilog", "compiled_parts", "CLOCK_HZ"]
 
 #: One cycle of the gateware's clock in picoseconds (20 ns).
 _PERIOD_PS = 1_000_000_000_000 // CLOCK_HZ
@@ -391,6 +391,22 @@ class LineSide(GatewareSide):
                 inputs[f.port][lo - self.cycle:hi - self.cycle] |= f.value(self._line_slots)
 
 
+def compiled_parts(segment, key: str, quiet: bool = True) -> list:
+    """:class:`cosim.compiled.SplitModel`'s parts: ``segment = (n_nodes, build)``,
+    ``build(k)`` node ``k``'s part (:func:`cosim.track.loop_segment`), each a
+    :class:`~cosim.compiled.CompiledModel` of its own, its Verilog and build cached under
+    ``key`` and ``k``. Returns ``[(k, 1, model), …]``, node 1 first."""
+    from mrm_cosim.cosim.compiled import CompiledModel
+
+    n, build = segment
+    parts = []
+    for k in range(1, n + 1):
+        text, signed = system_verilog(lambda k=k: build(k), f"{key}-node{k}of{n}")
+        parts.append((k, 1, CompiledModel(None, "system", quiet=quiet, verilog_text=text,
+                                          signed_ports=signed)))
+    return parts
+
+
 class CompiledBackend(LineSide):
     """Verilator build of the system (Verilog and binary cached by content hashes).
 
@@ -409,20 +425,36 @@ class CompiledBackend(LineSide):
         A clock per node: ``factory`` builds a ``System(..., clocks="node")`` and the model
         runs the event-ordered loop over every clock's edges (docs/clocks.md); a waveform then
         has every signal at each of its domain's rising edges, in femtoseconds.
+    threads : int
+        With ``segment``, one clock and no waveform: run the system as one model per node
+        (:class:`cosim.compiled.SplitModel`) on this many threads (at most one a node), the
+        same cycles bit for bit; 1 (the default): the whole system's model, as before.
+    segment : (int, callable), optional
+        ``(n_nodes, build)``: ``build(k)`` makes node ``k``'s part
+        (:func:`cosim.track.loop_segment`); its Verilog is cached under ``key`` and ``k``.
     """
 
     name = "compiled"
 
     def __init__(self, factory, key: str, quiet: bool = True, vcd: VcdWindow | None = None,
                  faults=(), line_slots: int = DEFAULT_SLOTS, record: bool = False,
-                 clocks=None):
-        from mrm_cosim.cosim.compiled import CompiledModel
+                 clocks=None, threads: int = 1, segment=None):
+        from mrm_cosim.cosim.compiled import CompiledModel, SplitModel
+        from mrm_cosim.cosim.executors import default_workers
 
         super().__init__(faults, line_slots, record)
-        text, signed = system_verilog(factory, key)
-        self.model = CompiledModel(None, "system", quiet=quiet, verilog_text=text,
-                                   signed_ports=signed,
-                                   trace=False if vcd is None else vcd.format)
+        # at most a thread a node, and a core a thread: a thread more than the cores would
+        # wait for its turn on a core every cycle (measured: ×2–×19 slower than one)
+        use = min(threads, segment[0], default_workers()) if segment is not None else 1
+        self.threads = 1
+        if use > 1 and clocks is None and vcd is None:
+            self.model = SplitModel(compiled_parts(segment, key, quiet), use)
+            self.threads = self.model.threads
+        else:
+            text, signed = system_verilog(factory, key)
+            self.model = CompiledModel(None, "system", quiet=quiet, verilog_text=text,
+                                       signed_ports=signed,
+                                       trace=False if vcd is None else vcd.format)
         self.clocks = clocks
         if clocks is not None:
             from mrm_cosim.cosim.clocks import system_lines

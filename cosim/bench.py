@@ -51,12 +51,12 @@ def bench_backend(backend: str, robot="mrm3", cycles: int | None = None) -> dict
 
     def once(n: int):
         master, plant = bench_master_and_plant(robot)
-        result, _ = run_loop(robot, backend, master, plant, STARTS[backend],
-                             node_uploads(robot, "vdc", Gains()), n)
-        return result.window_wall_s, result.window_cpu_s
+        result, be = run_loop(robot, backend, master, plant, STARTS[backend],
+                              node_uploads(robot, "vdc", Gains()), n, keep=True)
+        return result.window_wall_s, result.window_cpu_s, getattr(be, "threads", 1)
 
     once(0)                              # build (compiled) and warm caches
-    wall, cpu = once(cycles)
+    wall, cpu, threads = once(cycles)
     return {"robot": robot.name, "cycles": cycles, "wall_s": wall, "cpu_s": cpu,
             "cycles_per_s": cycles / wall, "rtf": wall / (cycles / CLOCK_HZ),
-            "cpu_rtf": cpu / (cycles / CLOCK_HZ)}
+            "cpu_rtf": cpu / (cycles / CLOCK_HZ), "threads": threads}

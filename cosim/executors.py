@@ -95,10 +95,23 @@ class SerialExecutor(Executor):
 _REPORTS = None                 # the worker's queue back to its parent (set by _worker_init)
 
 
-def _worker_init(parent: int, reports) -> None:
+def _worker_init(parent: int, reports, cores: int = 1) -> None:
     global _REPORTS
     _REPORTS = reports
     _worker_setup(parent)
+    _share_threads(cores)
+
+
+def _share_threads(cores: int) -> None:
+    """A worker's share of the machine: the compiled backend's threads
+    (``$MRM_COMPILED_THREADS``, :func:`cosim.track.compiled_threads`) lowered to ``cores``
+    (the cores over the workers running side by side, at least 1); more threads than cores
+    would make the threads wait for each other's turn on a core every cycle."""
+    from mrm_cosim.cosim.track import THREADS_ENV
+
+    raw = os.environ.get(THREADS_ENV, "")
+    if raw.isdigit() and int(raw) > cores:
+        os.environ[THREADS_ENV] = str(max(1, cores))
 
 
 def _report(*message) -> None:
@@ -136,7 +149,8 @@ class LocalExecutor(Executor):
             self._reports.close()
         self._reports = self._ctx.SimpleQueue()
         return ProcessPoolExecutor(self.workers, mp_context=self._ctx, initializer=_worker_init,
-                                   initargs=(os.getpid(), self._reports))
+                                   initargs=(os.getpid(), self._reports,
+                                             max(1, default_workers() // self.workers)))
 
     def _drain(self, on_message) -> None:
         while self._reports is not None and not self._reports.empty():

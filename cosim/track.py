@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -397,7 +398,8 @@ def loop_backend(robot, backend: str, record: bool = False, quiet: bool = True, 
     if backend == "compiled":
         return CompiledBackend(lambda: loop_system(robot, node), loop_system_key(robot, node),
                                quiet=quiet, vcd=vcd, faults=faults, record=record,
-                               clocks=clocks)
+                               clocks=clocks, threads=compiled_threads(),
+                               segment=(robot.n, lambda k: loop_segment(robot, k)))
     if backend == "pysim":
         return PysimBackend(loop_system(robot, node), vcd=vcd, faults=faults, record=record,
                             clocks=clocks)
@@ -432,6 +434,36 @@ def loop_system_key(robot, clocks: str = "common") -> str:
     if clocks != "common":
         key += f"-clocks-{clocks}"
     return key
+
+
+#: the environment variable that sets the compiled backend's threads (``mrm … --threads``)
+THREADS_ENV = "MRM_COMPILED_THREADS"
+
+
+def compiled_threads() -> int:
+    """The compiled backend's threads: ``$MRM_COMPILED_THREADS`` (an integer ≥ 1; ``mrm run``
+    and ``mrm bench`` set it from ``--threads``, and the processes they start inherit it),
+    default 1 (the whole system's model). More than one runs the system as a model per node
+    on that many threads, at most one a node (:class:`cosim.compiled.SplitModel`): the same
+    results bit for bit, faster on wall time where the cores are free."""
+    raw = os.environ.get(THREADS_ENV, "1")
+    try:
+        threads = int(raw)
+    except ValueError:
+        threads = 0
+    if threads < 1:
+        raise InputError(THREADS_ENV, f"must be an integer >= 1, not {raw!r}")
+    return threads
+
+
+def loop_segment(robot, first: int, count: int = 1):
+    """Nodes ``first … first + count − 1`` of :func:`loop_system` (one clock) as a design of
+    their own (:class:`hdl.system.Segment`; :class:`cosim.compiled.SplitModel` runs the
+    system as such parts)."""
+    from mrm_cosim.hdl.system import Segment
+
+    return Segment(robot.n, first, count, encoder=node_encoders(robot),
+                   pid_shift=pid_shifts(robot), line_faults=True)
 
 
 def _phases_us(master) -> dict:

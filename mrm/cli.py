@@ -224,6 +224,29 @@ def _silence_stdout() -> None:
         os.close(fd)
 
 
+@contextlib.contextmanager
+def _compiled_threads(args):
+    """A command's ``--threads`` as ``$MRM_COMPILED_THREADS`` while it runs (the processes it
+    starts inherit it; restored after), the variable checked first where the command takes
+    ``--threads`` (an :class:`InputError` naming it: exit code 2 before anything runs)."""
+    if not hasattr(args, "threads"):
+        yield
+        return
+    from mrm_cosim.cosim.track import THREADS_ENV, compiled_threads
+
+    before = os.environ.get(THREADS_ENV)
+    if args.threads is not None:
+        os.environ[THREADS_ENV] = str(args.threads)
+    try:
+        compiled_threads()
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(THREADS_ENV, None)
+        else:
+            os.environ[THREADS_ENV] = before
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -236,7 +259,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         with _signals_raise():
             try:
-                code = args.func(args)
+                with _compiled_threads(args):
+                    code = args.func(args)
                 sys.stdout.flush()
             except InputError as exc:
                 sys.stderr.write(f"{name}: error: {exc}\n")

@@ -237,6 +237,11 @@ FLAGS = [
     (["run", "table2", "--jobs", "0"], "--jobs"),
     (["run", "table2", "--backend", "fpga"], "--backend"),
     (["run", "table2", "--seed", "1", "--seed", "2"], "--seed"),
+    (["run", "table2", "--threads", "0"], "--threads"),
+    (["run", "table2", "--threads", "1", "--threads", "2"], "--threads"),
+    (["run", "track", "--threads", "x"], "--threads"),
+    (["run", "line", "{line}", "--threads", "-1"], "--threads"),
+    (["run", "dmp-table2", "--threads", "1.5"], "--threads"),
     (["run", "track", "--controller", "lqr"], "--controller"),
     (["run", "track", "--duration", "0"], "--duration"),
     (["run", "track", "--robot", "mrm99"], "--robot"),
@@ -262,6 +267,7 @@ FLAGS = [
     (["run", "line", "/nonexistent/line.toml"], "FILE"),
     (["bench", "--backend", "fpga"], "--backend"),
     (["bench", "--robot", "mrm99"], "--robot"),
+    (["bench", "--threads", "0"], "--threads"),
 ]
 for i, (argv, field) in enumerate(FLAGS):
     needs_out = argv[0] == "run"

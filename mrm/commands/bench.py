@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 from mrm_cosim.errors import InputError
+from mrm_cosim.mrm.commands.run import THREADS_HELP, _threads
 from mrm_cosim.mrm.flags import BENCH, named_by_flags
 
 
@@ -16,6 +17,7 @@ def register(subparsers) -> None:
                    help="backend(s) to measure, repeatable (default: all)")
     p.add_argument("--robot", action="append",
                    help="built-in name or assembly .toml, repeatable (default: mrm3 and mrm6)")
+    p.add_argument("--threads", type=_threads, default=None, metavar="N", help=THREADS_HELP)
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=_bench)
 
@@ -40,9 +42,10 @@ def _bench(args) -> int:
         for name in backends:
             r = out["robots"][robot][name] = bench_backend(name, robot)
             if not args.json:
+                threads = f", {r['threads']} threads" if r["threads"] > 1 else ""
                 print(f"{robot:6s} {name:9s} {r['cycles_per_s']:12,.0f} cycles/s   "
                       f"RTF {r['rtf']:8.2f} wall, {r['cpu_rtf']:8.2f} CPU   "
-                      f"({r['cycles']} cycles in {r['wall_s']:.2f} s)")
+                      f"({r['cycles']} cycles in {r['wall_s']:.2f} s{threads})")
     if args.json:
         print(json.dumps(out, indent=2))
     return 0

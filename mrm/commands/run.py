@@ -42,6 +42,25 @@ def _seed(text: str) -> int:
     return value
 
 
+def _threads(text: str) -> int:
+    """``--threads``: a positive integer, refused before anything runs (argparse names the
+    flag and exits with code 2)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, not {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, not {value}")
+    return value
+
+
+#: ``--threads``'s help (every command that can run the compiled backend)
+THREADS_HELP = ("compiled backend: simulate the gateware as one model per node on this many "
+                "threads (at most one a node; same results bit for bit; default "
+                "$MRM_COMPILED_THREADS, else 1: the whole system's model). Faster on wall "
+                "time where cores are free; not with a waveform or clocks of their own")
+
+
 _CONFIG_HELP = "experiment TOML: robot, backend, seed, duration, trajectory, plant, gains, " \
                "timing (default: the package's configs/table2.toml)"
 
@@ -96,6 +115,7 @@ def register(subparsers) -> None:
                     "at T from period 0 for LEN (default one cycle); KIND cut, bit or stuck-d; "
                     "e.g. bit:up:2@2.006ms, cut:down:3@10ms+2us (repeatable; pysim and "
                     "compiled). summary.json says where each fault was counted")
+    pt.add_argument("--threads", type=_threads, default=None, metavar="N", help=THREADS_HELP)
     pt.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     pt.set_defaults(func=_track)
     pl = sub.add_parser("line", help="a planned Cartesian line (trigonometric or Ruckig) "
@@ -124,6 +144,7 @@ def register(subparsers) -> None:
                     help="simulated seconds (default: the move plus a 0.2 s hold)")
     pl.add_argument("--seed", type=_seed, default=None, help="override the plant seed")
     pl.add_argument("--out", default="results/line", help="result folder (replaced)")
+    pl.add_argument("--threads", type=_threads, default=None, metavar="N", help=THREADS_HELP)
     pl.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     pl.set_defaults(func=_line)
     p2 = sub.add_parser("table2", help="the paper's Table 2: pid-1khz, pid-fpga and vdc on the "
@@ -142,6 +163,7 @@ def register(subparsers) -> None:
                     "machine with two cores or more — three runs on two cores end sooner "
                     "together than two and then one — else 1); the results do not depend "
                     "on it")
+    p2.add_argument("--threads", type=_threads, default=None, metavar="N", help=THREADS_HELP)
     p2.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p2.set_defaults(func=_table2)
     pd = sub.add_parser("dmp-table2", help="the motion-primitive paper's Table 2: four tool "
@@ -166,6 +188,7 @@ def register(subparsers) -> None:
                     help="runs side by side (default: as many as there are CPU cores); the "
                     "results do not depend on it")
     pd.add_argument("--out", default="results/dmp-table2", help="result folder (replaced)")
+    pd.add_argument("--threads", type=_threads, default=None, metavar="N", help=THREADS_HELP)
     pd.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     pd.set_defaults(func=_dmp_table2)
 
