@@ -11,6 +11,10 @@ arrays, so a chunk of thousands of cycles costs one call.
 Cycle semantics (identical to an Amaranth testbench that sets inputs, reads outputs, then ticks):
 for each cycle ``i`` the inputs are set to ``inputs[i]``, the combinational logic settles, the
 outputs are sampled into ``outputs[i]``, and one rising clock edge follows.
+
+:class:`SplitModel` runs the system as one such build per run of nodes
+(:class:`hdl.system.Segment`) on several threads, with the same semantics and the same
+outputs bit for bit (the compiled backend's ``--threads``).
 """
 
 from __future__ import annotations
