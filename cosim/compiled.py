@@ -745,8 +745,10 @@ struct Part {
   int n_tape;
 };
 
-// What a part drives on its lines, by cycle parity, and how many cycles it has published.
-struct alignas(64) Pub { std::atomic<uint64_t> n; uint64_t v[2][4]; };
+// What a part drives on its lines, a slot by cycle parity, each slot its cycle count + 1 and
+// the four words in one cache line: a reader takes one miss a cycle.
+struct alignas(64) Slot { std::atomic<uint64_t> n; uint64_t v[4]; };
+struct Pub { Slot s[2]; };
 
 static inline void relax(int& spins) {
   if (++spins < 256) {
@@ -761,18 +763,19 @@ static inline void relax(int& spins) {
 }
 
 static void publish(const Part* p, Pub* pub, uint64_t c) {
-  uint64_t* v = pub->v[c & 1];
+  Slot* s = &pub->s[c & 1];
   for (int j = 0; j < 2; j++) {
-    v[j] = p->head_out[j] >= 0 ? p->get(p->h, p->head_out[j]) : 0;
-    v[2 + j] = p->tail_out[j] >= 0 ? p->get(p->h, p->tail_out[j]) : 0;
+    s->v[j] = p->head_out[j] >= 0 ? p->get(p->h, p->head_out[j]) : 0;
+    s->v[2 + j] = p->tail_out[j] >= 0 ? p->get(p->h, p->tail_out[j]) : 0;
   }
-  pub->n.store(c + 1, std::memory_order_release);
+  s->n.store(c + 1, std::memory_order_release);
 }
 
 static const uint64_t* await(Pub* pub, uint64_t c) {
+  Slot* s = &pub->s[c & 1];
   int spins = 0;
-  while (pub->n.load(std::memory_order_acquire) < c + 1) relax(spins);
-  return pub->v[c & 1];
+  while (s->n.load(std::memory_order_acquire) < c + 1) relax(spins);
+  return s->v;
 }
 
 // Parts [lo, hi) for cycles [0, n): each cycle, publish the lines they drive (their registers'
@@ -856,7 +859,7 @@ extern "C" void mrm_split_free(void* pp) {
 extern "C" void mrm_split_run(void* pp, const Part* parts, int np, uint64_t n, const int* lo) {
   Pool* p = (Pool*)pp;
   std::unique_ptr<Pub[]> pubs(new Pub[np]);
-  for (int k = 0; k < np; k++) pubs[k].n.store(0);
+  for (int k = 0; k < np; k++) pubs[k].s[0].n.store(0), pubs[k].s[1].n.store(0);
   {
     std::lock_guard<std::mutex> lock(p->mu);
     p->parts = parts; p->pubs = pubs.get(); p->np = np; p->n = n; p->lo = lo;

@@ -219,3 +219,13 @@ def test_a_worker_takes_its_share_of_the_cores(monkeypatch):
     monkeypatch.delenv(THREADS_ENV)
     _share_threads(1)
     assert THREADS_ENV not in os.environ
+
+
+@pytest.mark.skipif(default_workers() < 2, reason="one core: the backend runs one thread")
+def test_bench_says_how_many_threads_ran(monkeypatch):
+    from mrm_cosim.cosim.bench import bench_backend
+
+    monkeypatch.setenv(THREADS_ENV, "2")
+    assert bench_backend("compiled", "mrm3", cycles=5_000)["threads"] == 2
+    monkeypatch.setenv(THREADS_ENV, "1")
+    assert bench_backend("compiled", "mrm3", cycles=5_000)["threads"] == 1
