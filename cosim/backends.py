@@ -439,7 +439,7 @@ class CompiledBackend(LineSide):
     def __init__(self, factory, key: str, quiet: bool = True, vcd: VcdWindow | None = None,
                  faults=(), line_slots: int = DEFAULT_SLOTS, record: bool = False,
                  clocks=None, threads: int = 1, segment=None):
-        from mrm_cosim.cosim.compiled import CompiledModel, SplitModel
+        from mrm_cosim.cosim.compiled import BuildError, CompiledModel, SplitModel
         from mrm_cosim.cosim.executors import default_workers
 
         super().__init__(faults, line_slots, record)
@@ -447,10 +447,19 @@ class CompiledBackend(LineSide):
         # wait for its turn on a core every cycle (measured: ×2–×19 slower than one)
         use = min(threads, segment[0], default_workers()) if segment is not None else 1
         self.threads = 1
+        self.model = None
         if use > 1 and clocks is None and vcd is None:
-            self.model = SplitModel(compiled_parts(segment, key, quiet), use)
-            self.threads = self.model.threads
-        else:
+            try:
+                self.model = SplitModel(compiled_parts(segment, key, quiet), use)
+                self.threads = self.model.threads
+            except BuildError as exc:       # the same results on one thread: say so, go on
+                import warnings
+
+                first = (str(exc).strip().splitlines() or [""])[0]
+                warnings.warn(f"compiled backend: {threads} threads unavailable ({first}); "
+                              "running the whole system's model on one thread",
+                              RuntimeWarning, stacklevel=2)
+        if self.model is None:
             text, signed = system_verilog(factory, key)
             self.model = CompiledModel(None, "system", quiet=quiet, verilog_text=text,
                                        signed_ports=signed,

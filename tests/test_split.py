@@ -229,3 +229,20 @@ def test_bench_says_how_many_threads_ran(monkeypatch):
     assert bench_backend("compiled", "mrm3", cycles=5_000)["threads"] == 2
     monkeypatch.setenv(THREADS_ENV, "1")
     assert bench_backend("compiled", "mrm3", cycles=5_000)["threads"] == 1
+
+
+def test_threads_that_cannot_be_built_fall_back_to_one(monkeypatch):
+    """No C++ compiler for the split loop (or a part that fails to build): the whole system's
+    model runs, the same results, with a one-line warning — never a crash."""
+    from mrm_cosim.cosim import compiled
+    from mrm_cosim.cosim.compiled import BuildError, CompiledModel
+
+    def no_driver():
+        raise BuildError("g++ failed for the split driver:\nno compiler here")
+
+    monkeypatch.setattr(compiled, "_split_driver", no_driver)
+    monkeypatch.setenv(THREADS_ENV, "2")
+    with pytest.warns(RuntimeWarning, match=r"2 threads unavailable \(g\+\+ failed for the "
+                      r"split driver:\); running the whole system's model on one thread"):
+        be = loop_backend(load_robot("mrm3"), "compiled")
+    assert isinstance(be.model, CompiledModel) and be.threads == 1
