@@ -19,6 +19,7 @@ outputs bit for bit (the compiled backend's ``--threads``).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import hashlib
 import os
@@ -416,6 +417,24 @@ void mrm_run(void* p, uint64_t n, int n_in, const int* in_idx, const uint64_t* i
 {clocked_api}"""
 
 
+@contextlib.contextmanager
+def _building(target: Path):
+    """A fresh folder beside ``target`` to build into, renamed to ``target`` when the block
+    ends (if another process finished the same build first, its copy stays), removed if the
+    block fails: a cache entry is whole or absent."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    work = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
+    try:
+        yield work
+        try:
+            os.replace(work, target)
+        except OSError:  # another process finished the same build first
+            shutil.rmtree(work, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(work, ignore_errors=True)
+        raise
+
+
 class CompiledModel:
     """A Verilator build of an Amaranth component, stepped from Python.
 
@@ -530,9 +549,7 @@ class CompiledModel:
         lib = target / "libmodel.so"
         if lib.exists():
             return lib
-        target.parent.mkdir(parents=True, exist_ok=True)
-        work = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
-        try:
+        with _building(target) as work:
             (work / f"{self.name}.v").write_text(self.verilog + self._harness)
             (work / "wrapper.cpp").write_text(wrapper)
             if not quiet:
@@ -546,13 +563,6 @@ class CompiledModel:
                                  f"{proc.stderr[-4000:]}")
             shutil.copy2(work / "obj" / "libmodel.so", work / "libmodel.so")
             shutil.rmtree(work / "obj")
-            try:
-                os.replace(work, target)
-            except OSError:  # another process finished the same build first
-                shutil.rmtree(work, ignore_errors=True)
-        except BaseException:
-            shutil.rmtree(work, ignore_errors=True)
-            raise
         return lib
 
     # --- stepping -------------------------------------------------------------------------
@@ -892,22 +902,13 @@ def _split_driver() -> ctypes.CDLL:
     target = cache_dir() / "split" / key
     lib = target / "libsplit.so"
     if not lib.exists():
-        target.parent.mkdir(parents=True, exist_ok=True)
-        work = Path(tempfile.mkdtemp(prefix=f".{key}.", dir=target.parent))
-        try:
+        with _building(target) as work:
             (work / "split.cpp").write_text(_SPLIT_DRIVER)
             proc = subprocess.run([cxx, "-O2", "-std=c++17", "-shared", "-fPIC", "-pthread",
                                    "-o", "libsplit.so", "split.cpp"], cwd=work,
                                   capture_output=True, text=True)
             if proc.returncode != 0:
                 raise BuildError(f"{cxx} failed for the split driver:\n{proc.stderr[-4000:]}")
-            try:
-                os.replace(work, target)
-            except OSError:     # another process finished the same build first
-                shutil.rmtree(work, ignore_errors=True)
-        except BaseException:
-            shutil.rmtree(work, ignore_errors=True)
-            raise
     drv = ctypes.CDLL(str(lib))
     drv.mrm_split_new.restype = ctypes.c_void_p
     drv.mrm_split_new.argtypes = [ctypes.c_int]

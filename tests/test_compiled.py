@@ -172,3 +172,22 @@ def test_ports_of_nested_signatures_are_reachable():
     assert out["rx__ready"].tolist() == [1, 1, 1]
     assert out["tx__valid"].tolist() == [0, 1, 1]
     assert model.get("tx__payload") == 0x1256            # newest byte lowest
+
+
+def test_a_cache_entry_is_whole_or_absent(tmp_path):
+    """Builds go into a fresh folder renamed into place at the end: a failed build leaves
+    nothing, and a build finished second leaves the first one's entry as it was."""
+    from mrm_cosim.cosim.compiled import _building
+
+    target = tmp_path / "cache" / "entry"
+    with pytest.raises(RuntimeError):
+        with _building(target) as work:
+            (work / "half").write_text("written")
+            raise RuntimeError("the compiler failed")
+    assert not target.exists() and list(target.parent.iterdir()) == []
+    with _building(target) as work:
+        (work / "lib").write_text("first")
+    with _building(target) as work:
+        (work / "lib").write_text("second")
+    assert (target / "lib").read_text() == "first"
+    assert [p.name for p in target.parent.iterdir()] == ["entry"]

@@ -30,28 +30,24 @@ EXIT_NOT_CLEAN = 3
 _log = logging.getLogger("mrm_cosim.mrm")
 
 
-def _seed(text: str) -> int:
-    """``--seed``: a non-negative integer, refused before anything runs (argparse names the
-    flag and exits with code 2)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer, not {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer, not {value}")
-    return value
+def _int_flag(minimum: int, kind: str, doc: str):
+    """An argparse type: an integer ≥ ``minimum`` (``kind``: "non-negative", "positive"),
+    refused before anything runs (argparse names the flag and exits with code 2)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a {kind} integer, not {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"must be a {kind} integer, not {value}")
+        return value
+
+    parse.__doc__ = doc
+    return parse
 
 
-def _threads(text: str) -> int:
-    """``--threads``: a positive integer, refused before anything runs (argparse names the
-    flag and exits with code 2)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, not {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, not {value}")
-    return value
+_seed = _int_flag(0, "non-negative", "``--seed``: a non-negative integer.")
+_threads = _int_flag(1, "positive", "``--threads``: a positive integer.")
 
 
 #: ``--threads``'s help (every command that can run the compiled backend)
