@@ -49,8 +49,10 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, action="append", help="threads (default 1 and 2)")
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args(argv)
+    from mrm_cosim.cosim.backends import compiled_parts
     from mrm_cosim.cosim.compiled import CompiledModel, SplitModel
-    from mrm_cosim.cosim.track import THREADS_ENV, loop_backend, loop_system
+    from mrm_cosim.cosim.track import (THREADS_ENV, loop_backend, loop_segment, loop_system,
+                                       loop_system_key)
     from mrm_cosim.models.robot import load_robot
 
     with open(args.stim, "rb") as f:
@@ -62,8 +64,8 @@ def main(argv=None) -> int:
         raise SystemExit(f"{args.stim} was recorded on other gateware: record it again")
     os.environ[THREADS_ENV] = "1"
     whole = loop_backend(robot, "compiled", quiet=False).model
-    os.environ[THREADS_ENV] = "3"
-    parts = loop_backend(robot, "compiled", quiet=False).model.parts
+    parts = compiled_parts((robot.n, lambda k: loop_segment(robot, k)), loop_system_key(robot),
+                           quiet=False)
 
     def fresh(m):
         return CompiledModel(None, "system", verilog_text=m.verilog,

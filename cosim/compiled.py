@@ -435,6 +435,16 @@ def _building(target: Path):
         raise
 
 
+def _pack(n: int, ports, values) -> np.ndarray:
+    """Per-cycle input samples as the C loops take them: ``(n, len(ports))`` words, each
+    column a port's values (a scalar is held) cut to its width (at least one column)."""
+    buf = np.empty((n, max(len(ports), 1)), dtype=np.uint64)
+    for j, (port, v) in enumerate(zip(ports, values, strict=True)):
+        v = np.broadcast_to(np.asarray(v, dtype=np.int64), (n,))
+        buf[:, j] = (v & ((1 << port.width) - 1)).astype(np.uint64)
+    return buf
+
+
 class CompiledModel:
     """A Verilator build of an Amaranth component, stepped from Python.
 
@@ -624,10 +634,7 @@ class CompiledModel:
         if wide:
             raise ValueError(f"per-cycle samples take ports of at most 64 bits; use get()/set() "
                              f"for {wide}")
-        in_buf = np.empty((n, len(in_ports)), dtype=np.uint64)
-        for j, (port, values) in enumerate(zip(in_ports, inputs.values(), strict=True)):
-            v = np.broadcast_to(np.asarray(values, dtype=np.int64), (n,))
-            in_buf[:, j] = (v & ((1 << port.width) - 1)).astype(np.uint64)
+        in_buf = _pack(n, in_ports, inputs.values())
         out_buf = np.zeros((n, len(out_ports)), dtype=np.uint64)
         in_idx = np.array([p.index for p in in_ports], dtype=np.int32)
         out_idx = np.array([p.index for p in out_ports], dtype=np.int32)
@@ -683,10 +690,7 @@ class CompiledModel:
         inputs = inputs or {}
         outputs = list(outputs)
         in_ports = [self._port(k, "input") for k in inputs]
-        in_buf = np.empty((n, len(in_ports)), dtype=np.uint64)
-        for j, (port, values) in enumerate(zip(in_ports, inputs.values(), strict=True)):
-            v = np.broadcast_to(np.asarray(values, dtype=np.int64), (n,))
-            in_buf[:, j] = (v & ((1 << port.width) - 1)).astype(np.uint64)
+        in_buf = _pack(n, in_ports, inputs.values())
         obs = np.array([self._observed[k] for k in outputs], dtype=np.int32)
         out_buf = np.zeros((n, len(outputs)), dtype=np.uint64)
         in_idx = np.array([p.index for p in in_ports], dtype=np.int32)
@@ -751,7 +755,7 @@ struct Part {
   void* h; run_fn run; get_fn get;
   int n_in; const int* in_idx; const uint64_t* in_buf;   // n_tape per cycle, then the lines
   int n_out; const int* out_idx; uint64_t* out_buf;
-  int head_out[2]; int tail_out[2];                       // the lines it drives, or -1
+  int head_out[2]; int tail_out[2];   // the lines it drives (head d_in, s_in; tail d_out, s_out)
   int n_tape;
 };
 
@@ -964,7 +968,7 @@ class SplitModel:
         self._where = {}
         for i, (_, _, model) in enumerate(self.parts):
             for name, port in model.ports.items():
-                if name in ("clk", "enc_a", "enc_b") or name.startswith(("head_", "tail_")):
+                if name in ("clk", "enc_a", "enc_b") or name.startswith(("head__", "tail__")):
                     continue
                 self._where[name] = (i, port)
         self._structs = (_SplitPart * np_)()
@@ -973,9 +977,10 @@ class SplitModel:
             st.h = model._h
             st.run = ctypes.cast(model._lib.mrm_run, ctypes.c_void_p).value
             st.get = ctypes.cast(model._lib.mrm_get, ctypes.c_void_p).value
+            # (Segment's ports: a part's tail connects to the next part's head name to name)
             for j, w in enumerate("ds"):
-                st.head_out[j] = model.ports[f"head_{w}_out"].index if i > 0 else -1
-                st.tail_out[j] = model.ports[f"tail_{w}_out"].index if i + 1 < np_ else -1
+                st.head_out[j] = model.ports[f"head__{w}_in"].index if i > 0 else -1
+                st.tail_out[j] = model.ports[f"tail__{w}_out"].index if i + 1 < np_ else -1
 
     def run(self, n: int, inputs: dict | None = None, outputs=()) -> dict[str, np.ndarray]:
         """:meth:`CompiledModel.run` of the whole system."""
@@ -1007,12 +1012,10 @@ class SplitModel:
         last = len(self.parts) - 1
         for i, (_, _, model) in enumerate(self.parts):
             tape = per_part[i]
-            names = list(tape) + (["head_d_in", "head_s_in"] if i else []) + \
-                (["tail_d_in", "tail_s_in"] if i < last else [])
+            names = list(tape) + (["head__d_out", "head__s_out"] if i else []) + \
+                (["tail__d_in", "tail__s_in"] if i < last else [])
             in_idx = np.array([model.ports[x].index for x in names], dtype=np.int32)
-            in_buf = np.empty((n, max(len(tape), 1)), dtype=np.uint64)
-            for j, (x, v) in enumerate(tape.items()):
-                in_buf[:, j] = (v & ((1 << model.ports[x].width) - 1)).astype(np.uint64)
+            in_buf = _pack(n, [model.ports[x] for x in tape], tape.values())
             out_idx = np.array([model.ports[x].index for x in wanted[i]], dtype=np.int32)
             out_buf = np.zeros((n, max(len(wanted[i]), 1)), dtype=np.uint64)
             st = self._structs[i]
@@ -1028,18 +1031,19 @@ class SplitModel:
         self.cycles += n
         return {x: _signed_array(got[x][0][:, got[x][1]], got[x][2]) for x in outputs}
 
-    def close(self) -> None:
-        if self._pool is not None:
-            self._drv.mrm_split_free(self._pool)
+    def _free_pool(self) -> None:
+        if getattr(self, "_pool", None) is not None:
+            self._drv.mrm_split_free(self._pool)      # (its threads joined)
             self._pool = None
+
+    def close(self) -> None:
+        self._free_pool()
         for _, _, model in self.parts:
             model.close()
 
     def __del__(self):
         try:
-            if self._pool is not None:
-                self._drv.mrm_split_free(self._pool)
-                self._pool = None
+            self._free_pool()
         except Exception:  # noqa: BLE001 - interpreter shutdown
             pass
 

@@ -23,6 +23,7 @@ from mrm_cosim.protocol.link import ERROR_CLASSES
 
 from .link.chain import faulty_line, line_fault_layout
 from .link.chars import Char, ErrorCounts, LinkState, saturating_sum
+from .link.node import line_signature
 from .master_port import MasterPort
 from .node.top import SlaveNode
 
@@ -275,13 +276,6 @@ def _wire_chain(m, owner, upstream, nodes, first: int, line_faults: bool,
     return upstream
 
 
-class _Line:
-    """A line's four wires, named as a port's (``d_out`` … ``s_in``)."""
-
-    def __init__(self, d_out, s_out, d_in, s_in):
-        self.d_out, self.s_out, self.d_in, self.s_in = d_out, s_out, d_in, s_in
-
-
 class Segment(wiring.Component):
     """Nodes ``first … first + count − 1`` of ``System(n_nodes, …)`` (the same parameters),
     wired as :class:`System` wires them, as a design of their own: a part of the daisy chain
@@ -290,15 +284,16 @@ class Segment(wiring.Component):
     (``clocks="common"``).
 
     Ports: the system's of these nodes (``enc_a``/``enc_b`` bit j for the j-th of them) and,
-    with ``first == 1``, the master's link port and its ports; else the line of hop ``first``
-    (between node ``first − 1`` and node ``first``) at this end: ``head_d_in``, ``head_s_in``
-    (arriving from the upstream port) and ``head_d_out``, ``head_s_out`` (node ``first``'s,
-    leaving). Unless the segment ends the chain, the line of the next hop at this end:
-    ``tail_d_out``, ``tail_s_out`` (leaving) and ``tail_d_in``, ``tail_s_in`` (arriving). Every
-    line leaving a part is a transmitter's register (no path from a part's inputs to it within
-    a cycle), which is what lets the parts exchange them once a cycle. With ``line_faults`` a
-    fault acts where its line arrives: ``fault_down<k>`` in node ``k``'s part, ``fault_up<k>``
-    in the part of node ``k − 1`` (or the master's).
+    with ``first == 1``, the master's link port and its ports; else ``head``:
+    ``In(line_signature(slots))``, the upstream port of hop ``first`` (node ``first − 1``'s
+    downstream port) as node ``first`` sees it. Unless the segment ends the chain, ``tail``:
+    ``Out(line_signature(slots))``, the last node's downstream port. A part's ``tail`` and the
+    next part's ``head`` connect name to name (``tail.d_out`` → ``head.d_out``, ``head.d_in`` →
+    ``tail.d_in``, the same for ``s``). Every line leaving a part is a transmitter's register
+    (no path from a part's inputs to it within a cycle), which is what lets the parts exchange
+    them once a cycle. With ``line_faults`` a fault acts where its line arrives:
+    ``fault_down<k>`` in node ``k``'s part, ``fault_up<k>`` in the part of node ``k − 1`` (or
+    the master's).
     """
 
     def __init__(self, n_nodes: int, first: int, count: int, *, codec: dict | None = None,
@@ -318,15 +313,13 @@ class Segment(wiring.Component):
                       for e, s in params[first - 1:first - 1 + count]]
         slots = self.nodes[0].up.d_out.shape().width
         last = first + count - 1
-        members = _master_members(self.master) if self.has_master else {
-            "head_d_in": In(slots), "head_s_in": In(slots),
-            "head_d_out": Out(slots), "head_s_out": Out(slots)}
+        members = (_master_members(self.master) if self.has_master
+                   else {"head": In(line_signature(slots))})
         ups = set(range(first + 1, last + 1)) | ({first} if self.has_master else set())
         members |= _node_members(range(first, last + 1), self.line_faults and
                                  line_fault_layout(slots), ups)
         if self.has_tail:
-            members |= {"tail_d_out": Out(slots), "tail_s_out": Out(slots),
-                        "tail_d_in": In(slots), "tail_s_in": In(slots)}
+            members["tail"] = Out(line_signature(slots))
             if self.line_faults:
                 members[f"fault_up{last + 1}"] = In(line_fault_layout(slots))
         super().__init__(members)
@@ -338,14 +331,14 @@ class Segment(wiring.Component):
             _master_ports(m, self, master)
             upstream = master.line
         else:
-            upstream = _Line(self.head_d_in, self.head_s_in, self.head_d_out, self.head_s_out)
+            upstream = self.head
         last = _wire_chain(m, self, upstream, self.nodes, self.first, self.line_faults,
                            first_up_fault=self.has_master)
         if self.has_tail:
-            d_in, s_in = self.tail_d_in, self.tail_s_in
+            d_in, s_in = self.tail.d_in, self.tail.s_in
             if self.line_faults:
                 up = getattr(self, f"fault_up{self.first + self.count}")
                 d_in, s_in = faulty_line(d_in, up, "d"), faulty_line(s_in, up, "s")
-            m.d.comb += [self.tail_d_out.eq(last.d_out), self.tail_s_out.eq(last.s_out),
+            m.d.comb += [self.tail.d_out.eq(last.d_out), self.tail.s_out.eq(last.s_out),
                          last.d_in.eq(d_in), last.s_in.eq(s_in)]
         return m
