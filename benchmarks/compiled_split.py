@@ -4,15 +4,18 @@ model, side by side on a recorded loop.
 
 Run on purpose (the first run builds a model per node: 1-2 minutes each here), not in CI::
 
-    MRM_CACHE_DIR=/tmp/s-cache python benchmarks/compiled_variants.py record --stim /tmp/tape.pkl
+    MRM_CACHE_DIR=/tmp/s-cache python benchmarks/compiled_variants.py record --stim /tmp/tape.pkl \\
+        [--robot mrm6]
     MRM_CACHE_DIR=/tmp/s-cache python benchmarks/compiled_split.py --stim /tmp/tape.pkl \\
-        [--threads 1 --threads 2] [--rounds 3]
+        [--threads 1 --threads 2] [--rounds 3] [--placed]
 
-The tape (``compiled_variants.py record``: the inputs of ``mrm bench``'s ``mrm3`` VDC loop,
-start-up and five periods, chunk by chunk, with the Verilog they were recorded on; it must be
-today's gateware's) is replayed through the whole system's model
+The tape (``compiled_variants.py record``: the inputs of ``mrm bench``'s VDC loop of its robot,
+``mrm3`` unless said, start-up and five periods, chunk by chunk, with the Verilog they were
+recorded on; it must be today's gateware's) is replayed through the whole system's model
 (:meth:`cosim.compiled.CompiledModel.run`, as the closed loop calls it) and through the
-per-node parts on each ``--threads`` (fresh models each round, in turns). It prints the cycles
+per-node parts on each ``--threads`` (fresh models each round, in turns); with ``--placed``
+also through parts named by their place in the chain (``Segment(local=False)``: a build and a
+copy of the code per node, as before nodes alike shared theirs). It prints the cycles
 per second of each, best of ``--rounds`` on wall time (a run on two threads uses both cores:
 its CPU time is up to twice its wall time), the ratio to the whole model, and stops unless
 every run returned the same outputs, cycle by cycle, as the whole system's model.
@@ -48,6 +51,8 @@ def main(argv=None) -> int:
     ap.add_argument("--stim", type=Path, required=True, help="compiled_variants.py record's tape")
     ap.add_argument("--threads", type=int, action="append", help="threads (default 1 and 2)")
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--placed", action="store_true",
+                    help="also parts named by place: a build and a copy of the code per node")
     args = ap.parse_args(argv)
     from mrm_cosim.cosim.backends import compiled_parts
     from mrm_cosim.cosim.compiled import CompiledModel, SplitModel
@@ -59,7 +64,7 @@ def main(argv=None) -> int:
         tape = pickle.load(f)
     chunks = tape["chunks"]
     cycles = sum(c[0] for c in chunks)
-    robot = load_robot("mrm3")
+    robot = load_robot(tape.get("robot", "mrm3"))
     if verilog.convert(loop_system(robot), name="system", emit_src=False) != tape["verilog"]:
         raise SystemExit(f"{args.stim} was recorded on other gateware: record it again")
     os.environ[THREADS_ENV] = "1"
@@ -71,10 +76,24 @@ def main(argv=None) -> int:
         return CompiledModel(None, "system", verilog_text=m.verilog,
                              signed_ports={p.name: p.signed for p in m.ports.values()})
 
+    kinds = {"a model per node": parts}
+    if args.placed:
+        from mrm_cosim.cosim.track import node_encoders, pid_shifts
+        from mrm_cosim.hdl.system import Segment
+
+        def placed(k):
+            return Segment(robot.n, k, 1, encoder=node_encoders(robot),
+                           pid_shift=pid_shifts(robot), line_faults=True)
+
+        kinds["parts named by place"] = compiled_parts(
+            (robot.n, placed), loop_system_key(robot) + "-placed", quiet=False)
+    print(f"{robot.name}: {len({m._lib._handle for _, _, m in parts})} builds for {robot.n} "
+          f"parts", file=sys.stderr)
     runs = {"whole system, 1 thread": lambda: fresh(whole).run}
     for t in args.threads or [1, 2]:
-        runs[f"a model per node, {t} thread{'s' if t > 1 else ''}"] = (
-            lambda t=t: SplitModel([(a, b, fresh(m)) for a, b, m in parts], t).run)
+        for kind, ps in kinds.items():
+            runs[f"{kind}, {t} thread{'s' if t > 1 else ''}"] = (
+                lambda t=t, ps=ps: SplitModel([(a, b, fresh(m)) for a, b, m in ps], t).run)
     best, ref = {}, None
     for r in range(args.rounds):
         for name, make in runs.items():
@@ -94,9 +113,9 @@ def main(argv=None) -> int:
     base = best["whole system, 1 thread"][0]
     print(f"{cycles} cycles replayed ({args.stim}), every run's outputs identical to the whole "
           f"system's, cycle by cycle; best of {args.rounds}, load {os.getloadavg()[0]:.1f}")
-    print(f"{'run':<30} {'cycles/s (wall)':>16} {'ns/cycle':>9} {'CPU/wall':>9} {'vs whole':>9}")
+    print(f"{'run':<36} {'cycles/s (wall)':>16} {'ns/cycle':>9} {'CPU/wall':>9} {'vs whole':>9}")
     for name, (wall, cpu) in best.items():
-        print(f"{name:<30} {cycles / wall:>16,.0f} {1e9 * wall / cycles:>9,.0f} "
+        print(f"{name:<36} {cycles / wall:>16,.0f} {1e9 * wall / cycles:>9,.0f} "
               f"{cpu / wall:>9.2f} {base / wall:>8.2f}x")
     return 0
 

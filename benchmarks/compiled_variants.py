@@ -90,14 +90,14 @@ def _yosys_opt(verilog_text: str, top: str) -> str:
 STIM = Path("/tmp/mrm-compiled-stimulus.pkl")
 
 
-def record(cycles: int, path: Path) -> None:
+def record(cycles: int, path: Path, robot_name: str = "mrm3") -> None:
     from mrm_cosim.cosim.backends import CompiledBackend
     from mrm_cosim.cosim.closed_loop import ClosedLoop
     from mrm_cosim.master.uploads import Gains, node_uploads
     from mrm_cosim.cosim.track import loop_system, loop_system_key
     from mrm_cosim.models.robot import load_robot
 
-    robot = load_robot("mrm3")
+    robot = load_robot(robot_name)
     from mrm_cosim.cosim.bench import bench_master_and_plant
 
     master, plant = bench_master_and_plant(robot)
@@ -118,7 +118,8 @@ def record(cycles: int, path: Path) -> None:
     loop.run(cycles)
     with open(path, "wb") as f:
         # the Verilog goes with the stimulus: the gateware may change before the replay
-        pickle.dump({"verilog": text, "signed": signed, "chunks": be.chunks}, f)
+        pickle.dump({"verilog": text, "signed": signed, "chunks": be.chunks,
+                     "robot": robot_name}, f)
     print(f"recorded {sum(c[0] for c in be.chunks)} cycles in {len(be.chunks)} chunks "
           f"to {path}; {len(master.records)} periods")
 
@@ -305,6 +306,8 @@ def main(argv=None) -> int:
     r = sub.add_parser("record")
     r.add_argument("--cycles", type=int, default=250_000)
     r.add_argument("--stim", type=Path, default=STIM)
+    r.add_argument("--robot", default="mrm3", help="the robot (compiled_split.py replays "
+                   "any; compare and pgo take mrm3's tape)")
     c = sub.add_parser("compare")
     c.add_argument("variants", nargs="+", choices=sorted(VARIANTS))
     c.add_argument("--stim", type=Path, default=STIM)
@@ -329,7 +332,7 @@ def main(argv=None) -> int:
     global LEGACY
     LEGACY = getattr(args, "legacy", None)
     if args.cmd == "record":
-        record(args.cycles, args.stim)
+        record(args.cycles, args.stim, args.robot)
         return 0
     return compare(args.variants, args.stim, args.rounds)
 

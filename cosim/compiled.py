@@ -938,7 +938,10 @@ class SplitModel:
     ----------
     parts : sequence of (first, count, CompiledModel)
         The segments in chain order, node ``first`` … ``first + count − 1`` each, the first
-        with the master's port.
+        with the master's port. A part of one node named apart from its place
+        (``Segment(local=True)``, the backend's: nodes alike are one build, whose code their
+        instances share) has its ports mapped to the system's names and its ``address``
+        held at ``first``.
     threads : int
         1 … ``len(parts)``; the parts are dealt out in runs of (near) equal numbers of nodes.
     """
@@ -964,13 +967,24 @@ class SplitModel:
         self._drv = _split_driver()
         self._pool = self._drv.mrm_split_new(self.threads)
         self.cycles = 0
-        #: port name -> (part index, Port); ``enc_a``/``enc_b`` are the parts' bits
+        #: the system's port name -> (part index, the part's Port); ``enc_a``/``enc_b`` are
+        #: the parts' bits. A part named apart from its place (``Segment(local=True)``: its
+        #: node's ``address`` an input) has its address held at its node's.
+        from mrm_cosim.hdl.system import Segment
+
         self._where = {}
-        for i, (_, _, model) in enumerate(self.parts):
+        for i, (first, count, model) in enumerate(self.parts):
+            local = "address" in model.ports
+            if local:
+                if count != 1:
+                    raise ValueError(f"part {i} has an address input (one node, named apart "
+                                     f"from its place) but count {count}")
+                model.set("address", first)
             for name, port in model.ports.items():
-                if name in ("clk", "enc_a", "enc_b") or name.startswith(("head__", "tail__")):
+                if name in ("clk", "enc_a", "enc_b", "address") or \
+                        name.startswith(("head__", "tail__")):
                     continue
-                self._where[name] = (i, port)
+                self._where[Segment.system_name(name, first) if local else name] = (i, port)
         self._structs = (_SplitPart * np_)()
         for i, (_, _, model) in enumerate(self.parts):
             st = self._structs[i]
@@ -1012,18 +1026,19 @@ class SplitModel:
         last = len(self.parts) - 1
         for i, (_, _, model) in enumerate(self.parts):
             tape = per_part[i]
-            names = list(tape) + (["head__d_out", "head__s_out"] if i else []) + \
-                (["tail__d_in", "tail__s_in"] if i < last else [])
-            in_idx = np.array([model.ports[x].index for x in names], dtype=np.int32)
-            in_buf = _pack(n, [model.ports[x] for x in tape], tape.values())
-            out_idx = np.array([model.ports[x].index for x in wanted[i]], dtype=np.int32)
+            ports = [self._where[x][1] if x in self._where else model.ports[x] for x in tape]
+            ports += [model.ports[x] for x in (["head__d_out", "head__s_out"] if i else []) +
+                      (["tail__d_in", "tail__s_in"] if i < last else [])]
+            in_idx = np.array([p.index for p in ports], dtype=np.int32)
+            in_buf = _pack(n, ports[:len(tape)], tape.values())
+            out_idx = np.array([self._where[x][1].index for x in wanted[i]], dtype=np.int32)
             out_buf = np.zeros((n, max(len(wanted[i]), 1)), dtype=np.uint64)
             st = self._structs[i]
-            st.n_in, st.in_idx, st.in_buf = len(names), in_idx.ctypes.data, in_buf.ctypes.data
+            st.n_in, st.in_idx, st.in_buf = len(ports), in_idx.ctypes.data, in_buf.ctypes.data
             st.n_out, st.out_idx = len(wanted[i]), out_idx.ctypes.data
             st.out_buf, st.n_tape = out_buf.ctypes.data, len(tape)
             keep += [in_idx, in_buf, out_idx]
-            got.update((x, (out_buf, j, model.ports[x])) for j, x in enumerate(wanted[i]))
+            got.update((x, (out_buf, j, self._where[x][1])) for j, x in enumerate(wanted[i]))
         self._drv.mrm_split_run(self._pool, ctypes.addressof(self._structs), len(self.parts),
                                 n, self._lo.ctypes.data)
         for _, _, model in self.parts:

@@ -459,11 +459,12 @@ def compiled_threads() -> int:
 def loop_segment(robot, first: int, count: int = 1):
     """Nodes ``first … first + count − 1`` of :func:`loop_system` (one clock) as a design of
     their own (:class:`hdl.system.Segment`; :class:`cosim.compiled.SplitModel` runs the
-    system as such parts)."""
+    system as such parts). A part of one node is named apart from its place (``local``), so
+    nodes alike share one build and one copy of its code."""
     from mrm_cosim.hdl.system import Segment
 
     return Segment(robot.n, first, count, encoder=node_encoders(robot),
-                   pid_shift=pid_shifts(robot), line_faults=True)
+                   pid_shift=pid_shifts(robot), line_faults=True, local=count == 1)
 
 
 def _phases_us(master) -> dict:

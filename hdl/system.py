@@ -210,22 +210,35 @@ def _master_members(master) -> dict:
     }
 
 
-def _node_members(addresses, fault_layout, fault_ups=None) -> dict:
+#: A node's ports named by its address in the system (``torque2``), not in a local part.
+_LOCAL_NODE_PORTS = ("torque", "brake", "status", "count", "events", "fault_down", "fault_up")
+
+
+def _port(base: str, k: int, local: bool) -> str:
+    """The name of node ``k``'s port ``base``: ``<base><k>``, or ``base`` in a part of one node
+    named apart from its place in the chain (``Segment(..., local=True)``)."""
+    return base if local else f"{base}{k}"
+
+
+def _node_members(addresses, fault_layout, fault_ups=None, local: bool = False) -> dict:
     """The ports of nodes ``addresses``: encoder lines (bit j for the j-th of them), then each
     node's outputs and, with ``fault_layout``, its line-fault inputs (``fault_up<k>`` only for
-    ``k`` in ``fault_ups``, default all: the up-line fault acts where the upstream receives)."""
+    ``k`` in ``fault_ups``, default all: the up-line fault acts where the upstream receives);
+    with ``local`` (one node) the names without ``k`` and the node's ``address`` an input."""
     addresses = list(addresses)
     members = {"enc_a": In(len(addresses)), "enc_b": In(len(addresses))}
+    if local:
+        members["address"] = In(8)
     for k in addresses:
-        members[f"torque{k}"] = Out(signed(WORD))
-        members[f"brake{k}"] = Out(1)
-        members[f"status{k}"] = Out(16)
-        members[f"count{k}"] = Out(signed(32))
+        members[_port("torque", k, local)] = Out(signed(WORD))
+        members[_port("brake", k, local)] = Out(1)
+        members[_port("status", k, local)] = Out(16)
+        members[_port("count", k, local)] = Out(signed(32))
         if fault_layout:
-            members[f"fault_down{k}"] = In(fault_layout)
+            members[_port("fault_down", k, local)] = In(fault_layout)
             if fault_ups is None or k in fault_ups:
-                members[f"fault_up{k}"] = In(fault_layout)
-        members[f"events{k}"] = Out(16)
+                members[_port("fault_up", k, local)] = In(fault_layout)
+        members[_port("events", k, local)] = Out(16)
     return members
 
 
@@ -239,31 +252,33 @@ def _master_ports(m, owner, master) -> None:
 
 
 def _wire_chain(m, owner, upstream, nodes, first: int, line_faults: bool,
-                first_up_fault: bool = True):
+                first_up_fault: bool = True, local: bool = False):
     """Nodes ``first``, ``first + 1``, … (``nodes``) daisy-chained below ``upstream`` (a line:
     ``d_out``, ``s_out``, ``d_in``, ``s_in``) in ``m``, their ports ``owner``'s; with
     ``line_faults`` each hop's lines through ``owner``'s fault inputs, the up line of the first
-    hop only if ``first_up_fault``. Returns the last node's downstream line."""
+    hop only if ``first_up_fault``; with ``local`` (one node) its ports named apart from its
+    place and its address ``owner.address``. Returns the last node's downstream line."""
     for j, node in enumerate(nodes):
         k = first + j
-        m.submodules[f"node{k}"] = node
+        m.submodules["node" if local else f"node{k}"] = node
+        port = lambda base, k=k: getattr(owner, _port(base, k, local))   # noqa: E731
         m.d.comb += [
-            node.address.eq(k),
+            node.address.eq(owner.address if local else k),
             node.enc_a.eq(owner.enc_a[j]),
             node.enc_b.eq(owner.enc_b[j]),
-            getattr(owner, f"torque{k}").eq(node.torque),
-            getattr(owner, f"brake{k}").eq(node.brake),
-            getattr(owner, f"status{k}").eq(node.status),
-            getattr(owner, f"count{k}").eq(node.count),
+            port("torque").eq(node.torque),
+            port("brake").eq(node.brake),
+            port("status").eq(node.status),
+            port("count").eq(node.count),
         ]
         # upstream port's outputs drive the node's inputs and vice versa
         down_d, down_s = upstream.d_out, upstream.s_out
         up_d, up_s = node.up.d_out, node.up.s_out
         if line_faults:
-            down = getattr(owner, f"fault_down{k}")
+            down = port("fault_down")
             down_d, down_s = faulty_line(down_d, down, "d"), faulty_line(down_s, down, "s")
             if j or first_up_fault:
-                up = getattr(owner, f"fault_up{k}")
+                up = port("fault_up")
                 up_d, up_s = faulty_line(up_d, up, "d"), faulty_line(up_s, up, "s")
         m.d.comb += [
             node.up.d_in.eq(down_d),
@@ -271,7 +286,7 @@ def _wire_chain(m, owner, upstream, nodes, first: int, line_faults: bool,
             upstream.d_in.eq(up_d),
             upstream.s_in.eq(up_s),
         ]
-        m.d.comb += getattr(owner, f"events{k}").eq(node.events)
+        m.d.comb += port("events").eq(node.events)
         upstream = node.down
     return upstream
 
@@ -294,15 +309,26 @@ class Segment(wiring.Component):
     them once a cycle. With ``line_faults`` a fault acts where its line arrives:
     ``fault_down<k>`` in node ``k``'s part, ``fault_up<k>`` in the part of node ``k − 1`` (or
     the master's).
+
+    With ``local`` (one node, ``count == 1``) the part is named apart from its place in the
+    chain: the node's ports without ``k`` (``torque``, ``fault_down``, …; the fault input of
+    the line arriving at the tail ``fault_up_next``) and its address an input, ``address``,
+    which the simulator holds at ``first``. Nodes of the same parameters and the same place
+    kind (master's, middle, last) then convert to the same Verilog, one build and one copy
+    of the code for all of them; :meth:`system_name` maps a port back to the system's name.
     """
 
     def __init__(self, n_nodes: int, first: int, count: int, *, codec: dict | None = None,
-                 encoder=None, pid_shift=0, line_faults: bool = False):
+                 encoder=None, pid_shift=0, line_faults: bool = False, local: bool = False):
         check_n_nodes(n_nodes)
         if not (1 <= first and count >= 1 and first + count - 1 <= n_nodes):
             raise ValueError(f"nodes {first}..{first + count - 1} are not among the system's "
                              f"1..{n_nodes}")
-        self.n_nodes, self.first, self.count = n_nodes, first, count
+        if local and count != 1:
+            raise ValueError(f"a part named apart from its place (local) holds one node, "
+                             f"not {count}")
+        self.n_nodes, self.first, self.size = n_nodes, first, count
+        self.local = bool(local)
         self.has_master = first == 1
         self.has_tail = first + count - 1 < n_nodes
         self.line_faults = bool(line_faults)
@@ -317,12 +343,27 @@ class Segment(wiring.Component):
                    else {"head": In(line_signature(slots))})
         ups = set(range(first + 1, last + 1)) | ({first} if self.has_master else set())
         members |= _node_members(range(first, last + 1), self.line_faults and
-                                 line_fault_layout(slots), ups)
+                                 line_fault_layout(slots), ups, self.local)
         if self.has_tail:
             members["tail"] = Out(line_signature(slots))
             if self.line_faults:
-                members[f"fault_up{last + 1}"] = In(line_fault_layout(slots))
+                members[self._tail_fault] = In(line_fault_layout(slots))
         super().__init__(members)
+
+    @property
+    def _tail_fault(self) -> str:
+        return "fault_up_next" if self.local else f"fault_up{self.first + self.size}"
+
+    @staticmethod
+    def system_name(name: str, first: int) -> str:
+        """The system's name of port ``name`` of a ``local`` part of node ``first``
+        (``torque`` → ``torque<first>``, ``fault_up_next`` → ``fault_up<first + 1>``; the
+        master's ports keep theirs)."""
+        if name == "fault_up_next":
+            return f"fault_up{first + 1}"
+        if name in _LOCAL_NODE_PORTS:
+            return f"{name}{first}"
+        return name
 
     def elaborate(self, platform):
         m = Module()
@@ -333,11 +374,11 @@ class Segment(wiring.Component):
         else:
             upstream = self.head
         last = _wire_chain(m, self, upstream, self.nodes, self.first, self.line_faults,
-                           first_up_fault=self.has_master)
+                           first_up_fault=self.has_master, local=self.local)
         if self.has_tail:
             d_in, s_in = self.tail.d_in, self.tail.s_in
             if self.line_faults:
-                up = getattr(self, f"fault_up{self.first + self.count}")
+                up = getattr(self, self._tail_fault)
                 d_in, s_in = faulty_line(d_in, up, "d"), faulty_line(s_in, up, "s")
             m.d.comb += [self.tail.d_out.eq(last.d_out), self.tail.s_out.eq(last.s_out),
                          last.d_in.eq(d_in), last.s_in.eq(s_in)]

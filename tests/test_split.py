@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 from amaranth import Module, Signal
-from amaranth.back import rtlil
+from amaranth.back import rtlil, verilog
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
@@ -86,12 +86,17 @@ def test_the_parts_run_the_whole_systems_cycles_bit_for_bit(mrm3_models, mrm3_ta
     expected = [whole.run(n, inputs, outputs) for n, inputs in chunks]
     assert any(e["rx_valid"].any() for e in expected)          # characters reached the master
     assert any(e["link_errors"].any() for e in expected)       # the faults were seen
-    for threads in (1, 2, 3):               # (3: more threads than this machine's cores)
-        split = SplitModel([(first, count, _fresh(m)) for first, count, m in parts], threads)
-        for k, ((n, inputs), exp) in enumerate(zip(chunks, expected, strict=True)):
+    # (3: more threads than this machine's cores.) The three run in turns, chunk by chunk:
+    # three live instances of each part's build, one copy of its code, each its own state.
+    splits = {threads: SplitModel([(first, count, _fresh(m)) for first, count, m in parts],
+                                  threads) for threads in (1, 2, 3)}
+    assert len({m._lib._handle for split in splits.values() for _, _, m in split.parts}) == 3
+    for k, ((n, inputs), exp) in enumerate(zip(chunks, expected, strict=True)):
+        for threads, split in splits.items():
             got = split.run(n, inputs, outputs)
             for name in outputs:
                 assert np.array_equal(got[name], exp[name]), (threads, k, name)
+    for split in splits.values():
         assert split.cycles == whole.cycles
         split.close()
 
@@ -136,9 +141,10 @@ def test_lines_leaving_a_part_are_flip_flops(tmp_path):
     """The exchange once a cycle rests on it: no input of a part (its arriving lines, line
     faults, encoder lines) reaches a line it drives within the cycle. A part with a line
     driven through from its input fails the same check."""
-    seg = Segment(3, 2, 1, line_faults=True)            # a head and a tail
-    assert _cone_has_no_input(seg, ["head__d_in", "head__s_in", "tail__d_out", "tail__s_out"],
-                              tmp_path)
+    for local in (False, True):                         # (True: the address an input too)
+        seg = Segment(3, 2, 1, line_faults=True, local=local)     # a head and a tail
+        assert _cone_has_no_input(seg, ["head__d_in", "head__s_in", "tail__d_out",
+                                        "tail__s_out"], tmp_path)
 
     class Through(wiring.Component):
         line_in: In(6)
@@ -159,6 +165,27 @@ def test_segments_name_what_they_refuse():
         Segment(3, 3, 2)
     with pytest.raises(ValueError, match="nodes 0..0"):
         Segment(3, 0, 1)
+    with pytest.raises(ValueError, match="local.* holds one node, not 2"):
+        Segment(4, 2, 2, local=True)
+
+
+def test_nodes_alike_convert_to_one_design():
+    """A part of one node is named apart from its place in the chain (its address an input):
+    middle nodes of the same parameters are the same Verilog, whatever their address or the
+    chain's length — one build and one copy of the code for all of them. Another PID shift
+    (the joint engine's microcode) or place (the last node has no tail) is another design."""
+    def text(n, k, shift=6):
+        seg = Segment(n, k, 1, pid_shift=shift, line_faults=True, local=True)
+        return verilog.convert(seg, name="system", emit_src=False)
+
+    middle = text(4, 2)
+    assert text(6, 4) == middle
+    assert text(4, 2, shift=5) != middle
+    assert text(4, 4) != middle
+    assert "fault_up_next" in middle and "torque2" not in middle
+    assert [Segment.system_name(x, 4) for x in ("torque", "fault_down", "fault_up",
+                                                 "fault_up_next", "tx_char")] == \
+        ["torque4", "fault_down4", "fault_up4", "fault_up5", "tx_char"]
 
 
 def test_split_model_refuses_bad_threads_and_ports(mrm3_models):
