@@ -25,10 +25,12 @@ same points on all three and compare trace hashes).
 
 from __future__ import annotations
 
+import collections
 import os
 import signal
 import time
 import traceback
+import urllib.parse
 from collections.abc import Callable, Iterator
 
 from mrm_cosim.errors import InputError
@@ -207,6 +209,20 @@ class LocalExecutor(Executor):
 
 
 # --- Dask --------------------------------------------------------------------------------
+def _host(address: str) -> str:
+    return urllib.parse.urlsplit(address).hostname or address
+
+
+def _call_sharing(fn, index, item, hosts: dict) -> tuple:
+    """A point as a Dask task: first the worker's share of its machine (its cores over the
+    workers on its host, as :func:`_worker_init` gives a local worker), then :func:`_call`."""
+    from distributed import get_worker
+
+    _share_threads(default_workers() // max(1, hosts.get(_host(get_worker().address), 1)))
+    return _call(fn, index, item, None)
+
+
+
 class DaskExecutor(Executor):
     """Points as Dask tasks: on the cluster whose scheduler listens at ``address``
     (``tcp://HOST:8786``) or on a ``LocalCluster`` of ``workers`` single-threaded processes
@@ -239,7 +255,8 @@ class DaskExecutor(Executor):
     def run(self, fn, items, on_message=None):
         from distributed import as_completed
 
-        futures = [self._client.submit(_call, fn, i, item, None, pure=False,
+        hosts = self.workers_per_host()
+        futures = [self._client.submit(_call_sharing, fn, i, item, hosts, pure=False,
                                        key=f"mrm-point-{i}-{time.time_ns()}")
                    for i, item in enumerate(items)]
         index = {f.key: i for i, f in enumerate(futures)}
@@ -248,6 +265,12 @@ class DaskExecutor(Executor):
                 yield fut.result()
             except Exception:                       # the worker died, or the task was lost
                 yield index[fut.key], "error", traceback.format_exc()
+
+    def workers_per_host(self) -> dict:
+        """How many of the cluster's workers run on each host (by the host of their
+        address): they share its cores."""
+        return dict(collections.Counter(_host(address) for address in
+                                        self._client.scheduler_info().get("workers", {})))
 
     def close(self) -> None:
         client = getattr(self, "_client", None)

@@ -248,6 +248,20 @@ def test_a_worker_takes_its_share_of_the_cores(monkeypatch):
     assert THREADS_ENV not in os.environ
 
 
+def test_a_dask_worker_takes_its_share_of_its_hosts_cores(monkeypatch):
+    """A Dask cluster's workers on one host share its cores as local workers do: each point
+    runs with the threads lowered to the host's cores over its workers."""
+    pytest.importorskip("distributed")
+    from mrm_cosim.cosim.executors import make_executor
+
+    monkeypatch.setenv(THREADS_ENV, "64")          # (the workers start with this environment)
+    with make_executor(2, "local-dask") as ex:
+        assert ex.workers_per_host() == {"127.0.0.1": 2}
+        got = sorted(ex.run(lambda item, report: __import__("os").environ.get(item),
+                            [THREADS_ENV] * 4))
+    assert got == [(i, "ok", str(max(1, default_workers() // 2))) for i in range(4)]
+
+
 @pytest.mark.skipif(default_workers() < 2, reason="one core: the backend runs one thread")
 def test_bench_says_how_many_threads_ran(monkeypatch):
     from mrm_cosim.cosim.bench import bench_backend
