@@ -95,6 +95,7 @@ def system_verilog(factory, key: str) -> tuple[str, dict]:
 
     from amaranth.back import verilog
 
+    from mrm_cosim.cosim.cache import mark_used
     from mrm_cosim.cosim.compiled import cache_dir, signed_port_map
     from mrm_cosim.results import atomic_write_text
 
@@ -102,6 +103,7 @@ def system_verilog(factory, key: str) -> tuple[str, dict]:
     path = cache_dir() / "verilog" / f"{key}-{fingerprint[:20]}.v"
     side = path.with_suffix(".json")
     if path.exists() and side.exists():
+        mark_used(path, side)
         return path.read_text(), json.loads(side.read_text())
     design = factory()
     if getattr(design, "clocks", "common") == "node":     # the node domains' clocks as ports

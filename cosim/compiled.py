@@ -33,6 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mrm_cosim.cosim.cache import mark_used
+
 __all__ = ["CompiledModel", "SplitModel", "Port", "verilator_path", "cache_dir", "BuildError",
            "fst_headers_missing",
            "signed_port_map", "filter_vcd", "vcd_header", "DEFAULT_ARGS"]
@@ -558,6 +560,7 @@ class CompiledModel:
         target = cache_dir() / "verilator" / f"{self.top}-{key.hexdigest()[:20]}"
         lib = target / "libmodel.so"
         if lib.exists():
+            mark_used(target)
             return lib
         with _building(target) as work:
             (work / f"{self.name}.v").write_text(self.verilog + self._harness)
@@ -905,7 +908,9 @@ def _split_driver() -> ctypes.CDLL:
     key = hashlib.sha256("\0".join([_SPLIT_DRIVER, cxx, version]).encode()).hexdigest()[:20]
     target = cache_dir() / "split" / key
     lib = target / "libsplit.so"
-    if not lib.exists():
+    if lib.exists():
+        mark_used(target)
+    else:
         with _building(target) as work:
             (work / "split.cpp").write_text(_SPLIT_DRIVER)
             proc = subprocess.run([cxx, "-O2", "-std=c++17", "-shared", "-fPIC", "-pthread",

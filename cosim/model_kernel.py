@@ -170,6 +170,7 @@ def load():
         try:
             import numba
 
+            from mrm_cosim.cosim.cache import mark_used
             from mrm_cosim.cosim.compiled import cache_dir
 
             with warnings.catch_warnings():
@@ -178,6 +179,7 @@ def load():
                 # kernel reads (kernel_sources): a changed constant or callee recompiles
                 saved = numba.config.CACHE_DIR
                 numba.config.CACHE_DIR = str(cache_dir() / "numba" / kernel_digest())
+                mark_used(Path(numba.config.CACHE_DIR))
                 try:
                     for module in (src, plant_src, compliant_src):
                         jit_module(module, numba.njit(cache=True))

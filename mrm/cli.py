@@ -31,7 +31,7 @@ from mrm_cosim import __version__
 from mrm_cosim.errors import InputError
 
 # Subcommand modules, in the order they appear in ``mrm --help``.
-COMMANDS = ("robot", "plan", "dmp", "run", "hdl", "bench", "sweep", "tune")
+COMMANDS = ("robot", "plan", "dmp", "run", "hdl", "bench", "sweep", "tune", "cache")
 
 EXIT_OK = 0
 EXIT_FAILED = 1

@@ -268,6 +268,11 @@ FLAGS = [
     (["bench", "--backend", "fpga"], "--backend"),
     (["bench", "--robot", "mrm99"], "--robot"),
     (["bench", "--threads", "0"], "--threads"),
+    (["cache", "prune", "--older-than", "-1"], "--older-than"),
+    (["cache", "prune", "--older-than", "nan"], "--older-than"),
+    (["cache", "prune", "--older-than", "a week"], "--older-than"),
+    (["cache", "prune", "--all", "--kind", "pip"], "--kind"),
+    (["cache", "prune", "--all", "--older-than", "3"], "--older-than"),
 ]
 for i, (argv, field) in enumerate(FLAGS):
     needs_out = argv[0] == "run"
