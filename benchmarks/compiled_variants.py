@@ -62,6 +62,14 @@ VARIANTS = {
     "tied-o2-xfast": {"opt": "-O2", "verilator_args": _XFAST},
     "tied-o3-xfast-notable": {"opt": "-O3", "verilator_args": [*_XFAST, "-fno-table"]},
     "tied-o3-xfast-nodfg": {"opt": "-O3", "verilator_args": [*_XFAST, "-fno-dfg"]},
+    # Verilator's functions split at N statements (the default build's cycle is a few very
+    # large straight-line functions), or never
+    "tied-o3-xfast-cfuncs200": {"opt": "-O3",
+                                "verilator_args": [*_XFAST, "--output-split-cfuncs", "200"]},
+    "tied-o3-xfast-cfuncs2000": {"opt": "-O3",
+                                 "verilator_args": [*_XFAST, "--output-split-cfuncs", "2000"]},
+    "tied-o3-xfast-nosplit": {"opt": "-O3", "verilator_args": [*_XFAST, "--output-split", "0",
+                                                               "--output-split-cfuncs", "0"]},
     # a --trace build (what a VCD window needs), tracing off
     "tied-o3-xfast-trace": {"opt": "-O3", "verilator_args": _XFAST, "trace": True},
     "prof": {"reset_port": True, "opt": "-O2", "verilator_args": ["--prof-cfuncs"],
