@@ -213,13 +213,27 @@ def _host(address: str) -> str:
     return urllib.parse.urlsplit(address).hostname or address
 
 
-def _call_sharing(fn, index, item, hosts: dict) -> tuple:
-    """A point as a Dask task: first the worker's share of its machine (its cores over the
-    workers on its host, as :func:`_worker_init` gives a local worker), then :func:`_call`."""
+def _call_sharing(fn, index, item, hosts: dict, threads: str | None = None) -> tuple:
+    """A point as a Dask task: the compiled backend's threads the client asked for
+    (``threads``, its ``$MRM_COMPILED_THREADS``; else the worker's own) lowered to the
+    worker's share of its machine (its cores over the workers on its host, as
+    :func:`_worker_init` gives a local worker), then :func:`_call`; the worker's environment
+    is restored after the point (a worker serves other clients too)."""
     from distributed import get_worker
 
-    _share_threads(default_workers() // max(1, hosts.get(_host(get_worker().address), 1)))
-    return _call(fn, index, item, None)
+    from mrm_cosim.cosim.track import THREADS_ENV
+
+    before = os.environ.get(THREADS_ENV)
+    if threads is not None:
+        os.environ[THREADS_ENV] = threads
+    try:
+        _share_threads(default_workers() // max(1, hosts.get(_host(get_worker().address), 1)))
+        return _call(fn, index, item, None)
+    finally:
+        if before is None:
+            os.environ.pop(THREADS_ENV, None)
+        else:
+            os.environ[THREADS_ENV] = before
 
 
 
@@ -255,8 +269,11 @@ class DaskExecutor(Executor):
     def run(self, fn, items, on_message=None):
         from distributed import as_completed
 
+        from mrm_cosim.cosim.track import THREADS_ENV
+
         hosts = self.workers_per_host()
-        futures = [self._client.submit(_call_sharing, fn, i, item, hosts, pure=False,
+        threads = os.environ.get(THREADS_ENV)              # the client's, with every point
+        futures = [self._client.submit(_call_sharing, fn, i, item, hosts, threads, pure=False,
                                        key=f"mrm-point-{i}-{time.time_ns()}")
                    for i, item in enumerate(items)]
         index = {f.key: i for i, f in enumerate(futures)}

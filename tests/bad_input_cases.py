@@ -268,6 +268,8 @@ FLAGS = [
     (["bench", "--backend", "fpga"], "--backend"),
     (["bench", "--robot", "mrm99"], "--robot"),
     (["bench", "--threads", "0"], "--threads"),
+    (["sweep", "spec.toml", "--threads", "0", "--out", "{out}"], "--threads"),
+    (["tune", "spec.toml", "--threads", "two", "--out", "{out}"], "--threads"),
     (["cache", "prune", "--older-than", "-1"], "--older-than"),
     (["cache", "prune", "--older-than", "nan"], "--older-than"),
     (["cache", "prune", "--older-than", "a week"], "--older-than"),

@@ -250,16 +250,24 @@ def test_a_worker_takes_its_share_of_the_cores(monkeypatch):
 
 def test_a_dask_worker_takes_its_share_of_its_hosts_cores(monkeypatch):
     """A Dask cluster's workers on one host share its cores as local workers do: each point
-    runs with the threads lowered to the host's cores over its workers."""
+    runs with the threads lowered to the host's cores over its workers — the threads the
+    client asked for (``mrm sweep --threads``: its environment), which travel with the points
+    and leave with them, or a worker's own."""
     pytest.importorskip("distributed")
     from mrm_cosim.cosim.executors import make_executor
 
-    monkeypatch.setenv(THREADS_ENV, "64")          # (the workers start with this environment)
+    share = max(1, default_workers() // 2)
+    threads_here = lambda item, report: __import__("os").environ.get(item)   # noqa: E731
+    monkeypatch.delenv(THREADS_ENV, raising=False)  # (the workers start without it)
     with make_executor(2, "local-dask") as ex:
         assert ex.workers_per_host() == {"127.0.0.1": 2}
-        got = sorted(ex.run(lambda item, report: __import__("os").environ.get(item),
-                            [THREADS_ENV] * 4))
-    assert got == [(i, "ok", str(max(1, default_workers() // 2))) for i in range(4)]
+        own = sorted(ex.run(threads_here, [THREADS_ENV] * 2))    # the client asks nothing
+        monkeypatch.setenv(THREADS_ENV, "64")      # the client's choice, too many here
+        asked = sorted(ex.run(threads_here, [THREADS_ENV] * 4))
+        left = ex._client.run(lambda: __import__("os").environ.get(THREADS_ENV))
+    assert own == [(i, "ok", None) for i in range(2)]
+    assert asked == [(i, "ok", str(share)) for i in range(4)]
+    assert list(left.values()) == [None, None]      # each worker's own again after the points
 
 
 @pytest.mark.skipif(default_workers() < 2, reason="one core: the backend runs one thread")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import sys
 
+from mrm_cosim.mrm.commands.run import THREADS_HELP, _threads
 from mrm_cosim.mrm.flags import SWEEP, named_by_flags
 
 
@@ -24,6 +25,7 @@ def register(subparsers) -> None:
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="run the points on Dask: tcp://HOST:8786 or local-dask (needs "
                    "pip install 'mrm-cosim[sweep]')")
+    p.add_argument("--threads", type=_threads, default=None, metavar="N", help=THREADS_HELP)
     p.add_argument("--resume", action="store_true",
                    help="skip the points --out already has finished")
     p.add_argument("--json", action="store_true", help="print the outcome as JSON on stdout")

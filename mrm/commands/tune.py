@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import sys
 
+from mrm_cosim.mrm.commands.run import THREADS_HELP, _threads
 from mrm_cosim.mrm.flags import TUNE, named_by_flags
 
 
@@ -20,6 +21,7 @@ def register(subparsers) -> None:
                    "tuned_gains.toml, <controller>/e<k>/ (one sweep per evaluation)")
     p.add_argument("--workers", type=int, default=None,
                    help="local worker processes (default: every core; 1: in this process)")
+    p.add_argument("--threads", type=_threads, default=None, metavar="N", help=THREADS_HELP)
     p.add_argument("--apply", action="store_true",
                    help="write the chosen gains and their provenance into the spec's config")
     p.add_argument("--json", action="store_true", help="print the chosen gains as JSON")
