@@ -221,20 +221,11 @@ def _call_sharing(fn, index, item, hosts: dict, threads: str | None = None) -> t
     is restored after the point (a worker serves other clients too)."""
     from distributed import get_worker
 
-    from mrm_cosim.cosim.track import THREADS_ENV
+    from mrm_cosim.cosim.track import compiled_threads_env
 
-    before = os.environ.get(THREADS_ENV)
-    if threads is not None:
-        os.environ[THREADS_ENV] = threads
-    try:
+    with compiled_threads_env(threads):
         _share_threads(default_workers() // max(1, hosts.get(_host(get_worker().address), 1)))
         return _call(fn, index, item, None)
-    finally:
-        if before is None:
-            os.environ.pop(THREADS_ENV, None)
-        else:
-            os.environ[THREADS_ENV] = before
-
 
 
 class DaskExecutor(Executor):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 
@@ -454,6 +455,22 @@ def compiled_threads() -> int:
     if threads < 1:
         raise InputError(THREADS_ENV, f"must be an integer >= 1, not {raw!r}")
     return threads
+
+
+@contextlib.contextmanager
+def compiled_threads_env(threads=None):
+    """``$MRM_COMPILED_THREADS`` set to ``threads`` (unless None) inside the block, and the
+    environment as it was after it (whatever the block set it to meanwhile)."""
+    before = os.environ.get(THREADS_ENV)
+    if threads is not None:
+        os.environ[THREADS_ENV] = str(threads)
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(THREADS_ENV, None)
+        else:
+            os.environ[THREADS_ENV] = before
 
 
 def loop_segment(robot, first: int, count: int = 1):

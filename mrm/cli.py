@@ -232,19 +232,11 @@ def _compiled_threads(args):
     if not hasattr(args, "threads"):
         yield
         return
-    from mrm_cosim.cosim.track import THREADS_ENV, compiled_threads
+    from mrm_cosim.cosim.track import compiled_threads, compiled_threads_env
 
-    before = os.environ.get(THREADS_ENV)
-    if args.threads is not None:
-        os.environ[THREADS_ENV] = str(args.threads)
-    try:
+    with compiled_threads_env(args.threads):
         compiled_threads()
         yield
-    finally:
-        if before is None:
-            os.environ.pop(THREADS_ENV, None)
-        else:
-            os.environ[THREADS_ENV] = before
 
 
 def main(argv: list[str] | None = None) -> int:
