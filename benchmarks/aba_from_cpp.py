@@ -1,14 +1,15 @@
 """Pinocchio's forward dynamics called from compiled code: the same numbers bit for bit as
 ``pin.aba`` from Python, and what a call costs each way (issue 18, goal 1's 0.5).
 
-Run on purpose, not in CI; it needs Eigen's headers, which no dependency ships
-(``pip install cmeel-eigen``: headers only) and a C++ compiler::
+Run on purpose, not in CI; it needs Eigen's headers (``cmeel-eigen``, in the ``fast`` and
+``test`` extras) and a C++ compiler::
 
-    .venv/bin/pip install cmeel-eigen
     .venv/bin/python benchmarks/aba_from_cpp.py [--states 20000] [--robot mrm3 --robot mrm6]
 
-The model backend's fast path calls ``pin.aba`` from Python once a plant step (then the
-compiled kernel), so every step returns to Python. A loop of steps in compiled code needs the
+This measurement led to :mod:`cosim.pin_shim`, which the model backend now builds and runs
+(``benchmarks/model_speed.py --pin`` measures what it gives). Before it, the model backend's
+fast path called ``pin.aba`` from Python once a plant step (then the compiled kernel), so
+every step returned to Python. A loop of steps in compiled code needs the
 dynamics there too, and the model backend is only worth having bit for bit: this builds a
 small C++ program against the ``pin`` wheel's own headers and ``libpinocchio_default`` (with
 ``PINOCCHIO_ENABLE_TEMPLATE_INSTANTIATION``, as the wheel's CMake target says: the call links

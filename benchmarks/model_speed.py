@@ -1,7 +1,7 @@
 """The ``model`` backend's speed, compiled inner loop against pure Python, side by side.
 
     python benchmarks/model_speed.py [--robot mrm3 --robot mrm6] [--cycles 2500000] [--rounds 3]
-                                     [--joints rigid|compliant]
+                                     [--joints rigid|compliant] [--pin | --master | --against PY]
 
 For each robot, ``mrm bench``'s window (the VDC loop on the paper's quintic, after start-up)
 runs alternately with ``kernel="numba"`` and ``kernel="python"``; it prints the real-time factor
@@ -19,6 +19,13 @@ same window on Table 2's compliant plant (its own fast path, ``fast_step_complia
 replayed on fresh masters with nothing else running between them; CPU µs per period, best of
 the rounds, and whether every call returned what it returned in the loop (the packets it
 sends, bit for bit).
+
+``--pin`` measures pinocchio from compiled code (:mod:`cosim.pin_shim`: the kernel runs plant
+steps on through ``aba``, ``nonLinearEffects`` and ``crba`` itself) against the kernel
+returning to Python for ``pin`` every step, in one process: the compiled path's windows
+alternate between the two, ABBA, and it prints each side's CPU RTF (best, median), the ratio
+of the medians, the fast-step part of each (the breakdown's, median) and whether the trace
+hashes are equal.
 
 ``--against PYTHON`` measures this tree against another one, side by side in one run: the
 other tree's interpreter (its venv's ``python``, whose ``mrm_cosim`` is that tree) runs this
@@ -232,6 +239,35 @@ def against(python: str, robots, cycles: int, pairs: int) -> None:
         other.wait()
 
 
+def pin_ab(robots, cycles: int, rounds: int) -> None:
+    """``--pin``: the kernel with pinocchio from compiled code and without, windows ABBA."""
+    from mrm_cosim.cosim import pin_shim
+
+    dyn = pin_shim.load()
+    if dyn is None:
+        raise SystemExit("pinocchio from compiled code is unavailable here (see the warning)")
+    periods = cycles / (CLOCK_HZ / 1000)
+    for robot in robots:
+        run(robot, "numba", 100_000)
+        rtf, fast, hashes = {0: [], 1: []}, {0: [], 1: []}, {0: set(), 1: set()}
+        for r in range(rounds):
+            for use in ((1, 0) if r % 2 == 0 else (0, 1)):
+                pin_shim._loaded = dyn if use else False
+                x, h, _, _ = run(robot, "numba", cycles)
+                rtf[use].append(x)
+                hashes[use].add(h)
+                fast[use].append(run(robot, "numba", cycles, breakdown=True)[2]["fast steps"])
+        pin_shim._loaded = dyn
+        same = "same" if len(hashes[0] | hashes[1]) == 1 else "DIFFERENT"
+        print(f"{robot} ({_JOINTS}): {cycles:,} cycles, CPU RTF best / median of {rounds}, "
+              "fast steps CPU µs a period (median)")
+        for use, name in ((0, "pin from Python"), (1, "pin from the kernel")):
+            print(f"  {name:20s} {min(rtf[use]):6.3f} / {statistics.median(rtf[use]):6.3f}   "
+                  f"{statistics.median(fast[use]) / periods * 1e6:6.0f}")
+        print(f"  ratio of medians x{statistics.median(rtf[0]) / statistics.median(rtf[1]):.3f}"
+              f", trace hashes {same} ({min(hashes[1])[:16]})")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--robot", action="append", help="robot(s) (default mrm3 and mrm6)")
@@ -244,6 +280,8 @@ def main(argv=None) -> int:
     ap.add_argument("--joints", choices=("rigid", "compliant"), default="rigid",
                     help="the plant's joints (default rigid, as mrm bench; compliant: Table "
                     "2's plant, two-inertia joints with the encoder on the motor)")
+    ap.add_argument("--pin", action="store_true",
+                    help="pinocchio from compiled code against pin from Python, side by side")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     global _JOINTS
@@ -256,6 +294,9 @@ def main(argv=None) -> int:
     periods = args.cycles / (CLOCK_HZ / 1000)
     if args.against:
         against(args.against, robots, args.cycles, max(args.rounds, 2))
+        return 0
+    if args.pin:
+        pin_ab(robots, args.cycles, max(args.rounds, 2))
         return 0
     if args.master:
         for robot in robots:

@@ -8,7 +8,9 @@ Everything lives under :func:`cosim.compiled.cache_dir` (``$MRM_CACHE_DIR``, els
   gateware adds entries and leaves the old ones;
 * ``verilator``: a Verilator build of a Verilog text (``<top>-<digest>/``);
 * ``split``: the C++ loop of the compiled backend on threads (``<digest>/``);
-* ``numba``: the model backend's compiled inner loop (``<digest>/``).
+* ``numba``: the model backend's compiled inner loop (``<digest>/``);
+* ``pin``: that loop's call into pinocchio, a small shared library (``<digest>/``,
+  :mod:`cosim.pin_shim`).
 
 An entry is used when a run takes it from the cache (its modification time is set then:
 :func:`mark_used`), so ``--older-than`` means "not used for that long". A folder whose name
@@ -30,7 +32,7 @@ from mrm_cosim.errors import InputError
 __all__ = ["KINDS", "Entry", "entries", "mark_used", "prune"]
 
 #: the cache's folders, in the order they are listed
-KINDS = ("verilog", "verilator", "split", "numba")
+KINDS = ("verilog", "verilator", "split", "numba", "pin")
 
 #: an unfinished build (a dot folder) younger than this is left alone: it may be under way
 UNFINISHED_GRACE_S = 3600.0

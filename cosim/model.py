@@ -56,6 +56,7 @@ import pinocchio as pin
 from mrm_cosim.cosim.gateware_side import GatewareSide, Observed, PlantLines, Reply
 from mrm_cosim.cosim.model_link import LINK_UP_CYCLE, LinkTiming
 from mrm_cosim.cosim import model_kernel_src as ksrc
+from mrm_cosim.cosim import pin_shim
 from mrm_cosim.cosim.model_kernel import (KernelArrays, KernelEncoder, KernelNode,
                                           KernelVdc, kernel_choice, load, load_plant)
 from mrm_cosim.errors import InputError
@@ -198,7 +199,7 @@ class ModelBackend(GatewareSide):
             self._chg_lines = None
             self._fed = 0
             # the fast path's floats: the plant's constants, then the torque outputs
-            self._F = np.zeros(ksrc.F_SIZE + 2 * self.n)
+            self._F = np.zeros(ksrc.f_size(self.n))
             self._no_a, self._no_M = np.zeros(self.n), np.zeros((self.n, self.n))
             self._no_brake = np.zeros(self.n, dtype=bool)      # (brake(): read only)
             self._no_brake.flags.writeable = False
@@ -212,6 +213,8 @@ class ModelBackend(GatewareSide):
         self.fast_steps = {"free": 0, "stick-slip": 0, "solve": 0}
         #: fast runs whose last step handed replies or strobes to the master (fast_observed)
         self.fast_handovers = 0
+        #: plant steps the kernel ran on with pinocchio from compiled code (cosim.pin_shim)
+        self.pin_steps = 0
         #: fast runs whose last step had node events (its nodes on the general path, _fast)
         self.event_steps = 0
         self._fast_end = 0              # fast path: the end of its last step (node._done)
@@ -222,7 +225,8 @@ class ModelBackend(GatewareSide):
         self._samplers = [e.sample for e in self.encoders]
         self._link = LinkTiming(self.n)
         # (the kernel writes the plain nodes' torques)
-        self._torque = np.zeros(self.n) if kern is None else self._F[ksrc.F_SIZE + self.n:]
+        self._torque = np.zeros(self.n) if kern is None else \
+            self._F[ksrc.F_SIZE + self.n:ksrc.F_SIZE + 2 * self.n]
 
     def attach_plant(self, plant) -> None:
         """With the compiled kernel, the plant's step runs on it too
@@ -397,7 +401,14 @@ class ModelBackend(GatewareSide):
         end on either path). The same operations as :meth:`_run_kernel` and
         :meth:`Plant.step <models.plant.Plant.step>` in the same order, so the same results bit
         for bit (tests/test_model_backend.py, tests/test_model_kernel.py). The compliant plant
-        (:class:`~models.compliant.CompliantPlant`) has its own: :meth:`_fast_compliant`."""
+        (:class:`~models.compliant.CompliantPlant`) has its own: :meth:`_fast_compliant`.
+
+        With pinocchio from compiled code (:mod:`cosim.pin_shim`: a library built on first use
+        calling the ``pin`` wheel's own ``aba``, ``nonLinearEffects`` and ``crba`` on a copy
+        of the plant's model, checked against ``pin`` bit for bit), the kernel makes those
+        calls itself and runs on through the run's plain steps (``fast_step``'s steps run on,
+        counted in :attr:`pin_steps`), handing a step back to Python only for the general
+        solve; the same operations in the same order, so the same results."""
         from mrm_cosim.models.compliant import CompliantPlant, compiled_kernel
         from mrm_cosim.models.plant import Plant
 
@@ -431,6 +442,15 @@ class ModelBackend(GatewareSide):
         # methods stay those of use_kernel (a compliant plant's reset rebinds its state and
         # noise stream: asked each run)
         self._parts = None if compliant else plant.kernel_parts()
+        # pinocchio from compiled code (cosim.pin_shim): the kernel runs on through steps
+        # that need aba, or nonLinearEffects and crba, too (fast_step's _pin_step)
+        IB = self._arrays.IB
+        IB[ksrc.H_PIN_FN] = IB[ksrc.H_PIN_MODEL] = IB[ksrc.H_RUN_PIN] = 0
+        dyn = pin_shim.load()
+        handle = dyn.model(plant._model) if dyn is not None else None
+        if handle:
+            IB[ksrc.H_PIN_FN], IB[ksrc.H_PIN_MODEL] = dyn.fn, handle
+            self._pin_model = plant._model          # (the handle lives as long)
 
         def fast(i: int, stop: int, cycle: int, end_limit: int) -> int:
             return run(plant, pk, rec, step, i, stop, cycle, end_limit)
@@ -506,6 +526,11 @@ class ModelBackend(GatewareSide):
         friction = F[ksrc.F_FRICTION] != 0.0
         fast_step, aba, pre = self._kern.fast_step_compliant, pin.aba, ck.pre
         z = noise(m)
+        # the kernel runs on through the plain steps with pinocchio from compiled code (its
+        # own aba calls): the rows it may, and those whose noise is drawn
+        IB[ksrc.H_C_FIRST] = i
+        IB[ksrc.H_C_PLAIN_END] = i + p
+        IB[ksrc.H_C_DRAWN_END] = i + m
         j = i
         r = 0
         ready = False           # the step's pre done (by the last fast_step_compliant call)
@@ -513,16 +538,20 @@ class ModelBackend(GatewareSide):
             if not ready and not pre(S, C, tau, z[j - i], h, hh, friction):
                 raise InputError("tau_cmd", f"must be finite, not {tau.tolist()!r}")
             if j - i == p:                      # the step with node events
-                r = fast_step(IB, F, S, aba(model, data, qm, vm, force), rec, j, cycle, C,
-                              self._no_a, -1)
+                r = fast_step(IB, F, S, aba(model, data, qm, vm, force), rec, j, cycle, C, z,
+                              -1)
                 j += 1
                 if r == 0:
                     stepped(j - i)
                     return self._event_step(j - i, cycle, s, 0, 0)
                 break
-            more = j + 1 - i < m
-            r = fast_step(IB, F, S, aba(model, data, qm, vm, force), rec, j, cycle, C,
-                          z[j - i + 1] if more else self._no_a, 1 if more else 0)
+            r = fast_step(IB, F, S, aba(model, data, qm, vm, force), rec, j, cycle, C, z,
+                          1 if j + 1 - i < m else 0)
+            if r >= 64:                 # k more steps run on in the kernel
+                k = r >> 6
+                r &= 63
+                j += k
+                cycle += k * s
             j += 1
             cycle += s
             if r == 8:
@@ -534,7 +563,7 @@ class ModelBackend(GatewareSide):
             if r or cycle > soon:
                 break
         stepped(j - i)
-        self.fast_steps["free"] += j - i
+        self._count_steps(j - i, 0, 0)
         if j - i != m and r not in (2, 3):
             raise AssertionError(f"model kernel: {j - i} compliant steps run, {m} drawn")
         return self._fast_end_run(plant, r, cycle, soon, j - i)
@@ -566,11 +595,13 @@ class ModelBackend(GatewareSide):
         aba, nle, crba = pin.aba, pin.nonLinearEffects, pin.crba
         no_a, no_M = self._no_a, self._no_M     # (zeros: read, never written)
         X = self._X
-        # the run's bounds, for the steps fast_step runs on from the cache (its _run_on)
+        # the run's bounds, for the steps fast_step runs on (its _run_on), and its counts of
+        # those that took the stick-slip path
         IB[ksrc.H_STOP] = stop
         IB[ksrc.H_MORE_LIM] = more_lim
         IB[ksrc.H_SOON] = soon
         IB[ksrc.H_PLAIN_LIM] = plain_lim
+        IB[ksrc.H_RUN_STICK] = IB[ksrc.H_RUN_CACHED] = 0
         j = i
         r = 0
         n_stick = n_solve = 0
@@ -615,17 +646,24 @@ class ModelBackend(GatewareSide):
                     n_solve += 1
                     solve(self._X_M.copy())             # (solve writes its lower triangle)
                     r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0, C, more, X)
-            if r >= 64:                 # k more steps, stuck on the cache, run in the kernel
+            while r >= 64:              # k more steps run in the kernel (fast_step)
                 k = r >> 6
                 r &= 63
                 j += k
                 cycle += k * s
-                n_stick += k
-                self.stick_cached += k
+                if r != 4:
+                    break
+                # the last one (row j) needs the general solve, on the cache's matrix
+                n_solve += 1
+                solve(self._X_M.copy())
+                more = 1 if (j + 1 < stop and cycle + 2 * s <= more_lim
+                             and cycle + s <= soon) else 0
+                r = fast_step(IB, F, S, no_a, no_M, rec, j, cycle, 0, C, more, X)
             j += 1
             if event_step:
                 if r == 0:
                     stepped(j - i)
+                    n_stick += self._run_counts()
                     return self._event_step(j - i, cycle, s, n_stick, n_solve)
                 break
             if r >= 8:                  # done, and the next step's pre_free with it
@@ -639,10 +677,21 @@ class ModelBackend(GatewareSide):
             if cycle > soon:            # a strobe or a reply for the master in this step
                 break
         stepped(j - i)
-        self._count_steps(j - i, n_stick, n_solve)
+        self._count_steps(j - i, n_stick + self._run_counts(), n_solve)
         return self._fast_end_run(plant, r, cycle, soon, j - i)
 
+    def _run_counts(self) -> int:
+        """The stick-slip steps the kernel ran on in this run (``fast_step``'s counts): their
+        number; those on the cache added to :attr:`stick_cached`."""
+        IB = self._arrays.IB
+        cached = int(IB[ksrc.H_RUN_CACHED])
+        self.stick_cached += cached
+        return int(IB[ksrc.H_RUN_STICK]) + cached
+
     def _count_steps(self, steps: int, n_stick: int, n_solve: int) -> None:
+        IB = self._arrays.IB
+        self.pin_steps += int(IB[ksrc.H_RUN_PIN])
+        IB[ksrc.H_RUN_PIN] = 0
         counts = self.fast_steps
         counts["free"] += steps - n_stick
         counts["stick-slip"] += n_stick - n_solve

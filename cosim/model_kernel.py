@@ -78,6 +78,8 @@ def jit_module(module, njit) -> None:
     for name, obj in list(vars(module).items()):
         if name == "borrow" and obj is getattr(src, "borrow", None):
             setattr(module, name, borrowed())
+        elif name == "pin_call" and obj is getattr(src, "pin_call", None):
+            setattr(module, name, pin_called())
         elif isinstance(obj, types.FunctionType) and (obj.__module__ == module.__name__
                                                       or name in names):
             setattr(module, name, njit(obj))
@@ -108,6 +110,42 @@ def borrowed():
         return a(a), codegen
 
     return borrow
+
+
+@cache
+def pin_called():
+    """:func:`cosim.model_kernel_src.pin_call` compiled: a numba intrinsic calling
+    ``mrm_pin`` (:mod:`cosim.pin_shim`) through the address the kernel is given, with the
+    arrays' data pointers. The address comes in as an argument, never as a constant, so the
+    compiled code stays cacheable and the same for every process."""
+    from llvmlite import ir
+    from numba.core import types
+    from numba.extending import intrinsic
+
+    @intrinsic
+    def pin_call(typingctx, fn, model, which, q, v, tau, out):
+        if not all(isinstance(t, types.Integer) for t in (fn, model, which)) or not all(
+                isinstance(t, types.Array) and t.dtype == types.float64 and t.ndim == 1
+                for t in (q, v, tau, out)):
+            return None
+
+        def codegen(context, builder, sig, args):
+            dp = ir.DoubleType().as_pointer()
+            i8p = ir.IntType(8).as_pointer()
+            i64 = ir.IntType(64)
+            fnty = ir.FunctionType(ir.VoidType(), [i8p, i64, dp, dp, dp, dp])
+            ptrs = [context.make_array(t)(context, builder, value=a).data
+                    for t, a in zip(sig.args[3:], args[3:], strict=True)]
+            f = builder.inttoptr(context.cast(builder, args[0], sig.args[0], types.int64),
+                                 fnty.as_pointer())
+            m = builder.inttoptr(context.cast(builder, args[1], sig.args[1], types.int64), i8p)
+            w = context.cast(builder, args[2], sig.args[2], types.int64)
+            builder.call(f, [m, w, *ptrs])
+            return context.get_dummy_value()
+
+        return types.void(fn, model, which, q, v, tau, out), codegen
+
+    return pin_call
 
 
 def kernel_sources() -> list[Path]:
@@ -245,14 +283,14 @@ def _throw_away() -> KernelArrays:
 def _warm_up(k) -> None:
     """Compile (or load from numba's cache) every entry point once, on throw-away arrays."""
     b = _throw_away()
-    F = np.zeros(src.F_SIZE + 2)
+    F = np.zeros(src.f_size(1))
     F[src.F_H], F[src.F_HH] = 1e-5, 5e-6
     k.fast_step(b.IB, F, np.zeros((plant_src.S_ROWS, 1)), np.zeros(1), np.ones((1, 1)),
                 np.zeros((2, 1, 1)), 0, 0, 1, np.ones((plant_src.C_ROWS, 1)), 1, np.zeros(5))
     b = _throw_away()
     k.fast_step_compliant(b.IB, F, np.zeros((compliant_src.S_ROWS, 1)), np.zeros(1),
                           np.zeros((2, 1, 1)), 0, 0, np.ones((compliant_src.C_ROWS, 1)),
-                          np.zeros(1), 1)
+                          np.zeros((2, 1)), 1)
     z6, z13 = np.zeros(6, dtype=np.int64), np.zeros(13, dtype=np.int64)
     k.vdc_link(z13, z6, z13, z13, z13, z6, z6, z6, np.zeros(3, dtype=np.int64), z6,
                z13.copy())

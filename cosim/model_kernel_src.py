@@ -1082,12 +1082,41 @@ PEND_CAP, VIS_CAP, PIPE_CAP, DUE_CAP = 2048, 2048, 64, 4096
 CHANGE_CAP = 1024
 #: The int64 blob (:class:`cosim.model_kernel.KernelArrays`): a header (``H_N`` nodes,
 #: ``H_CYCLES`` cycles per plant step; ``H_STOP``, ``H_MORE_LIM``, ``H_SOON``, ``H_PLAIN_LIM``:
-#: the fast run's bounds, :func:`fast_step`'s cached steps), then the arrays of
-#: :func:`blob_views`, one after the other. The float64 blob: ``F_H``, ``F_HH`` (the plant
-#: step and its half), ``F_FRICTION`` (1.0 with friction), then the counts per rad (n) and
-#: the torque outputs (n).
-H_N, H_CYCLES, H_STOP, H_MORE_LIM, H_SOON, H_PLAIN_LIM, H_SIZE = 0, 1, 2, 3, 4, 5, 8
+#: the fast run's bounds, :func:`fast_step`'s steps run on; ``H_PIN_FN``, ``H_PIN_MODEL``:
+#: pinocchio from compiled code, :mod:`cosim.pin_shim`'s ``mrm_pin`` and the plant's model
+#: there, 0 where the caller calls ``pin`` itself; ``H_RUN_STICK``, ``H_RUN_CACHED``: the
+#: steps run on that took the stick-slip path through ``mrm_pin`` and through the cache, added
+#: up until the caller clears them), then the arrays of :func:`blob_views`, one after the
+#: other. The float64 blob: ``F_H``, ``F_HH`` (the plant step and its half), ``F_FRICTION``
+#: (1.0 with friction), then the counts per rad (n), the torque outputs (n) and
+#: :func:`_pin_step`'s scratch (n for ``aba``'s or ``nonLinearEffects``' vector, n·n for
+#: ``crba``'s matrix).
+H_N, H_CYCLES, H_STOP, H_MORE_LIM, H_SOON, H_PLAIN_LIM = 0, 1, 2, 3, 4, 5
+H_PIN_FN, H_PIN_MODEL, H_RUN_STICK, H_RUN_CACHED = 6, 7, 8, 9
+#: :func:`fast_step_compliant`'s run (its caller's): the row of its first step (noise row 0),
+#: the first row it does not run on (the step with node events, or the end of the run), and
+#: the end of the steps whose noise is drawn; ``H_RUN_PIN``: the steps either entry point ran
+#: on with pinocchio from compiled code, added up until the caller clears it
+H_C_FIRST, H_C_PLAIN_END, H_C_DRAWN_END, H_RUN_PIN, H_SIZE = 10, 11, 12, 13, 16
 F_H, F_HH, F_FRICTION, F_SIZE = 0, 1, 2, 4
+
+
+def f_size(n):
+    """The float64 blob's length for ``n`` joints."""
+    return F_SIZE + 3 * n + n * n
+
+
+def pin_call(fn, model, which, q, v, tau, out):
+    """:mod:`cosim.pin_shim`'s ``mrm_pin(model, which, q, v, tau, out)`` at address ``fn``
+    (``which``: 0 ``aba``, 1 ``nonLinearEffects``, 2 ``crba``; float64 arrays, contiguous).
+    Compiled (:func:`cosim.model_kernel.pin_called`), a call through the pointer; here,
+    through ctypes."""
+    import ctypes
+
+    dp = ctypes.POINTER(ctypes.c_double)
+    f = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_int64, dp, dp, dp, dp)(int(fn))
+    f(int(model), int(which), q.ctypes.data_as(dp), v.ctypes.data_as(dp),
+      tau.ctypes.data_as(dp), out.ctypes.data_as(dp))
 
 
 def blob_views(IB):
@@ -1155,14 +1184,20 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X):
     or 2): the caller runs the nodes (:meth:`ModelBackend._fast
     <cosim.model.ModelBackend._fast>`'s last step with a node event).
 
-    Cached steps run on: where the next step's code is 2 and the caller would run it as a
-    plain step next (``IB[H_PLAIN_LIM]``, the run's bounds: :func:`_run_on`) and its stuck
-    test holds on the cache's bias and matrix (else the caller runs it: mode 3, the solve),
-    that step is run here too, from its ``finish``, with the caller's ``pre_next`` for it;
-    and so on. ``k`` such steps add ``64 · k`` to the last step's return value (rows
-    ``i + 1 … i + k``, each ``IB[H_CYCLES]`` cycles after the one before): exactly the
-    caller's own calls for them (:meth:`ModelBackend._fast <cosim.model.ModelBackend._fast>`),
-    without a return to Python each."""
+    Steps run on: where the caller would run the next step as a plain step next
+    (``IB[H_PLAIN_LIM]``, the run's bounds: :func:`_run_on`), it is run here too, with the
+    caller's ``pre_next`` for it, where its code is 2 and its stuck test holds on the cache's
+    bias and matrix (from its ``finish``; else the caller runs it: mode 3, the solve) and,
+    with pinocchio from compiled code (``IB[H_PIN_FN]``, :func:`_pin_step`), where its code
+    is 1 or 0 (the caller's own calls, ``aba``, or ``nonLinearEffects`` and ``crba``, made
+    here); and so on. ``k`` such steps add ``64 · k`` to the last one's return value, which
+    is that of row ``i + k`` (rows ``i + 1 … i + k``, each ``IB[H_CYCLES]`` cycles after the
+    one before): exactly the caller's own calls for them (:meth:`ModelBackend._fast
+    <cosim.model.ModelBackend._fast>`), without a return to Python each. Only a step run on
+    through ``mrm_pin`` returns 4 with ``k`` (the likely pattern failed: the caller runs the
+    general solve on the cache's matrix, then mode 0, for row ``i + k``). The steps run on
+    that took the stick-slip path are counted in ``IB[H_RUN_STICK]`` (through ``mrm_pin``)
+    and ``IB[H_RUN_CACHED]`` (on the cache)."""
     IB = borrow(IB)
     F = borrow(F)
     S = borrow(S)
@@ -1175,16 +1210,55 @@ def fast_step(IB, F, S, a, M, rec, i, start, mode, C, pre_next, X):
     k = 0
     s = IB[H_CYCLES]
     n = S.shape[1]
-    while r == 32:
+    dyn = IB[H_PIN_FN] != 0
+    while r == 32 or (dyn and (r == 24 or r == 16)):
         j = i + k + 1
         c = start + (k + 1) * s
         more = _run_on(IB, j, c, s)
-        if more < 0 or not _stick_from(S, X[1 + 2 * n:1 + 3 * n],
-                                        X[1 + 3 * n:1 + 3 * n + n * n].reshape((n, n)), F[F_H]):
+        if more < 0:
             break
-        k += 1
-        r = _finish_step(IB, F, S, rec, j, c, C, more, X)
+        if r == 32:
+            if not _stick_from(S, X[1 + 2 * n:1 + 3 * n],
+                               X[1 + 3 * n:1 + 3 * n + n * n].reshape((n, n)), F[F_H]):
+                break
+            IB[H_RUN_CACHED] += 1
+            k += 1
+            r = _finish_step(IB, F, S, rec, j, c, C, more, X)
+        else:
+            k += 1
+            IB[H_RUN_PIN] += 1
+            r = _pin_step(IB, F, S, rec, j, c, C, more, X, r == 24)
+            if r == 4:
+                break
     return r + 64 * k
+
+
+def _pin_step(IB, F, S, rec, i, start, C, pre_next, X, free):
+    """:func:`fast_step`'s step run on with pinocchio from compiled code (``IB[H_PIN_FN]``):
+    the caller's sequence for a step of code 1 (``free``: ``aba``, mode 1, and where the free
+    step does not hold the stick-slip path) or 0 (the stick-slip path): ``nonLinearEffects``
+    and ``crba``, mode 2, or mode 3 where the cache holds the step's. The results in ``F``'s
+    scratch. Returns :func:`_fast_step_one`'s, 4 included (the caller's general solve)."""
+    n = S.shape[1]
+    o = F_SIZE + 2 * n
+    A = F[o:o + n]
+    Mf = F[o + n:o + n + n * n]
+    M = Mf.reshape((n, n))
+    fn, model = IB[H_PIN_FN], IB[H_PIN_MODEL]
+    q, v = S[plant_src.QM], S[plant_src.VM]
+    r = 1
+    if free:
+        pin_call(fn, model, 0, q, v, S[plant_src.FORCE], A)
+        r = _fast_step_one(IB, F, S, A, M, rec, i, start, 1, C, pre_next, X)
+        if r != 1 and r != 5:
+            return r
+    if r == 1:
+        pin_call(fn, model, 1, q, v, v, A)
+        pin_call(fn, model, 2, q, v, v, Mf)
+        IB[H_RUN_STICK] += 1
+        return _fast_step_one(IB, F, S, A, M, rec, i, start, 2, C, pre_next, X)
+    IB[H_RUN_CACHED] += 1
+    return _fast_step_one(IB, F, S, A, M, rec, i, start, 3, C, pre_next, X)
 
 
 def _run_on(IB, j, c, s):
@@ -1309,7 +1383,7 @@ def _step_nodes(IB, F, S, rec, i, start, start_row, velocity_row, acc_row, end_r
 
 
 
-def fast_step_compliant(IB, F, S, acc, rec, i, start, C, noise, pre_next):
+def fast_step_compliant(IB, F, S, acc, rec, i, start, C, Z, pre_next):
     """:func:`fast_step` for the compliant plant (:class:`models.compliant.CompliantPlant`,
     :meth:`ModelBackend.fast_path <cosim.model.ModelBackend.fast_path>`): one whole plant step
     with no event in it, after :func:`models.compliant_kernel_src.pre` and ``pin.aba``'s
@@ -1321,21 +1395,48 @@ def fast_step_compliant(IB, F, S, acc, rec, i, start, C, noise, pre_next):
 
     The compliant step has no set-valued solve through pinocchio (the motor side's friction is
     solved per joint inside ``pre``), so a step always completes here. With ``pre_next`` (the
-    caller runs the next step on this path too and has drawn its current-sensor ``noise`` from
-    the plant's stream, as :meth:`CompliantPlant.step` would at its start), the next step's
-    ``pre`` on the torques the nodes output.
+    caller runs the next step on this path too and has drawn its current-sensor noise from
+    the plant's stream, as :meth:`CompliantPlant.step` would at its start: ``Z`` the run's
+    draws, row ``i + 1 − IB[H_C_FIRST]``), the next step's ``pre`` on the torques the nodes
+    output.
 
     Returns 0; 2 if a joint moved more than one count in a cycle (the plant has stepped, the
     nodes have not); 3 as :func:`plain_step`'s True; with ``pre_next``, ``8 · (code + 2)`` with
     ``code`` 1 (``pre`` done) or −1 (a torque was not finite, nothing done). ``pre_next`` −1:
-    the plant's part only, as :func:`fast_step`'s."""
+    the plant's part only, as :func:`fast_step`'s.
+
+    Steps run on, with pinocchio from compiled code (``IB[H_PIN_FN]``, as :func:`fast_step`'s):
+    where the next step's ``pre`` is done and its row is below ``IB[H_C_PLAIN_END]``, its
+    ``aba`` is called here and the step run, with ``pre_next`` where the row after it is
+    below ``IB[H_C_DRAWN_END]``; and so on: the caller's own calls for them. ``k`` such steps
+    add ``64 · k`` to the return value, which is that of row ``i + k``."""
     IB = borrow(IB)
     F = borrow(F)
     S = borrow(S)
     acc = borrow(acc)
     rec = borrow(rec)
     C = borrow(C)
-    noise = borrow(noise)
+    Z = borrow(Z)
+    r = _compliant_one(IB, F, S, acc, rec, i, start, C, Z, pre_next)
+    if IB[H_PIN_FN] == 0:
+        return r
+    n = S.shape[1]
+    o = F_SIZE + 2 * n
+    A = F[o:o + n]
+    fn, model = IB[H_PIN_FN], IB[H_PIN_MODEL]
+    s = IB[H_CYCLES]
+    k = 0
+    while r == 24 and i + k + 1 < IB[H_C_PLAIN_END]:
+        k += 1
+        IB[H_RUN_PIN] += 1
+        pin_call(fn, model, 0, S[compliant_src.QM], S[compliant_src.VM], S[compliant_src.LF], A)
+        more = 1 if i + k + 1 < IB[H_C_DRAWN_END] else 0
+        r = _compliant_one(IB, F, S, A, rec, i + k, start + k * s, C, Z, more)
+    return r + 64 * k
+
+
+def _compliant_one(IB, F, S, acc, rec, i, start, C, Z, pre_next):
+    """:func:`fast_step_compliant` for one step."""
     h = F[F_H]
     hh = F[F_HH]
     compliant_src.finish(S, acc, h, hh)
@@ -1347,7 +1448,8 @@ def fast_step_compliant(IB, F, S, acc, rec, i, start, C, noise, pre_next):
     if pre_next:
         n = IB[H_N]
         tau = F[F_SIZE + n:F_SIZE + 2 * n]
-        if compliant_src.pre(S, C, tau, noise, h, hh, F[F_FRICTION] != 0.0):
+        if compliant_src.pre(S, C, tau, Z[i + 1 - IB[H_C_FIRST]], h, hh,
+                             F[F_FRICTION] != 0.0):
             return 24
         return 8
     return 0

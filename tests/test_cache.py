@@ -89,7 +89,7 @@ def test_prune_names_what_it_refuses(filled):
         with pytest.raises(InputError, match="older_than: must be a number of days >= 0"):
             cache.prune(bad)
     with pytest.raises(InputError, match="kind: must be one of verilog, verilator, split, "
-                       "numba, not 'pip'"):
+                       "numba, pin, not 'pip'"):
         cache.prune(1, ["pip"])
     assert len(cache.entries()) == 14
 

@@ -1,0 +1,180 @@
+"""Pinocchio from compiled code (:mod:`cosim.pin_shim`): the model backend's kernel runs plant
+steps on through ``aba``, ``nonLinearEffects`` and ``crba`` of the ``pin`` wheel's own library,
+bit for bit ``pin``'s, and falls back to calling ``pin`` from Python, with one warning, where
+the library cannot be built or a model's copy differs."""
+
+from __future__ import annotations
+
+import runpy
+import warnings
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from mrm_cosim.cosim import model_kernel as mk
+from mrm_cosim.cosim import pin_shim
+from mrm_cosim.models.robot import load_robot
+
+needs_numba = pytest.mark.skipif(mk.load() is None, reason="numba unavailable")
+
+
+@pytest.fixture
+def dyn():
+    """The library: it builds here (the test extra brings Eigen's headers; CI has g++)."""
+    d = pin_shim.load()
+    assert d is not None, "the pinocchio library did not build (see the warning)"
+    return d
+
+
+def _model(robot: str, mass_scale: float = 1.0):
+    model = pin.buildModelFromXML(load_robot(robot).urdf())
+    if mass_scale != 1.0:
+        for k in range(1, model.njoints):
+            inertia = model.inertias[k]
+            model.inertias[k] = pin.Inertia(inertia.mass * mass_scale, inertia.lever,
+                                            inertia.inertia * mass_scale)
+    return model
+
+
+def test_the_library_links_pinocchio_s_own_algorithms(dyn):
+    """The build is cached by digest, and none of the three algorithms is compiled into it
+    (``build`` checks with ``nm``: they are ``libpinocchio_default``'s, the code ``pin``
+    runs)."""
+    from mrm_cosim.cosim.compiled import cache_dir
+
+    assert dyn.path.parent.parent == cache_dir() / "pin"
+    assert pin_shim.build() == dyn.path                     # from the cache
+    import shutil
+    import subprocess
+
+    if shutil.which("nm"):
+        undefined = subprocess.run(["nm", "-C", "-D", "--undefined-only", str(dyn.path)],
+                                   capture_output=True, text=True).stdout
+        for name in pin_shim._LINKED:
+            assert name in undefined, name
+
+
+@pytest.mark.parametrize("robot, scale", [("mrm3", 1.0), ("mrm6", 1.0), ("mrm3", 1.37)])
+def test_the_three_algorithms_are_pin_s_bit_for_bit(dyn, robot, scale):
+    """500 states (random, at rest, rounded; the neutral one) of each model, a perturbed one
+    too: ``aba``, ``nonLinearEffects`` and ``crba``'s upper triangle equal ``pin``'s bits."""
+    model = _model(robot, scale)
+    handle = dyn.model(model)
+    assert handle
+    assert dyn.differs(model, handle, states=500) == ""
+
+
+def test_a_copy_of_another_model_is_found_to_differ(dyn):
+    """The check can fail: a handle on one model against ``pin`` on a heavier one."""
+    light, heavy = _model("mrm3"), _model("mrm3", 1.01)
+    assert dyn.differs(heavy, dyn.model(light)).startswith("aba at q=")
+
+
+@needs_numba
+def test_the_kernel_s_call_and_its_python_form_give_pin_s_numbers(dyn):
+    """:func:`cosim.model_kernel_src.pin_call` compiled (the intrinsic) and as written (through
+    ctypes) give what ``pin`` gives."""
+    import numba
+
+    python_form = runpy.run_path(mk.src.__file__)["pin_call"]
+    compiled = mk.pin_called()
+
+    @numba.njit
+    def call(fn, model, which, q, v, tau, out):
+        compiled(fn, model, which, q, v, tau, out)
+
+    model = _model("mrm6")
+    data = model.createData()
+    handle = dyn.model(model)
+    rng = np.random.default_rng(7)
+    q, v, tau = (rng.normal(size=model.nv) for _ in range(3))
+    for f in (python_form, call):
+        a, b, M = np.empty(model.nv), np.empty(model.nv), np.empty(model.nv ** 2)
+        f(dyn.fn, handle, pin_shim.ABA, q, v, tau, a)
+        f(dyn.fn, handle, pin_shim.NLE, q, v, tau, b)
+        f(dyn.fn, handle, pin_shim.CRBA, q, v, tau, M)
+        assert np.array_equal(a, pin.aba(model, data, q, v, tau))
+        assert np.array_equal(b, pin.nonLinearEffects(model, data, q, v))
+        assert np.array_equal(np.triu(M.reshape(model.nv, model.nv)),
+                              np.triu(pin.crba(model, data, q)))
+
+
+def _loop_run(robot: str, joints: str, cycles: int = 300_000):
+    from mrm_cosim.cosim.bench import bench_master_and_plant
+    from mrm_cosim.cosim.closed_loop import ClosedLoop
+    from mrm_cosim.cosim.model import ModelBackend
+    from mrm_cosim.master.uploads import Gains, node_uploads, pid_shifts
+    from mrm_cosim.models.plant import PlantConfig, make_plant
+
+    robot_ = load_robot(robot)
+    master, plant = bench_master_and_plant(robot_)
+    if joints != "rigid":
+        plant = make_plant(robot_, PlantConfig(joints=joints), seed=0)
+        plant.reset(robot_.home)
+    backend = ModelBackend(kernel="numba", pid_shift=pid_shifts(robot_))
+    loop = ClosedLoop(robot_, backend, master, plant, 50_000,
+                      node_uploads(robot_, "vdc", Gains()))
+    result = loop.run(cycles)
+    return (result.trace_sha256, dict(backend.fast_steps), backend.stick_cached,
+            [(r.index, r.events, r.arrivals) for r in master.records]), backend.pin_steps
+
+
+@needs_numba
+@pytest.mark.parametrize("joints", ["rigid", "compliant"])
+def test_the_kernel_runs_on_through_pinocchio_with_the_same_trace(dyn, monkeypatch, joints):
+    """``mrm bench``'s window on ``mrm6`` with the library and without it (the kernel returning
+    to Python for ``pin`` every step, as before it): the same trace, the same steps of each
+    kind (free, stick-slip, general solve, from the cache), the same master records; with it,
+    most steps ran on in the kernel. (tests/test_model_kernel.py compares the kernel, with the
+    library, against the pure-Python path on both plants and all three controllers.)"""
+    with_it, pin_steps = _loop_run("mrm6", joints)
+    monkeypatch.setattr(pin_shim, "_loaded", False)
+    without, none = _loop_run("mrm6", joints)
+    assert with_it == without
+    assert none == 0
+    assert pin_steps > 0.3 * sum(with_it[1].values()), (pin_steps, with_it[1])
+    if joints == "rigid":
+        assert with_it[1]["stick-slip"] > 0 and with_it[1]["solve"] > 0, with_it[1]
+
+
+@needs_numba
+def test_a_model_whose_copy_differs_is_refused_with_one_warning(dyn, monkeypatch):
+    """Where the check finds a difference, the handle is refused (a warning names the
+    function), and the fast path calls ``pin`` from Python: the same trace, no step run on
+    through the library."""
+    want, _ = _loop_run("mrm3", "rigid", 150_000)
+    monkeypatch.setattr(pin_shim.Dynamics, "differs",
+                        lambda self, model, handle, states=12: "aba at q=[0.0]")
+    monkeypatch.setattr(dyn, "_checked", {})
+    with pytest.warns(RuntimeWarning, match=r"pinocchio from compiled code differs from pin's "
+                      r"\(aba at q=\[0.0\]\); the fast path calls pin from Python"):
+        got, steps = _loop_run("mrm3", "rigid", 150_000)
+    assert got == want and steps == 0
+
+
+@needs_numba
+def test_without_a_compiler_pin_is_called_from_python_with_one_warning(monkeypatch, tmp_path):
+    """No C++ compiler (``$CXX`` names none): one warning, the same trace as with the
+    library, no step run on through it."""
+    want, _ = _loop_run("mrm3", "rigid", 150_000)
+    monkeypatch.setattr(pin_shim, "_loaded", None)
+    monkeypatch.setenv("CXX", str(tmp_path / "no-such-c++"))
+    monkeypatch.setenv("MRM_CACHE_DIR", str(tmp_path / "cache"))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got, steps = _loop_run("mrm3", "rigid", 150_000)
+    msgs = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    assert msgs == ["model backend: pinocchio from compiled code unavailable (RuntimeError: "
+                    f"no C++ compiler: $CXX is {tmp_path / 'no-such-c++'}); the fast path "
+                    "calls pin from Python"], msgs
+    assert got == want and steps == 0
+    assert not (tmp_path / "cache" / "pin").exists()
+
+
+def test_it_can_be_turned_off(monkeypatch):
+    monkeypatch.setattr(pin_shim, "_loaded", None)
+    monkeypatch.setenv("MRM_PIN_SHIM", "0")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert pin_shim.load() is None
