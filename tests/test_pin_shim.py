@@ -178,3 +178,37 @@ def test_it_can_be_turned_off(monkeypatch):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert pin_shim.load() is None
+
+
+@needs_numba
+@pytest.mark.parametrize("plain_end, drawn_end, want_k, want_r", [
+    (3, 5, 2, 24),      # rows 1, 2 run on; row 3 (the step with node events) is the caller's
+    (5, 5, 4, 0),       # rows 1 … 4 run on, the last without the next step's pre
+    (1, 5, 0, 24),      # none: the next row is already the caller's
+])
+def test_the_compliant_kernel_runs_on_to_its_bounds_and_no_further(dyn, plain_end, drawn_end,
+                                                                   want_k, want_r):
+    """``fast_step_compliant`` with the library: from row 0 it runs on through the rows below
+    ``IB[H_C_PLAIN_END]`` (each with the next step's ``pre`` where the row after it is below
+    ``IB[H_C_DRAWN_END]``), and returns ``r + 64 k`` with the last row's ``r``; each step run
+    on writes its trace row."""
+    from mrm_cosim.models import compliant_kernel_src as ck
+
+    kern = mk.load()
+    a = mk._throw_away()
+    model = pin.Model()
+    model.addJoint(0, pin.JointModelRZ(), pin.SE3.Identity(), "j")
+    model.appendBodyToJoint(1, pin.Inertia.FromBox(1.0, 0.1, 0.1, 0.1), pin.SE3.Identity())
+    handle = dyn.model(model)
+    src = mk.src
+    a.IB[src.H_PIN_FN], a.IB[src.H_PIN_MODEL] = dyn.fn, handle
+    a.IB[src.H_C_FIRST], a.IB[src.H_C_PLAIN_END], a.IB[src.H_C_DRAWN_END] = 0, plain_end, \
+        drawn_end
+    F = np.zeros(src.f_size(1))
+    F[src.F_H], F[src.F_HH] = 1e-5, 5e-6
+    rec = np.full((2, 8, 1), np.nan)
+    r = kern.fast_step_compliant(a.IB, F, np.zeros((ck.S_ROWS, 1)), np.zeros(1), rec, 0, 0,
+                                 np.ones((ck.C_ROWS, 1)), np.zeros((drawn_end, 1)), 1)
+    assert (r >> 6, r & 63) == (want_k, want_r)
+    assert a.IB[src.H_RUN_PIN] == want_k
+    assert not np.isnan(rec[:, :want_k + 1]).any() and np.isnan(rec[:, want_k + 1:]).all()
