@@ -1,7 +1,8 @@
 """The ``model`` backend's speed, compiled inner loop against pure Python, side by side.
 
     python benchmarks/model_speed.py [--robot mrm3 --robot mrm6] [--cycles 2500000] [--rounds 3]
-                                     [--joints rigid|compliant] [--pin | --master | --against PY]
+                                     [--joints rigid|compliant]
+                                     [--pin | --calls | --master | --against PY]
 
 For each robot, ``mrm bench``'s window (the VDC loop on the paper's quintic, after start-up)
 runs alternately with ``kernel="numba"`` and ``kernel="python"``; it prints the real-time factor
@@ -26,6 +27,12 @@ returning to Python for ``pin`` every step, in one process: the compiled path's 
 alternate between the two, ABBA, and it prints each side's CPU RTF (best, median), the ratio
 of the medians, the fast-step part of each (the breakdown's, median) and whether the trace
 hashes are equal.
+
+``--calls`` times the window function by function instead (the compiled path): every Python
+call into the backend's fast runs and event loop, the nodes (packets by type, time-codes,
+``run``), the kernel's entry points and the master, each with its own time (its callees among
+them taken out), calls and µs a period, largest first — where a period's time goes, for the
+next piece of work (the wrappers add ≈ 0.3 µs a call to the total).
 
 ``--against PYTHON`` measures this tree against another one, side by side in one run: the
 other tree's interpreter (its venv's ``python``, whose ``mrm_cosim`` is that tree) runs this
@@ -239,6 +246,78 @@ def against(python: str, robots, cycles: int, pairs: int) -> None:
         other.wait()
 
 
+def calls(robot_name: str, cycles: int) -> None:
+    """``--calls``: one window of the compiled path with its functions timed (self time)."""
+    from mrm_cosim.protocol.packet import PacketType
+
+    robot = load_robot(robot_name)
+    run(robot_name, "numba", 100_000)
+    loop = _loop(robot, "numba")
+    own, count, stack = {}, {}, []
+    clock = time.perf_counter_ns
+
+    def timed(name, f, key=None):
+        def wrapped(*a, **kw):
+            t = clock()
+            stack.append(0)
+            try:
+                return f(*a, **kw)
+            finally:
+                d = clock() - t
+                inner = stack.pop()
+                k = name if key is None else key(*a)
+                own[k] = own.get(k, 0) + d - inner
+                count[k] = count.get(k, 0) + 1
+                if stack:
+                    stack[-1] += d
+        return wrapped
+
+    be = loop.backend
+    for name in ("_fast", "_fast_compliant", "_horizon", "_fast_begin", "_fast_end_run",
+                 "_end_commits", "_event_step", "_run_kernel_nodes", "_run_kernel"):
+        setattr(be, name, timed(f"backend.{name}", getattr(be, name)))
+    for node in be.nodes:
+        node.packet = timed("", node.packet, lambda now, ptype, *a, **kw:
+                            f"node.packet {PacketType(ptype).name}")
+        for name in ("timecode", "run", "run_torque", "push", "pull"):
+            setattr(node, name, timed(f"node.{name}", getattr(node, name)))
+    for name in ("poll", "on_packet", "on_node_events", "next_due", "quiet_end"):
+        setattr(loop.master, name, timed(f"master.{name}", getattr(loop.master, name)))
+    for name in ("step", "encoder_changes"):
+        setattr(loop.plant, name, timed(f"plant.{name}", getattr(loop.plant, name)))
+
+    class Kernel:                   # the kernel's entry points called from Python
+        def __init__(self, k):
+            self._k = k
+
+        def __getattr__(self, name):
+            f = getattr(self._k, name)
+            return timed(f"kernel.{name}", f) if callable(f) else f
+
+    be._kern = Kernel(be._kern)
+    begin = loop.master.begin
+    marks = {}
+
+    def mark(cycle):
+        marks["t0"] = clock()
+        own.clear()
+        count.clear()
+        return begin(cycle)
+
+    loop.master.begin = mark
+    loop.run(cycles)
+    total = clock() - marks["t0"]
+    periods = cycles / (CLOCK_HZ / 1000)
+    print(f"{robot_name} ({_JOINTS}): {cycles:,} cycles, wall µs a period "
+          f"{total / periods / 1e3:,.0f} (with the wrappers)")
+    print(f"  {'function':32s} {'calls a period':>15s} {'µs a period':>12s} {'µs a call':>10s}")
+    for k in sorted(own, key=lambda k: -own[k]):
+        print(f"  {k:32s} {count[k] / periods:15.1f} {own[k] / periods / 1e3:12.1f} "
+              f"{own[k] / count[k] / 1e3:10.2f}")
+    rest = total - sum(own.values())
+    print(f"  {'(the loop and the rest)':32s} {'':15s} {rest / periods / 1e3:12.1f}")
+
+
 def pin_ab(robots, cycles: int, rounds: int) -> None:
     """``--pin``: the kernel with pinocchio from compiled code and without, windows ABBA."""
     from mrm_cosim.cosim import pin_shim
@@ -282,6 +361,8 @@ def main(argv=None) -> int:
                     "2's plant, two-inertia joints with the encoder on the motor)")
     ap.add_argument("--pin", action="store_true",
                     help="pinocchio from compiled code against pin from Python, side by side")
+    ap.add_argument("--calls", action="store_true",
+                    help="one window, its functions timed one by one (the compiled path)")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     global _JOINTS
@@ -297,6 +378,10 @@ def main(argv=None) -> int:
         return 0
     if args.pin:
         pin_ab(robots, args.cycles, max(args.rounds, 2))
+        return 0
+    if args.calls:
+        for robot in robots:
+            calls(robot, args.cycles)
         return 0
     if args.master:
         for robot in robots:
