@@ -23,7 +23,6 @@ and from C++, side by side in this run.
 from __future__ import annotations
 
 import argparse
-import os
 import subprocess
 import sys
 import tempfile
@@ -73,33 +72,15 @@ int main(int argc, char** argv) {
 }
 """
 
-_DEFINES = ["PINOCCHIO_ENABLE_TEMPLATE_INSTANTIATION", "BOOST_MPL_LIMIT_LIST_SIZE=30",
-            "BOOST_MPL_LIMIT_VECTOR_SIZE=30", "BOOST_MPL_CFG_NO_PREPROCESSED_HEADERS",
-            "BOOST_FUSION_INVOKE_MAX_ARITY=12"]
-
-
-def _prefix_dirs() -> list[Path]:
-    """The ``cmeel.prefix`` folders on the path (the ``pin`` wheel's, ``cmeel-eigen``'s)."""
-    found = []
-    for entry in sys.path:
-        p = Path(entry) / "cmeel.prefix"
-        if p.is_dir() and p not in found:
-            found.append(p)
-    return found
-
 
 def build(work: Path) -> Path:
-    prefixes = _prefix_dirs()
-    lib = next((p / "lib" for p in prefixes if (p / "lib" / "libpinocchio_default.so").exists()),
-               None)
-    eigen = next((p / "include" / "eigen3" for p in prefixes
-                  if (p / "include" / "eigen3" / "Eigen").is_dir()), None)
-    if lib is None:
-        raise SystemExit("no libpinocchio_default.so in a cmeel.prefix (is `pin` installed?)")
-    if eigen is None:
-        raise SystemExit("Eigen's headers are missing: pip install cmeel-eigen")
+    from mrm_cosim.cosim.pin_shim import _DEFINES, _toolchain   # (the library's own: one place)
+
+    try:
+        cxx, lib, eigen = _toolchain()
+    except RuntimeError as e:
+        raise SystemExit(str(e)) from None
     (work / "aba.cpp").write_text(_PROGRAM)
-    cxx = os.environ.get("CXX", "g++")
     cmd = [cxx, "-O2", "-std=c++17", *(f"-D{d}" for d in _DEFINES),
            f"-I{lib.parent / 'include'}", f"-I{eigen}", "aba.cpp", "-o", "aba",
            f"-L{lib}", "-lpinocchio_default", "-lboost_serialization", f"-Wl,-rpath,{lib}"]
