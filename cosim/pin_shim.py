@@ -226,37 +226,38 @@ class Dynamics:
         #: ``mrm_pin``'s address
         self.fn = ctypes.cast(lib.mrm_pin, ctypes.c_void_p).value
         self.path = path
-        self._models = weakref.WeakKeyDictionary()      # pin.Model → handle (0: refused)
+        self._models = weakref.WeakKeyDictionary()  # pin.Model → (its bytes' digest, handle)
         self._checked = {}          # digest of a model's bytes → what differs ('' nothing)
 
     def model(self, model) -> int | None:
-        """A handle (an address) on a copy of ``model`` (a ``pin.Model``) for :meth:`call` and
-        the kernel, freed with ``model``; None if the copy's three functions differ from
-        ``pin``'s on the check states (:meth:`differs`, once per model's contents), anywhere,
-        by a bit (a warning says so)."""
+        """A handle (an address) on a copy of ``model`` (a ``pin.Model``) as it is now, for
+        :meth:`call` and the kernel, freed with ``model`` (a model changed since its last
+        handle gets a new copy); None, with a warning, if pinocchio cannot read the copy back
+        or the copy's three functions differ from ``pin``'s on the check states
+        (:meth:`differs`, once per model's contents), anywhere, by a bit."""
         import pinocchio as pin
 
-        hit = self._models.get(model)
-        if hit is not None:
-            return hit or None
         buffer = pin.serialization.StreamBuffer()
         model.saveToBinary(buffer)
         raw = bytes(buffer.tobytes())
-        handle = self._lib.mrm_pin_new(raw, len(raw))
-        if not handle:
-            raise RuntimeError("pinocchio could not read the model back")
-        weakref.finalize(model, self._lib.mrm_pin_free, handle)
         key = hashlib.sha256(raw).digest()
-        bad = self._checked.get(key)
-        if bad is None:
-            bad = self._checked[key] = self.differs(model, handle)
+        hit = self._models.get(model)
+        if hit is not None and hit[0] == key:
+            return hit[1] or None
+        handle = self._lib.mrm_pin_new(raw, len(raw))
+        bad = "its copy could not be read back" if not handle else None
+        if handle:
+            weakref.finalize(model, self._lib.mrm_pin_free, handle)
+            bad = self._checked.get(key)
+            if bad is None:
+                bad = self._checked[key] = self.differs(model, handle)
         if bad:
             warnings.warn(f"model backend: pinocchio from compiled code differs from pin's "
                           f"({bad}); the fast path calls pin from Python", RuntimeWarning,
                           stacklevel=2)
-            self._models[model] = 0
+            self._models[model] = (key, 0)
             return None
-        self._models[model] = handle
+        self._models[model] = (key, handle)
         return handle
 
     def call(self, handle: int, which: int, q, v, tau, out) -> None:

@@ -212,3 +212,17 @@ def test_the_compliant_kernel_runs_on_to_its_bounds_and_no_further(dyn, plain_en
     assert (r >> 6, r & 63) == (want_k, want_r)
     assert a.IB[src.H_RUN_PIN] == want_k
     assert not np.isnan(rec[:, :want_k + 1]).any() and np.isnan(rec[:, want_k + 1:]).all()
+
+
+def test_a_model_changed_after_its_handle_gets_a_new_copy(dyn):
+    """A handle is a copy of the model as it was: the same object changed in place (a link
+    made heavier) gets a new copy, which is the changed model's, and the old one is not."""
+    model = _model("mrm3")
+    first = dyn.model(model)
+    assert dyn.model(model) == first                        # unchanged: the same copy
+    inertia = model.inertias[2]
+    model.inertias[2] = pin.Inertia(inertia.mass * 1.5, inertia.lever, inertia.inertia * 1.5)
+    second = dyn.model(model)
+    assert second and second != first
+    assert dyn.differs(model, second) == ""
+    assert dyn.differs(model, first).startswith("aba at q=")
