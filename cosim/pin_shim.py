@@ -28,6 +28,7 @@ source, the compiler's version and the ``pin`` wheel's version.
 from __future__ import annotations
 
 import ctypes
+import fcntl
 import hashlib
 import os
 import shutil
@@ -178,7 +179,7 @@ def build() -> Path:
     cannot be built, or where the build compiled one of the three algorithms itself instead
     of linking the ``pin`` wheel's (its numbers would not be ``pin``'s by construction)."""
     from mrm_cosim.cosim.cache import mark_used
-    from mrm_cosim.cosim.compiled import _building, cache_dir
+    from mrm_cosim.cosim.compiled import cache_dir
 
     cxx, lib, eigen = _toolchain()
     target = cache_dir() / "pin" / _digest(cxx)
@@ -186,6 +187,23 @@ def build() -> Path:
     if so.exists():
         mark_used(target)
         return so
+    target.parent.mkdir(parents=True, exist_ok=True)
+    folder = os.open(target.parent, os.O_RDONLY)
+    try:
+        # one build at a time (a sweep's workers start together): the others wait, then find it
+        fcntl.flock(folder, fcntl.LOCK_EX)
+        if so.exists():
+            mark_used(target)
+            return so
+        _compile(cxx, lib, eigen, target, so)
+    finally:
+        os.close(folder)
+    return so
+
+
+def _compile(cxx: str, lib: Path, eigen: Path, target: Path, so: Path) -> None:
+    from mrm_cosim.cosim.compiled import _building
+
     with _building(target) as work:
         (work / "mrm_pin.cpp").write_text(SOURCE)
         cmd = [cxx, "-O2", "-std=c++17", "-shared", "-fPIC", *(f"-D{d}" for d in _DEFINES),
@@ -204,7 +222,6 @@ def build() -> Path:
             if inside:
                 raise RuntimeError(f"{', '.join(inside)} compiled into the library instead of "
                                    "taken from libpinocchio_default")
-    return so
 
 
 class Dynamics:

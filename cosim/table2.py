@@ -329,7 +329,8 @@ def _side_by_side(config, folder, runner, jobs: int, progress) -> dict:
 
 def _preload(config) -> None:
     """Before the workers fork: what every run loads, loaded once here so that each worker
-    starts with it (the model backend's compiled kernel from numba's cache, matplotlib's Agg
+    starts with it (the model backend's compiled kernel from numba's cache and its pinocchio
+    library, :mod:`cosim.pin_shim`, built or from the cache; matplotlib's Agg
     canvas, the loop's modules) — 1.2 s of CPU per worker otherwise, and the parent's own
     comparison plots need matplotlib anyway."""
     import matplotlib.backends.backend_agg  # noqa: F401
@@ -338,10 +339,21 @@ def _preload(config) -> None:
     from mrm_cosim.cosim import closed_loop, plots, track  # noqa: F401
 
     if config.backend == "model":
+        import importlib.util
+        from concurrent.futures import ThreadPoolExecutor
+
+        from mrm_cosim.cosim import pin_shim
         from mrm_cosim.cosim.model_kernel import kernel_choice, load
 
-        if kernel_choice() == "numba":
-            load()
+        if kernel_choice() == "numba" and importlib.util.find_spec("numba") is not None:
+            # the kernel's pinocchio library too: on a first run, its compiler (a process of
+            # its own) runs while numba compiles the kernel here
+            with ThreadPoolExecutor(1) as pool:
+                library = pool.submit(pin_shim.load)
+                load()
+                library.result()
+        elif kernel_choice() == "numba":
+            load()                              # (its one warning: numba is missing)
 
 
 def _ordering(runs: dict) -> dict:

@@ -226,3 +226,41 @@ def test_a_model_changed_after_its_handle_gets_a_new_copy(dyn):
     assert second and second != first
     assert dyn.differs(model, second) == ""
     assert dyn.differs(model, first).startswith("aba at q=")
+
+
+def _build_in(cache: str, out) -> None:
+    import os
+
+    os.environ["MRM_CACHE_DIR"] = cache
+    try:
+        out.put(str(pin_shim.build()))
+    except Exception as e:                       # noqa: BLE001 — reported to the test
+        out.put(f"error: {e}")
+
+
+def test_processes_building_at_once_compile_once(tmp_path, monkeypatch):
+    """A sweep's workers start together: the first to build holds the cache folder's lock,
+    the others wait and take its library (a stand-in compiler counts the compilations)."""
+    import multiprocessing as mp
+    import stat
+
+    log = tmp_path / "compilations"
+    fake = tmp_path / "fake-c++"
+    fake.write_text("#!/bin/sh\n"
+                    "if [ \"$1\" = --version ]; then echo fake 1.0; exit 0; fi\n"
+                    f"echo run >> {log}\n"
+                    "sleep 1\n"
+                    "for a in \"$@\"; do case $prev in -o) : > \"$a\";; esac; prev=$a; done\n")
+    fake.chmod(fake.stat().st_mode | stat.S_IEXEC)
+    monkeypatch.setenv("CXX", str(fake))
+    ctx = mp.get_context("fork")
+    out = ctx.Queue()
+    procs = [ctx.Process(target=_build_in, args=(str(tmp_path / "cache"), out))
+             for _ in range(3)]
+    for p in procs:
+        p.start()
+    got = [out.get(timeout=60) for _ in procs]
+    for p in procs:
+        p.join(timeout=60)
+    assert len(set(got)) == 1 and got[0].endswith("libmrmpin.so"), got
+    assert log.read_text().splitlines() == ["run"]
