@@ -14,15 +14,17 @@ same doubles). The kernel calls it through a function pointer (``IB[H_PIN_FN]``)
 cache holds no address.
 
 Every model handed to the library is checked first (:meth:`Dynamics.model`): the three
-functions on states drawn at random and on rest states, against ``pin``'s, bit for bit; a
-model that differs anywhere is refused, and the fast path goes on calling ``pin`` from
-Python (one warning). The build needs a C++ compiler and Eigen's headers (``cmeel-eigen``, in
-the ``fast`` and ``test`` extras); where either is missing or the build fails, :func:`load`
-gives None after one warning and nothing else changes: the kernel is the same, only its steps
-return to Python for the dynamics as before.
+functions on states drawn at random and on rest states, against ``pin``'s, bit for bit, once
+per model's contents (a model changed in place gets a new copy); a model that differs
+anywhere is refused, and the fast path goes on calling ``pin`` from Python (one warning).
+The build needs a C++ compiler and Eigen's headers (``cmeel-eigen``, in the ``fast`` and
+``test`` extras); where either is missing or the build fails, :func:`load` gives None after
+one warning and nothing else changes: the kernel is the same, only its steps return to Python
+for the dynamics as before.
 
 The build is cached under ``$MRM_CACHE_DIR/pin/<digest>`` (``mrm cache``), the digest of the
-source, the compiler's version and the ``pin`` wheel's version.
+source, its defines, the compiler's version and the versions of ``pin``, ``libpinocchio`` and
+``cmeel-eigen``; one process builds at a time (a lock on the folder), the others wait for it.
 """
 
 from __future__ import annotations
