@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import fcntl
 import hashlib
 import os
 import re
@@ -900,24 +901,48 @@ class _SplitPart(ctypes.Structure):
                 ("n_tape", ctypes.c_int)]
 
 
-def _split_driver() -> ctypes.CDLL:
-    """The C++ loop of :class:`SplitModel`, built once with the C++ compiler Verilator's
-    builds use (``$CXX``, default ``g++``) and cached by its source."""
-    cxx = os.environ.get("CXX", "g++")
+def cxx_library(kind: str, name: str, source: str, args=(), *, cxx: str | None = None,
+                key: str = "", check=None) -> Path:
+    """A shared library ``lib<name>.so`` built from the C++ ``source`` (``-O2 -std=c++17
+    -shared -fPIC`` and ``args``, after the source) with ``cxx`` (default ``$CXX``, else
+    ``g++``), cached under ``cache_dir() / kind / <digest>``: the digest of the source, the
+    arguments, the compiler and its ``--version``, and ``key``. One process builds at a time
+    (a lock on the kind's folder: workers starting together compile once, the others take
+    its build). ``check(path)`` may refuse a fresh build (it raises; nothing is cached).
+    :class:`BuildError` names the compiler's last words where it fails."""
+    cxx = cxx or os.environ.get("CXX", "g++")
     version = subprocess.run([cxx, "--version"], capture_output=True, text=True).stdout
-    key = hashlib.sha256("\0".join([_SPLIT_DRIVER, cxx, version]).encode()).hexdigest()[:20]
-    target = cache_dir() / "split" / key
-    lib = target / "libsplit.so"
+    digest = hashlib.sha256("\0".join([source, *args, cxx, version, key]).encode())
+    target = cache_dir() / kind / digest.hexdigest()[:20]
+    lib = target / f"lib{name}.so"
     if lib.exists():
         mark_used(target)
-    else:
+        return lib
+    target.parent.mkdir(parents=True, exist_ok=True)
+    folder = os.open(target.parent, os.O_RDONLY)
+    try:
+        fcntl.flock(folder, fcntl.LOCK_EX)
+        if lib.exists():                # another process built it meanwhile
+            mark_used(target)
+            return lib
         with _building(target) as work:
-            (work / "split.cpp").write_text(_SPLIT_DRIVER)
-            proc = subprocess.run([cxx, "-O2", "-std=c++17", "-shared", "-fPIC", "-pthread",
-                                   "-o", "libsplit.so", "split.cpp"], cwd=work,
-                                  capture_output=True, text=True)
+            (work / f"{name}.cpp").write_text(source)
+            proc = subprocess.run([cxx, "-O2", "-std=c++17", "-shared", "-fPIC", f"{name}.cpp",
+                                   "-o", lib.name, *args], cwd=work, capture_output=True,
+                                  text=True)
             if proc.returncode != 0:
-                raise BuildError(f"{cxx} failed for the split driver:\n{proc.stderr[-4000:]}")
+                raise BuildError(f"{cxx} failed for {name}:\n{proc.stderr[-4000:]}")
+            if check is not None:
+                check(work / lib.name)
+    finally:
+        os.close(folder)
+    return lib
+
+
+def _split_driver() -> ctypes.CDLL:
+    """The C++ loop of :class:`SplitModel`, built once with the C++ compiler Verilator's
+    builds use (``$CXX``, default ``g++``) and cached by its source (:func:`cxx_library`)."""
+    lib = cxx_library("split", "split", _SPLIT_DRIVER, ["-pthread"])
     drv = ctypes.CDLL(str(lib))
     drv.mrm_split_new.restype = ctypes.c_void_p
     drv.mrm_split_new.argtypes = [ctypes.c_int]

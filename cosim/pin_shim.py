@@ -22,15 +22,15 @@ The build needs a C++ compiler and Eigen's headers (``cmeel-eigen``, in the ``fa
 one warning and nothing else changes: the kernel is the same, only its steps return to Python
 for the dynamics as before.
 
-The build is cached under ``$MRM_CACHE_DIR/pin/<digest>`` (``mrm cache``), the digest of the
-source, its defines, the compiler's version and the versions of ``pin``, ``libpinocchio`` and
-``cmeel-eigen``; one process builds at a time (a lock on the folder), the others wait for it.
+The build is cached under ``$MRM_CACHE_DIR/pin/<digest>`` (``mrm cache``;
+:func:`cosim.compiled.cxx_library`, which builds the compiled backend's split loop too), the
+digest of the source, its flags, the compiler's version and the versions of ``pin``,
+``libpinocchio`` and ``cmeel-eigen``; one process builds at a time, the others wait for it.
 """
 
 from __future__ import annotations
 
 import ctypes
-import fcntl
 import hashlib
 import os
 import shutil
@@ -161,69 +161,43 @@ def _toolchain() -> tuple[str, Path, Path]:
     return cxx, lib, eigen
 
 
-def _digest(cxx: str) -> str:
+def _versions() -> str:
+    """The versions of the wheels the library is built from (part of its cache key)."""
     from importlib.metadata import PackageNotFoundError, version
 
-    h = hashlib.sha256(SOURCE.encode())
+    out = []
     for name in ("pin", "libpinocchio", "cmeel-eigen"):
         try:
-            h.update(f"\0{name}={version(name)}".encode())
+            out.append(f"{name}={version(name)}")
         except PackageNotFoundError:
-            h.update(f"\0{name}=?".encode())
-    out = subprocess.run([cxx, "--version"], capture_output=True, text=True).stdout
-    h.update(out.encode())
-    h.update("\0".join(_DEFINES).encode())
-    return h.hexdigest()[:16]
+            out.append(f"{name}=?")
+    return " ".join(out)
 
 
 def build() -> Path:
-    """The shared library (built, or taken from the cache): its path. RuntimeError where it
-    cannot be built, or where the build compiled one of the three algorithms itself instead
-    of linking the ``pin`` wheel's (its numbers would not be ``pin``'s by construction)."""
-    from mrm_cosim.cosim.cache import mark_used
-    from mrm_cosim.cosim.compiled import cache_dir
+    """The shared library (built, or taken from the cache: :func:`cosim.compiled.cxx_library`,
+    kind ``pin``): its path. RuntimeError where it cannot be built, or where the build compiled
+    one of the three algorithms itself instead of linking the ``pin`` wheel's (its numbers
+    would not be ``pin``'s by construction)."""
+    from mrm_cosim.cosim.compiled import cxx_library
 
     cxx, lib, eigen = _toolchain()
-    target = cache_dir() / "pin" / _digest(cxx)
-    so = target / "libmrmpin.so"
-    if so.exists():
-        mark_used(target)
-        return so
-    target.parent.mkdir(parents=True, exist_ok=True)
-    folder = os.open(target.parent, os.O_RDONLY)
-    try:
-        # one build at a time (a sweep's workers start together): the others wait, then find it
-        fcntl.flock(folder, fcntl.LOCK_EX)
-        if so.exists():
-            mark_used(target)
-            return so
-        _compile(cxx, lib, eigen, target, so)
-    finally:
-        os.close(folder)
-    return so
+    args = [*(f"-D{d}" for d in _DEFINES), f"-I{lib.parent / 'include'}", f"-I{eigen}",
+            f"-L{lib}", "-lpinocchio_default", "-lboost_serialization", f"-Wl,-rpath,{lib}"]
+    return cxx_library("pin", "mrmpin", SOURCE, args, cxx=cxx, key=_versions(), check=_linked)
 
 
-def _compile(cxx: str, lib: Path, eigen: Path, target: Path, so: Path) -> None:
-    from mrm_cosim.cosim.compiled import _building
-
-    with _building(target) as work:
-        (work / "mrm_pin.cpp").write_text(SOURCE)
-        cmd = [cxx, "-O2", "-std=c++17", "-shared", "-fPIC", *(f"-D{d}" for d in _DEFINES),
-               f"-I{lib.parent / 'include'}", f"-I{eigen}", "mrm_pin.cpp", "-o", so.name,
-               f"-L{lib}", "-lpinocchio_default", "-lboost_serialization",
-               f"-Wl,-rpath,{lib}"]
-        proc = subprocess.run(cmd, cwd=work, capture_output=True, text=True)
-        if proc.returncode:
-            tail = proc.stderr.strip().splitlines()[-1:] or ["(no message)"]
-            raise RuntimeError(f"{Path(cxx).name} failed: {tail[0]}")
-        nm = shutil.which("nm")
-        if nm:
-            symbols = subprocess.run([nm, "-C", "-D", "--defined-only", so.name], cwd=work,
-                                     capture_output=True, text=True).stdout
-            inside = [s for s in _LINKED if s in symbols]
-            if inside:
-                raise RuntimeError(f"{', '.join(inside)} compiled into the library instead of "
-                                   "taken from libpinocchio_default")
+def _linked(so: Path) -> None:
+    """Refuses a build that defines one of the three algorithms itself (``nm``, where the
+    machine has it)."""
+    nm = shutil.which("nm")
+    if nm:
+        symbols = subprocess.run([nm, "-C", "-D", "--defined-only", str(so)],
+                                 capture_output=True, text=True).stdout
+        inside = [s for s in _LINKED if s in symbols]
+        if inside:
+            raise RuntimeError(f"{', '.join(inside)} compiled into the library instead of "
+                               "taken from libpinocchio_default")
 
 
 class Dynamics:

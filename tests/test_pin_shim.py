@@ -264,3 +264,22 @@ def test_processes_building_at_once_compile_once(tmp_path, monkeypatch):
         p.join(timeout=60)
     assert len(set(got)) == 1 and got[0].endswith("libmrmpin.so"), got
     assert log.read_text().splitlines() == ["run"]
+
+
+def test_a_build_that_compiles_an_algorithm_itself_is_refused(tmp_path):
+    """``build``'s check (``_linked``): a library defining one of the three algorithms (here a
+    stand-in ``pinocchio::aba`` instantiated in it) is refused, so its numbers could not pass
+    for ``pin``'s; one that only calls them is taken."""
+    import shutil
+    import subprocess
+
+    if not (shutil.which("nm") and shutil.which("g++")):
+        pytest.skip("needs nm and g++")
+    src = tmp_path / "own.cpp"
+    src.write_text("namespace pinocchio { template<class T> T aba(T x) { return x; }\n"
+                   "template int aba<int>(int); }\n")
+    own = tmp_path / "libown.so"
+    subprocess.run(["g++", "-shared", "-fPIC", str(src), "-o", str(own)], check=True)
+    with pytest.raises(RuntimeError, match="::aba< compiled into the library"):
+        pin_shim._linked(own)
+    pin_shim._linked(pin_shim.build())                   # the real one: only references
