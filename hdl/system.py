@@ -140,16 +140,17 @@ class System(wiring.Component):
 
     def verilog_ports(self) -> dict:
         """The ports ``verilog.convert(..., ports=)`` takes: the signature's and, with
-        ``clocks="node"``, every node domain's clock ``n<k>_clk`` (an input)."""
-        from amaranth.hdl._ir import PortDirection
-
+        ``clocks="node"``, every node domain's clock ``n<k>_clk``, each named by its path.
+        Directions are left to Amaranth (``None``: an output where the design drives it, else
+        an input), which is amaranth 0.5's public form; every ``Out`` member of this design
+        is driven, so each port keeps its signature's direction — the Verilog is the same,
+        byte for byte, as with the directions given (tests/test_clocks_system.py)."""
         ports = {}
-        for path, member, value in self.signature.flatten(self):
+        for path, _member, value in self.signature.flatten(self):
             value = value.as_value() if hasattr(value, "as_value") else value
-            direction = PortDirection.Input if member.flow == In else PortDirection.Output
-            ports["__".join(map(str, path))] = (value, direction)
+            ports["__".join(map(str, path))] = (value, None)
         for cd in self.node_domains:
-            ports[f"{cd.name}_clk"] = (cd.clk, PortDirection.Input)
+            ports[f"{cd.name}_clk"] = (cd.clk, None)
         return ports
 
     def _elaborate_node_clocks(self):

@@ -28,6 +28,26 @@ def test_node_clocks_bring_the_lines_out():
         System(2, clocks="per-node")
 
 
+def test_every_port_keeps_its_signatures_direction():
+    """``verilog_ports`` names the ports and leaves their directions to Amaranth (an output
+    where the design drives it): each comes out as its signature member's flow says, the
+    domains' clocks as inputs."""
+    import re
+
+    from amaranth.lib.wiring import In
+
+    s = System(2, clocks="node", line_faults=True)
+    text = verilog.convert(s, name="system", emit_src=False, ports=s.verilog_ports())
+    top = text[text.index("module system("):]
+    top = top[:top.index("endmodule")]
+    declared = dict((name, kind) for kind, name in
+                    re.findall(r"^\s*(input|output)\s+(?:\[[^\]]*\]\s*)?(\w+);", top, re.M))
+    want = {"__".join(map(str, path)): "input" if member.flow == In else "output"
+            for path, member, _ in s.signature.flatten(s)}
+    want.update({f"{cd.name}_clk": "input" for cd in s.node_domains})
+    assert want and {k: declared.get(k) for k in want} == want
+
+
 def test_the_wrapper_of_one_clock_has_no_event_loop():
     ports = [Port("clk", 0, 1, False, "input"), Port("x", 1, 8, False, "output")]
     assert "mrm_clk_run" not in _wrapper("top", ports, False)
