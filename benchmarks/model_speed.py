@@ -2,7 +2,7 @@
 
     python benchmarks/model_speed.py [--robot mrm3 --robot mrm6] [--cycles 2500000] [--rounds 3]
                                      [--joints rigid|compliant]
-                                     [--pin | --calls | --master | --against PY]
+                                     [--pin | --calls | --steps | --master | --against PY]
 
 For each robot, ``mrm bench``'s window (the VDC loop on the paper's quintic, after start-up)
 runs alternately with ``kernel="numba"`` and ``kernel="python"``; it prints the real-time factor
@@ -33,6 +33,11 @@ call into the backend's fast runs and event loop, the nodes (packets by type, ti
 ``run``), the kernel's entry points and the master, each with its own time (its callees among
 them taken out), calls and µs a period, largest first — where a period's time goes, for the
 next piece of work (the wrappers add ≈ 0.3 µs a call to the total).
+
+``--steps`` times the window by the period's plant steps instead (the compiled path): the
+time from the start of each fast run to the next, given to the step of the period where the
+run began, with what crossed in that step (packets and time-codes reaching nodes, replies
+reaching the master) — which steps of a period hold its time (µs a period, and their share).
 
 ``--against PYTHON`` measures this tree against another one, side by side in one run: the
 other tree's interpreter (its venv's ``python``, whose ``mrm_cosim`` is that tree) runs this
@@ -318,6 +323,77 @@ def calls(robot_name: str, cycles: int) -> None:
     print(f"  {'(the loop and the rest)':32s} {'':15s} {rest / periods / 1e3:12.1f}")
 
 
+def steps(robot_name: str, cycles: int) -> None:
+    """``--steps``: one window of the compiled path, its time by the period's plant steps."""
+    from mrm_cosim.protocol.packet import PacketType
+
+    robot = load_robot(robot_name)
+    run(robot_name, "numba", 100_000)
+    loop = _loop(robot, "numba")
+    be = loop.backend
+    per = round(loop.master.timing.period_cycles / loop.step_cycles)     # steps a period
+    clock = time.perf_counter_ns
+    spent, runs, seen, last = {}, {}, {}, [None, 0]
+    fast = be._fast
+
+    def timed_fast(plant, pk, rec, s, i, stop, cycle, lim):
+        t = clock()
+        if last[0] is not None:
+            spent[last[1]] = spent.get(last[1], 0) + t - last[0]
+        last[0], last[1] = t, i % per
+        runs[i % per] = runs.get(i % per, 0) + 1
+        return fast(plant, pk, rec, s, i, stop, cycle, lim)
+
+    def note(what):
+        k = last[1]
+        seen.setdefault(k, {})
+        seen[k][what] = seen[k].get(what, 0) + 1
+
+    be._fast = timed_fast
+    for node in be.nodes:
+        def packet(now, ptype, *a, _f=node.packet, **kw):
+            note(f"{PacketType(ptype).name} in")
+            return _f(now, ptype, *a, **kw)
+
+        def timecode(now, *a, _f=node.timecode, **kw):
+            note("time-code in")
+            return _f(now, *a, **kw)
+
+        node.packet, node.timecode = packet, timecode
+    on_packet = loop.master.on_packet
+
+    def master_packet(c, src, ptype, payload):
+        note(f"{PacketType(ptype).name} reply")
+        return on_packet(c, src, ptype, payload)
+
+    loop.master.on_packet = master_packet
+    begin = loop.master.begin
+    marks = {}
+
+    def mark(cycle):
+        marks["t0"] = clock()
+        for d in (spent, runs, seen):
+            d.clear()
+        last[0] = None
+        return begin(cycle)
+
+    loop.master.begin = mark
+    loop.run(cycles)
+    if last[0] is not None:
+        spent[last[1]] = spent.get(last[1], 0) + clock() - last[0]
+    total = sum(spent.values())
+    periods = cycles / (CLOCK_HZ / 1000)
+    print(f"{robot_name} ({_JOINTS}): {cycles:,} cycles, wall µs a period "
+          f"{total / periods / 1e3:,.0f} from the first fast run; by the step of the period "
+          "where a run began")
+    print(f"  {'step':>4s} {'runs a period':>14s} {'µs a period':>12s} {'share':>6s}  what crossed "
+          "in it (a period)")
+    for k in sorted(spent):
+        what = ", ".join(f"{n / periods:g} {w}" for w, n in sorted(seen.get(k, {}).items()))
+        print(f"  {k:4d} {runs.get(k, 0) / periods:14.1f} {spent[k] / periods / 1e3:12.1f} "
+              f"{spent[k] / total:6.1%}  {what}")
+
+
 def pin_ab(robots, cycles: int, rounds: int) -> None:
     """``--pin``: the kernel with pinocchio from compiled code and without, windows ABBA."""
     from mrm_cosim.cosim import pin_shim
@@ -363,6 +439,8 @@ def main(argv=None) -> int:
                     help="pinocchio from compiled code against pin from Python, side by side")
     ap.add_argument("--calls", action="store_true",
                     help="one window, its functions timed one by one (the compiled path)")
+    ap.add_argument("--steps", action="store_true",
+                    help="one window, its time by the period's plant steps (the compiled path)")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     global _JOINTS
@@ -382,6 +460,10 @@ def main(argv=None) -> int:
     if args.calls:
         for robot in robots:
             calls(robot, args.cycles)
+        return 0
+    if args.steps:
+        for robot in robots:
+            steps(robot, args.cycles)
         return 0
     if args.master:
         for robot in robots:
