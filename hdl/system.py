@@ -142,9 +142,10 @@ class System(wiring.Component):
         """The ports ``verilog.convert(..., ports=)`` takes: the signature's and, with
         ``clocks="node"``, every node domain's clock ``n<k>_clk``, each named by its path.
         Directions are left to Amaranth (``None``: an output where the design drives it, else
-        an input), which is amaranth 0.5's public form; every ``Out`` member of this design
-        is driven, so each port keeps its signature's direction — the Verilog is the same,
-        byte for byte, as with the directions given (tests/test_clocks_system.py)."""
+        an input), so no name from its private ``hdl._ir`` is needed; every ``Out`` member of
+        this design is driven, so each port keeps its signature's direction — the Verilog is
+        the same, byte for byte, as with the directions given (tests/test_clocks_system.py
+        checks every port's)."""
         ports = {}
         for path, _member, value in self.signature.flatten(self):
             value = value.as_value() if hasattr(value, "as_value") else value

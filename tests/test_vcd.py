@@ -248,7 +248,7 @@ def test_a_clock_per_domain_traces_every_edge_at_its_time(tmp_path, fmt):
     from mrm_cosim.cosim.compiled import CompiledModel, filter_vcd
 
     d = TwoClocks()
-    # (named ports, directions from the drivers: amaranth 0.5's public form)
+    # (named ports, directions from the drivers: no name from amaranth's private hdl._ir)
     ports = {"inc": (d.inc, None), "total": (d.total, None), "count1": (d.count1, None),
              "n1_clk": (d.n1.clk, None)}
     text = verilog.convert(d, name="two_clocks", emit_src=False, ports=ports)
