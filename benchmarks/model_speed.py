@@ -334,22 +334,23 @@ def steps(robot_name: str, cycles: int) -> None:
     per = round(loop.master.timing.period_cycles / loop.step_cycles)     # steps a period
     clock = time.perf_counter_ns
     spent, runs, seen, last = {}, {}, {}, [None, 0]
-    fast = be._fast
 
-    def timed_fast(plant, pk, rec, s, i, stop, cycle, lim):
-        t = clock()
-        if last[0] is not None:
-            spent[last[1]] = spent.get(last[1], 0) + t - last[0]
-        last[0], last[1] = t, i % per
-        runs[i % per] = runs.get(i % per, 0) + 1
-        return fast(plant, pk, rec, s, i, stop, cycle, lim)
+    def timed(fast):                # a fast run's start: the time since the last one, given
+        def timed_fast(plant, pk, rec, s, i, stop, cycle, lim):     # to where that one began
+            t = clock()
+            if last[0] is not None:
+                spent[last[1]] = spent.get(last[1], 0) + t - last[0]
+            last[0], last[1] = t, i % per
+            runs[i % per] = runs.get(i % per, 0) + 1
+            return fast(plant, pk, rec, s, i, stop, cycle, lim)
+        return timed_fast
 
     def note(what):
         k = last[1]
         seen.setdefault(k, {})
         seen[k][what] = seen[k].get(what, 0) + 1
 
-    be._fast = timed_fast
+    be._fast, be._fast_compliant = timed(be._fast), timed(be._fast_compliant)   # (the plant's)
     for node in be.nodes:
         def packet(now, ptype, *a, _f=node.packet, **kw):
             note(f"{PacketType(ptype).name} in")
