@@ -102,6 +102,18 @@ def _timed(obj, name: str, acc: dict, key: str) -> None:
     setattr(obj, name, wrapped)
 
 
+def _at_period_0(loop, then) -> None:
+    """``then()`` when the loop reaches period 0 (the master's ``begin``): a window's timers
+    start there, after start-up."""
+    begin = loop.master.begin
+
+    def mark(cycle):
+        then()
+        return begin(cycle)
+
+    loop.master.begin = mark
+
+
 def run(robot_name: str, kernel: str, cycles: int, breakdown: bool = False):
     """One window; returns ``(rtf, trace hash, parts)`` (CPU s per part if ``breakdown``)."""
     robot = load_robot(robot_name)
@@ -131,14 +143,8 @@ def run(robot_name: str, kernel: str, cycles: int, breakdown: bool = False):
 
         loop.backend.fast_path = timed_fast_path
     # the loop's own window timer is wall time: time the CPU from period 0 to the end instead
-    begin = loop.master.begin
     marks = {}
-
-    def mark(cycle):
-        marks["t0"] = time.process_time()
-        return begin(cycle)
-
-    loop.master.begin = mark
+    _at_period_0(loop, lambda: marks.update(t0=time.process_time()))
     result = loop.run(cycles)
     cpu = time.process_time() - marks["t0"]
     if breakdown:
@@ -300,16 +306,14 @@ def calls(robot_name: str, cycles: int) -> None:
             return timed(f"kernel.{name}", f) if callable(f) else f
 
     be._kern = Kernel(be._kern)
-    begin = loop.master.begin
     marks = {}
 
-    def mark(cycle):
+    def start():
         marks["t0"] = clock()
         own.clear()
         count.clear()
-        return begin(cycle)
 
-    loop.master.begin = mark
+    _at_period_0(loop, start)
     loop.run(cycles)
     total = clock() - marks["t0"]
     periods = cycles / (CLOCK_HZ / 1000)
@@ -368,17 +372,12 @@ def steps(robot_name: str, cycles: int) -> None:
         return on_packet(c, src, ptype, payload)
 
     loop.master.on_packet = master_packet
-    begin = loop.master.begin
-    marks = {}
-
-    def mark(cycle):
-        marks["t0"] = clock()
+    def start():
         for d in (spent, runs, seen):
             d.clear()
         last[0] = None
-        return begin(cycle)
 
-    loop.master.begin = mark
+    _at_period_0(loop, start)
     loop.run(cycles)
     if last[0] is not None:
         spent[last[1]] = spent.get(last[1], 0) + clock() - last[0]
